@@ -1,0 +1,1 @@
+"""Geometry: similarity transforms, rotations, Umeyama, SH rotation, cameras. Imports nothing of ours."""
