@@ -5,9 +5,7 @@ import os as _os
 # torch's idle OpenMP workers spin and starve numba on a 2-core machine unless told to sleep;
 # this must be set before torch is first imported (FIELD_NOTES.md, "Threads").
 _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-_os.environ.setdefault(
-    "NUMBA_CACHE_DIR", _os.path.join(_os.path.expanduser("~"), ".cache", "mirage2matter", "numba")
-)
+_os.environ.setdefault("NUMBA_CACHE_DIR", _os.path.join(_os.path.expanduser("~"), ".cache", "mirage2matter", "numba"))
 
 __version__ = "0.1.0"
 

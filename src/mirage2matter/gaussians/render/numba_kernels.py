@@ -1,0 +1,428 @@
+"""Numba CPU kernels of the tile rasterizer: projection, depth sort, tile binning, forward and backward.
+
+They work on float32 numpy arrays indexed by the global Gaussian id; a Gaussian is culled by giving
+it radius 0. Unlike a GPU rasterizer, which evaluates every Gaussian of a tile at every one of the
+tile's pixels, each Gaussian here only visits the pixels of its own (opacity-aware, tight) bounding
+box inside the tile: on a CPU that is most of the speed. The box contains every pixel where the
+Gaussian's alpha can reach ALPHA_MIN, so no contribution is lost relative to the dense reference.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from .conventions import ALPHA_MAX, ALPHA_MIN, EPS2D, FAR_PLANE, FOV_CLAMP, NEAR_PLANE, T_MIN, TILE_SIZE
+
+_SH_C0 = 0.28209479177387814
+_SH_C1 = 0.4886025119029199
+_SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+_SH_C3 = (
+    -0.5900435899266435,
+    2.890611442640554,
+    -0.4570457994644658,
+    0.3731763325901154,
+    -0.4570457994644658,
+    1.445305721320277,
+    -0.5900435899266435,
+)
+_LOG_ALPHA_MIN = math.log(ALPHA_MIN)
+_EXTEND_MAX = 3.33  # gsplat's cap on the box half-width in standard deviations
+
+# exp(-x) for 0 <= x < 8 as table[x*16] times a 4th-order series of the remainder (< 1/16):
+# relative error < 1e-8 at a fraction of libm's cost. Compositing only ever needs x < log(255).
+_EXP_STEPS = 16.0
+_EXP_TABLE = np.exp(-np.arange(130) / _EXP_STEPS)
+
+
+@njit(cache=True, inline="always")
+def _exp_neg(x):
+    k = int(x * _EXP_STEPS)
+    r = x - k / _EXP_STEPS
+    return _EXP_TABLE[k] * (1.0 - r * (1.0 - r * (0.5 - r * (1.0 / 6.0 - r * (1.0 / 24.0)))))
+
+
+@njit(cache=True, inline="always")
+def _sh_color(sh, i, degree, x, y, z, out):
+    """out[i] = max(sum_k sh[i,k] Y_k(x,y,z) + 0.5, 0) for a unit direction; basis order as sh.py."""
+    for ch in range(3):
+        acc = 0.5 + _SH_C0 * sh[i, 0, ch]
+        if degree >= 1:
+            acc += _SH_C1 * (-y * sh[i, 1, ch] + z * sh[i, 2, ch] - x * sh[i, 3, ch])
+        if degree >= 2:
+            xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
+            acc += (
+                _SH_C2[0] * xy * sh[i, 4, ch]
+                + _SH_C2[1] * yz * sh[i, 5, ch]
+                + _SH_C2[2] * (2.0 * zz - xx - yy) * sh[i, 6, ch]
+                + _SH_C2[3] * xz * sh[i, 7, ch]
+                + _SH_C2[4] * (xx - yy) * sh[i, 8, ch]
+            )
+            if degree >= 3:
+                acc += (
+                    _SH_C3[0] * y * (3.0 * xx - yy) * sh[i, 9, ch]
+                    + _SH_C3[1] * xy * z * sh[i, 10, ch]
+                    + _SH_C3[2] * y * (4.0 * zz - xx - yy) * sh[i, 11, ch]
+                    + _SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy) * sh[i, 12, ch]
+                    + _SH_C3[4] * x * (4.0 * zz - xx - yy) * sh[i, 13, ch]
+                    + _SH_C3[5] * z * (xx - yy) * sh[i, 14, ch]
+                    + _SH_C3[6] * x * (xx - 3.0 * yy) * sh[i, 15, ch]
+                )
+        out[i, ch] = max(acc, 0.0)
+
+
+@njit(cache=True, inline="always")
+def box_radius(cov_xx, cov_yy, opacity):
+    """Opacity-aware half-widths (pixels, integral) of the box holding every pixel with alpha >= ALPHA_MIN."""
+    extend = min(_EXTEND_MAX, math.sqrt(2.0 * (math.log(opacity) - _LOG_ALPHA_MIN)))
+    return math.ceil(extend * math.sqrt(cov_xx)), math.ceil(extend * math.sqrt(cov_yy))
+
+
+@njit(parallel=True, cache=True)
+def project_fused(means, quats, log_scales, logit_opacities, sh, sh_degree, viewmat, K, width, height,
+                  mean2d, conic, depth, opacity, color, radius):  # fmt: skip
+    """Project N Gaussians and evaluate their colour. Inputs means [N,3], quats [N,4] wxyz,
+    log_scales [N,3], logit_opacities [N], sh [N,K,3]; viewmat [4,4], K [3,3] (float64).
+    Outputs (preallocated float32): mean2d [N,2], conic [N,3] (a, b, c of the inverse 2D covariance),
+    depth [N] camera z, opacity [N], color [N,3], radius [N,2] (0 = culled)."""
+    n = means.shape[0]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    lim_x_pos = (width - cx) / fx + FOV_CLAMP * 0.5 * width / fx
+    lim_x_neg = cx / fx + FOV_CLAMP * 0.5 * width / fx
+    lim_y_pos = (height - cy) / fy + FOV_CLAMP * 0.5 * height / fy
+    lim_y_neg = cy / fy + FOV_CLAMP * 0.5 * height / fy
+    # camera centre in the world: -R^T t
+    campos_x = -(viewmat[0, 0] * viewmat[0, 3] + viewmat[1, 0] * viewmat[1, 3] + viewmat[2, 0] * viewmat[2, 3])
+    campos_y = -(viewmat[0, 1] * viewmat[0, 3] + viewmat[1, 1] * viewmat[1, 3] + viewmat[2, 1] * viewmat[2, 3])
+    campos_z = -(viewmat[0, 2] * viewmat[0, 3] + viewmat[1, 2] * viewmat[1, 3] + viewmat[2, 2] * viewmat[2, 3])
+    W = viewmat
+    for i in prange(n):
+        radius[i, 0] = 0.0
+        radius[i, 1] = 0.0
+        mx, my, mz = means[i, 0], means[i, 1], means[i, 2]
+        x = W[0, 0] * mx + W[0, 1] * my + W[0, 2] * mz + W[0, 3]
+        y = W[1, 0] * mx + W[1, 1] * my + W[1, 2] * mz + W[1, 3]
+        z = W[2, 0] * mx + W[2, 1] * my + W[2, 2] * mz + W[2, 3]
+        if z <= NEAR_PLANE or z >= FAR_PLANE:
+            continue
+        op = 1.0 / (1.0 + math.exp(-logit_opacities[i]))
+        if op < ALPHA_MIN:
+            continue
+        # rotation from the (normalised) quaternion, scaled columns M = R diag(s)
+        qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
+        qn = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        qw, qx, qy, qz = qw * qn, qx * qn, qy * qn, qz * qn
+        s0, s1, s2 = math.exp(log_scales[i, 0]), math.exp(log_scales[i, 1]), math.exp(log_scales[i, 2])
+        m00 = (1.0 - 2.0 * (qy * qy + qz * qz)) * s0
+        m01 = 2.0 * (qx * qy - qw * qz) * s1
+        m02 = 2.0 * (qx * qz + qw * qy) * s2
+        m10 = 2.0 * (qx * qy + qw * qz) * s0
+        m11 = (1.0 - 2.0 * (qx * qx + qz * qz)) * s1
+        m12 = 2.0 * (qy * qz - qw * qx) * s2
+        m20 = 2.0 * (qx * qz - qw * qy) * s0
+        m21 = 2.0 * (qy * qz + qw * qx) * s1
+        m22 = (1.0 - 2.0 * (qx * qx + qy * qy)) * s2
+        # camera-frame columns: C = W_rot @ M, so Sigma_c = C C^T
+        c00 = W[0, 0] * m00 + W[0, 1] * m10 + W[0, 2] * m20
+        c01 = W[0, 0] * m01 + W[0, 1] * m11 + W[0, 2] * m21
+        c02 = W[0, 0] * m02 + W[0, 1] * m12 + W[0, 2] * m22
+        c10 = W[1, 0] * m00 + W[1, 1] * m10 + W[1, 2] * m20
+        c11 = W[1, 0] * m01 + W[1, 1] * m11 + W[1, 2] * m21
+        c12 = W[1, 0] * m02 + W[1, 1] * m12 + W[1, 2] * m22
+        c20 = W[2, 0] * m00 + W[2, 1] * m10 + W[2, 2] * m20
+        c21 = W[2, 0] * m01 + W[2, 1] * m11 + W[2, 2] * m21
+        c22 = W[2, 0] * m02 + W[2, 1] * m12 + W[2, 2] * m22
+        rz = 1.0 / z
+        tx = z * min(lim_x_pos, max(-lim_x_neg, x * rz))
+        ty = z * min(lim_y_pos, max(-lim_y_neg, y * rz))
+        # rows of J C, J = [[fx/z, 0, -fx tx/z^2], [0, fy/z, -fy ty/z^2]]
+        j00, j02 = fx * rz, -fx * tx * rz * rz
+        j11, j12 = fy * rz, -fy * ty * rz * rz
+        a0 = j00 * c00 + j02 * c20
+        a1 = j00 * c01 + j02 * c21
+        a2 = j00 * c02 + j02 * c22
+        b0 = j11 * c10 + j12 * c20
+        b1 = j11 * c11 + j12 * c21
+        b2 = j11 * c12 + j12 * c22
+        cov_xx = a0 * a0 + a1 * a1 + a2 * a2 + EPS2D
+        cov_xy = a0 * b0 + a1 * b1 + a2 * b2
+        cov_yy = b0 * b0 + b1 * b1 + b2 * b2 + EPS2D
+        det = cov_xx * cov_yy - cov_xy * cov_xy
+        if det <= 0.0:
+            continue
+        rx, ry = box_radius(cov_xx, cov_yy, op)
+        u = fx * x * rz + cx
+        v = fy * y * rz + cy
+        if u + rx <= 0 or u - rx >= width or v + ry <= 0 or v - ry >= height:
+            continue
+        inv_det = 1.0 / det
+        mean2d[i, 0] = u
+        mean2d[i, 1] = v
+        conic[i, 0] = cov_yy * inv_det
+        conic[i, 1] = -cov_xy * inv_det
+        conic[i, 2] = cov_xx * inv_det
+        depth[i] = z
+        opacity[i] = op
+        radius[i, 0] = rx
+        radius[i, 1] = ry
+        # view-dependent colour, direction from the camera centre to the mean
+        dx, dy, dz = mx - campos_x, my - campos_y, mz - campos_z
+        dn = 1.0 / max(math.sqrt(dx * dx + dy * dy + dz * dz), 1e-12)
+        _sh_color(sh, i, sh_degree, dx * dn, dy * dn, dz * dn, color)
+
+
+@njit(cache=True)
+def argsort_by_depth(ids, depth_bits):
+    """Stable LSD radix sort of ``ids`` [M] int32 by ``depth_bits`` [N] uint32 (the bits of positive
+    float32 depths, which order like the floats). Two 16-bit passes: exact, O(M)."""
+    m = ids.shape[0]
+    src = ids.copy()
+    dst = np.empty_like(ids)
+    for shift in (0, 16):
+        counts = np.zeros(65537, np.int64)
+        for j in range(m):
+            counts[((depth_bits[src[j]] >> shift) & 0xFFFF) + 1] += 1
+        for b in range(65536):
+            counts[b + 1] += counts[b]
+        for j in range(m):
+            key = (depth_bits[src[j]] >> shift) & 0xFFFF
+            dst[counts[key]] = src[j]
+            counts[key] += 1
+        src, dst = dst, src
+    return src
+
+
+@njit(cache=True, inline="always")
+def _pixel_range(m, r, size):
+    """Pixels p (centre p + 0.5) of [0, size) with |p + 0.5 - m| <= r, as [lo, hi] inclusive."""
+    lo = max(0, math.ceil(m - r - 0.5))
+    hi = min(size - 1, math.floor(m + r - 0.5))
+    return lo, hi
+
+
+@njit(cache=True, inline="always")
+def _row_span(mx, dy, ca, cb, cc, sigma_max, x0, x1):
+    """Pixels px in [x0, x1] of a row at offset dy = my - (py + 0.5) whose sigma is <= sigma_max:
+    the roots of 0.5 a dx^2 + b dy dx + 0.5 c dy^2 - sigma_max in dx = mx - (px + 0.5)."""
+    bdy = cb * dy
+    disc = bdy * bdy - ca * (cc * dy * dy - 2.0 * sigma_max)
+    if disc < 0.0:
+        return 1, 0
+    root = math.sqrt(disc)
+    dx_lo = (-bdy - root) / ca
+    dx_hi = (-bdy + root) / ca
+    return max(x0, math.ceil(mx - dx_hi - 0.5)), min(x1, math.floor(mx - dx_lo - 0.5))
+
+
+@njit(parallel=True, cache=True)
+def tile_rects(mean2d, radius, opacity, width, height, rect, sigma_max):
+    """rect [N,4] int32: inclusive tile range x0, x1, y0, y1 each Gaussian's box touches (x0 > x1: none).
+    sigma_max [N]: the Mahalanobis term beyond which its alpha is below ALPHA_MIN (plus a margin)."""
+    for g in prange(mean2d.shape[0]):
+        rect[g, 0], rect[g, 1], rect[g, 2], rect[g, 3] = 1, 0, 1, 0
+        if radius[g, 0] <= 0:
+            continue
+        x0, x1 = _pixel_range(mean2d[g, 0], radius[g, 0], width)
+        y0, y1 = _pixel_range(mean2d[g, 1], radius[g, 1], height)
+        if x0 > x1 or y0 > y1:
+            continue
+        rect[g, 0], rect[g, 1] = x0 // TILE_SIZE, x1 // TILE_SIZE
+        rect[g, 2], rect[g, 3] = y0 // TILE_SIZE, y1 // TILE_SIZE
+        sigma_max[g] = math.log(opacity[g]) - _LOG_ALPHA_MIN + 1e-4
+
+
+@njit(cache=True)
+def bin_tiles(sorted_ids, rect, width, height):
+    """Lists of Gaussians per tile, each front to back. Returns offsets [n_tiles+1] int64 and the
+    concatenated ids [n_isect] int32 (tile t holds ids[offsets[t]:offsets[t+1]])."""
+    tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
+    tiles_y = (height + TILE_SIZE - 1) // TILE_SIZE
+    offsets = np.zeros(tiles_x * tiles_y + 1, np.int64)
+    for g in range(rect.shape[0]):
+        for ty in range(rect[g, 2], rect[g, 3] + 1):
+            for tx in range(rect[g, 0], rect[g, 1] + 1):
+                offsets[ty * tiles_x + tx + 1] += 1
+    for t in range(tiles_x * tiles_y):
+        offsets[t + 1] += offsets[t]
+    ids = np.empty(offsets[-1], np.int32)
+    cursor = offsets[:-1].copy()
+    for j in range(sorted_ids.shape[0]):  # in depth order, so each tile's list comes out sorted
+        g = sorted_ids[j]
+        for ty in range(rect[g, 2], rect[g, 3] + 1):
+            for tx in range(rect[g, 0], rect[g, 1] + 1):
+                t = ty * tiles_x + tx
+                ids[cursor[t]] = g
+                cursor[t] += 1
+    return offsets, ids
+
+
+@njit(parallel=True, cache=True)
+def rasterize_forward(offsets, ids, mean2d, conic, opacity, color, depth, radius, sigma_max, width, height,
+                      out_rgb, out_depth, out_T, out_last):  # fmt: skip
+    """Front-to-back alpha compositing per tile. Outputs [H,W(,3)]: out_rgb = sum w c (no background),
+    out_depth = sum w z, out_T final transmittance, out_last index (into ``ids``) of the last
+    Gaussian composited into the pixel (-1: none), which the backward pass starts from."""
+    tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
+    n_tiles = offsets.shape[0] - 1
+    for t in prange(n_tiles):
+        px0 = (t % tiles_x) * TILE_SIZE
+        py0 = (t // tiles_x) * TILE_SIZE
+        tw = min(TILE_SIZE, width - px0)
+        th = min(TILE_SIZE, height - py0)
+        T = np.ones(TILE_SIZE * TILE_SIZE, np.float32)
+        done = np.zeros(TILE_SIZE * TILE_SIZE, np.bool_)
+        acc = np.zeros((TILE_SIZE * TILE_SIZE, 4), np.float32)
+        last = np.full(TILE_SIZE * TILE_SIZE, -1, np.int32)
+        n_done = 0
+        n_pix = tw * th
+        for k in range(offsets[t], offsets[t + 1]):
+            g = ids[k]
+            mx, my = mean2d[g, 0], mean2d[g, 1]
+            x0, x1 = _pixel_range(mx, radius[g, 0], width)
+            y0, y1 = _pixel_range(my, radius[g, 1], height)
+            x0, x1 = max(x0, px0), min(x1, px0 + tw - 1)
+            y0, y1 = max(y0, py0), min(y1, py0 + th - 1)
+            ca, cb, cc = conic[g, 0], conic[g, 1], conic[g, 2]
+            op, smax = opacity[g], sigma_max[g]
+            cr, cg, cbl, z = color[g, 0], color[g, 1], color[g, 2], depth[g]
+            for py in range(y0, y1 + 1):
+                dy = my - (py + 0.5)
+                row = (py - py0) * TILE_SIZE - px0
+                sx0, sx1 = _row_span(mx, dy, ca, cb, cc, smax, x0, x1)
+                for px in range(sx0, sx1 + 1):
+                    p = row + px
+                    if done[p]:
+                        continue
+                    dx = mx - (px + 0.5)
+                    sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                    if sigma < 0.0:
+                        continue
+                    alpha = min(ALPHA_MAX, op * _exp_neg(sigma))
+                    if alpha < ALPHA_MIN:
+                        continue
+                    next_T = T[p] * (1.0 - alpha)
+                    if next_T <= T_MIN:
+                        done[p] = True
+                        n_done += 1
+                        continue
+                    w = alpha * T[p]
+                    acc[p, 0] += w * cr
+                    acc[p, 1] += w * cg
+                    acc[p, 2] += w * cbl
+                    acc[p, 3] += w * z
+                    T[p] = next_T
+                    last[p] = k
+            if n_done == n_pix:
+                break
+        for ly in range(th):
+            for lx in range(tw):
+                p = ly * TILE_SIZE + lx
+                out_rgb[py0 + ly, px0 + lx, 0] = acc[p, 0]
+                out_rgb[py0 + ly, px0 + lx, 1] = acc[p, 1]
+                out_rgb[py0 + ly, px0 + lx, 2] = acc[p, 2]
+                out_depth[py0 + ly, px0 + lx] = acc[p, 3]
+                out_T[py0 + ly, px0 + lx] = T[p]
+                out_last[py0 + ly, px0 + lx] = last[p]
+
+
+@njit(parallel=True, cache=True)
+def rasterize_backward(offsets, ids, mean2d, conic, opacity, color, depth, radius, sigma_max, width, height,
+                       T_final, last, v_rgb, v_depth, v_T, n_chunks,
+                       g_mean2d, g_conic, g_opacity, g_color, g_depth, g_mean2d_abs):  # fmt: skip
+    """Back-to-front gradient pass of ``rasterize_forward``. v_rgb [H,W,3], v_depth [H,W], v_T [H,W]
+    are the loss gradients w.r.t. its outputs. Gradients are accumulated per chunk of tiles into
+    g_* [n_chunks, N, ...] (no two threads write the same row), to be summed by the caller.
+    g_mean2d_abs accumulates |dL/dmean2d| per pixel, the densification statistic of 3DGS."""
+    tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
+    n_tiles = offsets.shape[0] - 1
+    for c in prange(n_chunks):
+        for t in range(c, n_tiles, n_chunks):
+            px0 = (t % tiles_x) * TILE_SIZE
+            py0 = (t // tiles_x) * TILE_SIZE
+            tw = min(TILE_SIZE, width - px0)
+            th = min(TILE_SIZE, height - py0)
+            T = np.empty(TILE_SIZE * TILE_SIZE, np.float32)
+            S = np.zeros((TILE_SIZE * TILE_SIZE, 4), np.float32)  # sum of w*c, w*z behind the Gaussian
+            lastp = np.full(TILE_SIZE * TILE_SIZE, -1, np.int32)
+            k_max = -1
+            for ly in range(th):
+                for lx in range(tw):
+                    p = ly * TILE_SIZE + lx
+                    T[p] = T_final[py0 + ly, px0 + lx]
+                    lastp[p] = last[py0 + ly, px0 + lx]
+                    k_max = max(k_max, lastp[p])
+            for k in range(k_max, offsets[t] - 1, -1):
+                g = ids[k]
+                mx, my = mean2d[g, 0], mean2d[g, 1]
+                x0, x1 = _pixel_range(mx, radius[g, 0], width)
+                y0, y1 = _pixel_range(my, radius[g, 1], height)
+                x0, x1 = max(x0, px0), min(x1, px0 + tw - 1)
+                y0, y1 = max(y0, py0), min(y1, py0 + th - 1)
+                ca, cb, cc = conic[g, 0], conic[g, 1], conic[g, 2]
+                op, smax = opacity[g], sigma_max[g]
+                cr, cg, cbl, z = color[g, 0], color[g, 1], color[g, 2], depth[g]
+                gm0 = gm1 = ga = gb = gc = go = gr = gg = gbl = gz = gabs0 = gabs1 = 0.0
+                for py in range(y0, y1 + 1):
+                    dy = my - (py + 0.5)
+                    row = (py - py0) * TILE_SIZE - px0
+                    sx0, sx1 = _row_span(mx, dy, ca, cb, cc, smax, x0, x1)
+                    for px in range(sx0, sx1 + 1):
+                        p = row + px
+                        if k > lastp[p]:
+                            continue
+                        dx = mx - (px + 0.5)
+                        sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                        if sigma < 0.0:
+                            continue
+                        vis = _exp_neg(sigma)
+                        alpha = min(ALPHA_MAX, op * vis)
+                        if alpha < ALPHA_MIN:
+                            continue
+                        T_i = T[p] / (1.0 - alpha)
+                        w = alpha * T_i
+                        vr, vg, vb = v_rgb[py, px, 0], v_rgb[py, px, 1], v_rgb[py, px, 2]
+                        vd = v_depth[py, px]
+                        gr += w * vr
+                        gg += w * vg
+                        gbl += w * vb
+                        gz += w * vd
+                        # dL/dalpha: own weight, minus the share of everything behind it and of T_final
+                        v_alpha = T_i * (vr * cr + vg * cg + vb * cbl + vd * z) - (
+                            vr * S[p, 0] + vg * S[p, 1] + vb * S[p, 2] + vd * S[p, 3] + v_T[py, px] * T_final[py, px]
+                        ) / (1.0 - alpha)
+                        S[p, 0] += w * cr
+                        S[p, 1] += w * cg
+                        S[p, 2] += w * cbl
+                        S[p, 3] += w * z
+                        T[p] = T_i
+                        if op * vis <= ALPHA_MAX:  # the clamp passes no gradient
+                            go += vis * v_alpha
+                            v_sigma = -alpha * v_alpha
+                            ga += 0.5 * dx * dx * v_sigma
+                            gb += dx * dy * v_sigma
+                            gc += 0.5 * dy * dy * v_sigma
+                            d0 = (ca * dx + cb * dy) * v_sigma
+                            d1 = (cc * dy + cb * dx) * v_sigma
+                            gm0 += d0
+                            gm1 += d1
+                            gabs0 += abs(d0)
+                            gabs1 += abs(d1)
+                g_mean2d[c, g, 0] += gm0
+                g_mean2d[c, g, 1] += gm1
+                g_mean2d_abs[c, g, 0] += gabs0
+                g_mean2d_abs[c, g, 1] += gabs1
+                g_conic[c, g, 0] += ga
+                g_conic[c, g, 1] += gb
+                g_conic[c, g, 2] += gc
+                g_opacity[c, g] += go
+                g_color[c, g, 0] += gr
+                g_color[c, g, 1] += gg
+                g_color[c, g, 2] += gbl
+                g_depth[c, g] += gz
+
+
+def num_threads() -> int:
+    return numba.get_num_threads()

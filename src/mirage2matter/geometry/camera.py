@@ -1,0 +1,428 @@
+"""Pinhole cameras in the OpenCV / gsplat convention, and importers that convert at the border.
+
+A camera is ``K`` (3x3, pixels) and ``T_world_cam`` (4x4, camera-to-world), axes x right,
+y down, z forward (DESIGN.md section 1). Pixel centres sit at +0.5: the top-left pixel covers
+[0, 1) x [0, 1) and its centre is (0.5, 0.5), as in gsplat and COLMAP. (OpenCV's own functions put
+centres at integer coordinates; shift cx, cy by -0.5 when handing K to them.)
+
+Importers: instant-ngp / nerfstudio ``transforms.json``, whose camera-to-world matrices use the
+OpenGL convention (x right, y up, z backward); they are converted once, here.
+
+This module imports nothing else from mirage2matter (geometry is the bottom of the stack).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import posixpath
+import secrets
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "Camera",
+    "CameraFormatError",
+    "GL_TO_CV",
+    "camera_from_transforms_frame",
+    "load_camera_json",
+    "load_transforms_json",
+    "look_at",
+    "save_camera_json",
+]
+
+# Right-multiplying a camera-to-world pose by this flips its camera y and z axes:
+# OpenGL (x right, y up, z backward) <-> OpenCV (x right, y down, z forward). Self-inverse.
+GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+RIGID_TOL = 1e-4  # accepted deviation of the last row from 0 0 0 1
+ORTHO_REPAIR_TOL = 1e-3  # max |R^T R - I| that is re-orthonormalised rather than rejected
+_DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+_INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y", *_DISTORTION_KEYS)
+
+
+class CameraFormatError(ValueError):
+    """Invalid camera data; the message names the source (file, frame) and the field."""
+
+
+# ---- validation ---------------------------------------------------------------------------------
+def _matrix(value: Any, shape: tuple[int, int], where: str, name: str) -> np.ndarray:
+    try:
+        a = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise CameraFormatError(f"{where}: {name} must be a {shape[0]}x{shape[1]} matrix of numbers ({e})") from e
+    if a.shape != shape:
+        raise CameraFormatError(f"{where}: {name} must have shape {shape}, got {a.shape}")
+    if not np.isfinite(a).all():
+        raise CameraFormatError(f"{where}: {name} holds NaN/Inf")
+    return a
+
+
+def _check_K(value: Any, where: str) -> np.ndarray:
+    K = _matrix(value, (3, 3), where, "K")
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise CameraFormatError(f"{where}: K: focal lengths must be positive, got fx={K[0, 0]:g} fy={K[1, 1]:g}")
+    if abs(K[1, 0]) > 1e-9 or np.abs(K[2] - [0.0, 0.0, 1.0]).max() > 1e-9:
+        raise CameraFormatError(f"{where}: K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}")
+    return K
+
+
+def _check_rigid(value: Any, where: str, name: str = "T_world_cam") -> np.ndarray:
+    """Validate a 4x4 rigid transform; near-orthonormal rotations are projected onto SO(3) by SVD."""
+    T = _matrix(value, (4, 4), where, name)
+    if np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]).max() > RIGID_TOL:
+        raise CameraFormatError(f"{where}: {name}: last row must be 0 0 0 1, got {T[3].tolist()}")
+    R = T[:3, :3]
+    det = float(np.linalg.det(R))
+    if det <= 0:
+        raise CameraFormatError(
+            f"{where}: {name}: rotation has determinant {det:.3g}, a reflection rather than a rotation "
+            "(a mixed-up axis convention?)"
+        )
+    err = float(np.abs(R.T @ R - np.eye(3)).max())
+    if err > ORTHO_REPAIR_TOL:
+        raise CameraFormatError(
+            f"{where}: {name}: rotation is not orthonormal (max |R^T R - I| = {err:.2g} > {ORTHO_REPAIR_TOL:g}; "
+            "scaled or sheared poses are not camera poses)"
+        )
+    out = np.eye(4)
+    out[:3, 3] = T[:3, 3]
+    if err > 1e-12:
+        # Exporters (nerfstudio, instant-ngp) round poses; snap to the nearest rotation so that the
+        # rigid inverse in ``viewmat`` is exact.
+        u, _, vt = np.linalg.svd(R)
+        out[:3, :3] = u @ vt
+    else:
+        out[:3, :3] = R
+    return out
+
+
+def _check_size(value: Any, where: str, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise CameraFormatError(f"{where}: {name} must be a positive integer, got {value!r}")
+    if not float(value).is_integer() or value <= 0:
+        raise CameraFormatError(f"{where}: {name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+# ---- the camera ---------------------------------------------------------------------------------
+@dataclass(eq=False)
+class Camera:
+    """A pinhole camera, OpenCV axes, pixel centres at +0.5.
+
+    K             [3, 3] float64 intrinsics [[fx, s, cx], [0, fy, cy], [0, 0, 1]] in pixels
+    T_world_cam   [4, 4] float64 camera-to-world rigid transform
+    width, height image size in pixels
+    distortion    lens coefficients (k1, k2, k3, k4, p1, p2) as found; kept, never applied
+    """
+
+    K: np.ndarray
+    T_world_cam: np.ndarray
+    width: int
+    height: int
+    name: str = ""
+    distortion: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        where = f"Camera {self.name!r}" if self.name else "Camera"
+        self.K = _check_K(self.K, where)
+        self.T_world_cam = _check_rigid(self.T_world_cam, where)
+        self.width = _check_size(self.width, where, "width")
+        self.height = _check_size(self.height, where, "height")
+        self.distortion = {str(k): float(v) for k, v in self.distortion.items()}
+
+    # ---- derived -------------------------------------------------------------------------------
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.K[1, 2])
+
+    @property
+    def viewmat(self) -> np.ndarray:
+        """World-to-camera [4, 4]: the rigid inverse [R^T, -R^T t] of ``T_world_cam``."""
+        R, t = self.T_world_cam[:3, :3], self.T_world_cam[:3, 3]
+        out = np.eye(4)
+        out[:3, :3] = R.T
+        out[:3, 3] = -R.T @ t
+        return out
+
+    @property
+    def center(self) -> np.ndarray:
+        """Camera centre in world coordinates [3]."""
+        return self.T_world_cam[:3, 3].copy()
+
+    def project(self, points_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pinhole projection (no distortion). points_world [N, 3] -> pixel uv [N, 2], depth z [N].
+
+        Points behind the camera (z <= 0) get meaningless uv; check ``depth > 0``.
+        """
+        p = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
+        vm = self.viewmat
+        pc = p @ vm[:3, :3].T + vm[:3, 3]
+        z = pc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uvw = pc @ self.K.T
+            uv = uvw[:, :2] / z[:, None]
+        return uv, z
+
+    def scaled(self, factor: float) -> Camera:
+        """The same camera for images resized by ``factor`` (0.5 = half resolution).
+
+        With pixel centres at +0.5, pixel *edges* sit at integer coordinates and scale exactly,
+        so fx, fy, cx, cy (and skew) are simply multiplied by ``factor``.
+        """
+        if not factor > 0:
+            raise ValueError(f"scale factor must be positive, got {factor}")
+        w, h = round(self.width * factor), round(self.height * factor)
+        if w < 1 or h < 1:
+            raise ValueError(f"scaling {self.width}x{self.height} by {factor} leaves no pixels")
+        K = np.diag([factor, factor, 1.0]) @ self.K
+        return Camera(K, self.T_world_cam.copy(), w, h, self.name, dict(self.distortion))
+
+    # ---- serialisation -------------------------------------------------------------------------
+    def to_json(self) -> dict[str, Any]:
+        """``{"width", "height", "K" (3x3), "T_world_cam" (4x4)}`` plus name / distortion when set."""
+        out: dict[str, Any] = {
+            "width": self.width,
+            "height": self.height,
+            "K": self.K.tolist(),
+            "T_world_cam": self.T_world_cam.tolist(),
+        }
+        if self.name:
+            out["name"] = self.name
+        if self.distortion:
+            out["distortion"] = dict(self.distortion)
+        return out
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any], source: str = "camera JSON") -> Camera:
+        """Inverse of ``to_json``; ``source`` (e.g. the file) prefixes error messages."""
+        if not isinstance(data, dict):
+            raise CameraFormatError(f"{source}: expected a JSON object, got {type(data).__name__}")
+        missing = [k for k in ("width", "height", "K", "T_world_cam") if k not in data]
+        if missing:
+            raise CameraFormatError(f"{source}: missing field(s) {', '.join(missing)}")
+        name = data.get("name", "")
+        distortion = data.get("distortion", {})
+        if not isinstance(name, str):
+            raise CameraFormatError(f"{source}: name must be a string, got {name!r}")
+        if not isinstance(distortion, dict) or not all(_is_number(v) for v in distortion.values()):
+            raise CameraFormatError(f"{source}: distortion must map names to numbers, got {distortion!r}")
+        return cls(
+            _check_K(data["K"], source),
+            _check_rigid(data["T_world_cam"], source),
+            _check_size(data["width"], source, "width"),
+            _check_size(data["height"], source, "height"),
+            name,
+            distortion,
+        )
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def look_at(
+    eye: np.ndarray,
+    target: np.ndarray,
+    up: np.ndarray,
+    K: np.ndarray,
+    width: int,
+    height: int,
+    name: str = "",
+) -> Camera:
+    """A camera at ``eye`` looking at ``target``; image "up" follows world ``up`` (OpenCV axes)."""
+    eye = np.asarray(eye, dtype=np.float64).reshape(3)
+    target = np.asarray(target, dtype=np.float64).reshape(3)
+    up = np.asarray(up, dtype=np.float64).reshape(3)
+    z = target - eye
+    if np.linalg.norm(z) < 1e-12:
+        raise ValueError("look_at: eye and target coincide")
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)  # forward x up = right (image x)
+    if np.linalg.norm(x) < 1e-9 * max(np.linalg.norm(up), 1e-300):
+        raise ValueError("look_at: up is parallel to the viewing direction (or zero)")
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)  # image y points down, i.e. against world up
+    T = np.eye(4)
+    T[:3, :3] = np.stack([x, y, z], axis=1)
+    T[:3, 3] = eye
+    return Camera(K, T, width, height, name)
+
+
+# ---- camera JSON files --------------------------------------------------------------------------
+def _read_json(path: Path) -> Any:
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        with open(path, encoding="utf-8") as f:
+            return json.load(f)
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise CameraFormatError(f"{path}: not valid JSON ({e})") from e
+
+
+def load_camera_json(path: str | os.PathLike[str]) -> Camera:
+    """Read a camera written by ``save_camera_json``."""
+    path = Path(path)
+    return Camera.from_json(_read_json(path), source=str(path))
+
+
+def save_camera_json(path: str | os.PathLike[str], cam: Camera) -> None:
+    """Write ``cam.to_json()`` atomically (temporary file in the same directory, then rename)."""
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"cannot write {path}: directory {path.parent} does not exist")
+    # A local temp+rename instead of mirage2matter.atomic: geometry imports nothing of ours.
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}")
+    try:
+        with open(tmp, "w", encoding="utf-8") as f:
+            json.dump(cam.to_json(), f, indent=2)
+            f.write("\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+# ---- instant-ngp / nerfstudio transforms.json ---------------------------------------------------
+def _read_transforms(path: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    meta = _read_json(path)
+    if not isinstance(meta, dict):
+        raise CameraFormatError(f"{path}: expected a JSON object at the top level")
+    frames = meta.get("frames")
+    if not isinstance(frames, list):
+        raise CameraFormatError(f"{path}: frames: missing or not a list")
+    for i, fr in enumerate(frames):
+        if not isinstance(fr, dict) or not isinstance(fr.get("file_path"), str):
+            raise CameraFormatError(f"{path}: frames[{i}]: file_path: missing or not a string")
+    return meta, frames
+
+
+def _image_size(root: Path, file_path: str) -> tuple[int, int] | None:
+    """(width, height) from the image header, for files (NeRF synthetic) that omit w / h."""
+    candidate = root / file_path
+    options = [candidate] if candidate.suffix else [candidate.with_suffix(s) for s in (".png", ".jpg", ".jpeg")]
+    for p in options:
+        if p.is_file():
+            try:
+                from PIL import Image
+
+                with Image.open(p) as im:
+                    return im.size
+            except Exception:
+                return None
+    return None
+
+
+def _frame_camera(path: Path, meta: dict[str, Any], index: int, frame: dict[str, Any]) -> Camera:
+    file_path = frame["file_path"]
+    where = f"{path}: frames[{index}] ({file_path!r})"
+    # Per-frame intrinsics (nerfstudio multi-camera captures) override the top-level ones.
+    params = {k: meta[k] for k in _INTRINSIC_KEYS if k in meta}
+    params.update({k: frame[k] for k in _INTRINSIC_KEYS if k in frame})
+    for k, v in params.items():
+        if not _is_number(v):
+            raise CameraFormatError(f"{where}: {k} must be a finite number, got {v!r}")
+
+    if "w" in params and "h" in params:
+        w = _check_size(params["w"], where, "w")
+        h = _check_size(params["h"], where, "h")
+    else:
+        size = _image_size(path.parent, file_path)
+        if size is None:
+            raise CameraFormatError(f"{where}: w / h missing (top level or per frame) and the image was not found")
+        w, h = size
+
+    def focal(key: str, angle_key: str, extent: int) -> float | None:
+        if key in params:
+            return float(params[key])
+        if angle_key in params:
+            angle = float(params[angle_key])
+            if not 0 < angle < math.pi:
+                raise CameraFormatError(f"{where}: {angle_key} must be in (0, pi) radians, got {angle}")
+            return 0.5 * extent / math.tan(0.5 * angle)
+        return None
+
+    fx, fy = focal("fl_x", "camera_angle_x", w), focal("fl_y", "camera_angle_y", h)
+    if fx is None and fy is None:
+        raise CameraFormatError(f"{where}: no focal length (fl_x / fl_y or camera_angle_x / camera_angle_y)")
+    fx = fy if fx is None else fx
+    fy = fx if fy is None else fy
+    cx = float(params.get("cx", 0.5 * w))
+    cy = float(params.get("cy", 0.5 * h))
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+    if "transform_matrix" not in frame:
+        raise CameraFormatError(f"{where}: transform_matrix: missing")
+    raw = frame["transform_matrix"]
+    if isinstance(raw, list) and len(raw) == 3:  # some writers drop the constant last row
+        raw = [*raw, [0.0, 0.0, 0.0, 1.0]]
+    T_gl = _check_rigid(raw, where, "transform_matrix")
+    T_cv = T_gl @ GL_TO_CV
+
+    distortion = {k: float(params[k]) for k in _DISTORTION_KEYS if k in params}
+    return Camera(_check_K(K, where), T_cv, w, h, file_path, distortion)
+
+
+def load_transforms_json(path: str | os.PathLike[str]) -> list[Camera]:
+    """All frames of an instant-ngp / nerfstudio ``transforms.json`` as OpenCV cameras, in file order.
+
+    ``Camera.name`` is the frame's ``file_path`` as written (relative to the JSON's folder).
+    Poses stay in the file's world frame; only the camera axes are converted (OpenGL -> OpenCV).
+    """
+    path = Path(path)
+    meta, frames = _read_transforms(path)
+    return [_frame_camera(path, meta, i, fr) for i, fr in enumerate(frames)]
+
+
+def _stem(name: str) -> str:
+    return posixpath.splitext(name)[0]
+
+
+def camera_from_transforms_frame(path: str | os.PathLike[str], frame_name: str) -> Camera:
+    """One frame of a ``transforms.json``, found by ``file_path``, by basename, or by basename
+    without extension (``"images/0001.jpg"``, ``"0001.jpg"`` and ``"0001"`` all work)."""
+    path = Path(path)
+    meta, frames = _read_transforms(path)
+    names = [fr["file_path"] for fr in frames]
+
+    def norm(s: str) -> str:
+        return posixpath.normpath(s.replace("\\", "/"))
+
+    q = norm(frame_name)
+    q_base = posixpath.basename(q)
+    rules = [
+        lambda n: n == frame_name,
+        lambda n: norm(n) == q,
+        lambda n: posixpath.basename(norm(n)) == q_base,
+        # "0001" finds "images/0001.jpg"; "r_0.png" finds NeRF-synthetic "./train/r_0".
+        lambda n: _stem(posixpath.basename(norm(n))) == q_base or posixpath.basename(norm(n)) == _stem(q_base),
+    ]
+    for rule in rules:
+        hits = [i for i, n in enumerate(names) if rule(n)]
+        if len(hits) == 1:
+            return _frame_camera(path, meta, hits[0], frames[hits[0]])
+        if len(hits) > 1:
+            shown = ", ".join(names[i] for i in hits[:5])
+            raise CameraFormatError(f"{path}: frame name {frame_name!r} is ambiguous; it matches {shown}")
+    some = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
+    raise CameraFormatError(
+        f"{path}: no frame named {frame_name!r} among {len(names)} frames (file_path values: {some or 'none'})"
+    )
