@@ -21,29 +21,24 @@ def _np32(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().to("cpu", torch.float32).numpy())
 
 
-def _tile_lists(mean2d, opacity, depth, radius, width: int, height: int):
-    """Per-tile front-to-back Gaussian lists (offsets, ids) and each Gaussian's sigma_max [N]."""
-    n = mean2d.shape[0]
+def _rasterize(rec: np.ndarray, width: int, height: int):
+    """Sort, bin and composite records rec [N, REC_SIZE]. Returns the raw sums (rgb [H,W,3], depth
+    [H,W]), final transmittance T [H,W], and what the backward pass needs."""
+    n = rec.shape[0]
     rect = np.empty((n, 4), np.int32)
-    sigma_max = np.zeros(n, np.float32)
-    nk.tile_rects(mean2d, radius, opacity, width, height, rect, sigma_max)
-    valid = np.flatnonzero(rect[:, 0] <= rect[:, 1]).astype(np.int32)
-    order = nk.argsort_by_depth(valid, depth.view(np.uint32))
-    offsets, ids = nk.bin_tiles(order, rect, width, height)
-    return offsets, ids, sigma_max
-
-
-def _forward(mean2d, conic, opacity, color, depth, radius, width, height):
-    offsets, ids, sigma_max = _tile_lists(mean2d, opacity, depth, radius, width, height)
+    nk.tile_rects(rec, width, height, rect)
+    visible = np.flatnonzero(rect[:, 0] <= rect[:, 1]).astype(np.int32)
+    depth_bits = np.ascontiguousarray(rec[:, nk.REC_DEPTH]).view(np.uint32)
+    offsets, ids = nk.bin_tiles(nk.argsort_by_depth(visible, depth_bits), rect, width, height)
+    recs = np.empty((ids.shape[0], nk.REC_SIZE), np.float32)
+    nk.gather_records(ids, rec, recs)
     rgb = np.empty((height, width, 3), np.float32)
     dsum = np.empty((height, width), np.float32)
     T = np.empty((height, width), np.float32)
     last = np.empty((height, width), np.int32)
     with numba.parallel_chunksize(1):  # tiles differ a lot in cost: hand them out one at a time
-        nk.rasterize_forward(
-            offsets, ids, mean2d, conic, opacity, color, depth, radius, sigma_max, width, height, rgb, dsum, T, last
-        )
-    return rgb, dsum, T, last, (offsets, ids, sigma_max)
+        nk.rasterize_forward(offsets, recs, width, height, rgb, dsum, T, last)
+    return rgb, dsum, T, (last, offsets, ids, recs)
 
 
 def _finish(rgb_acc, dsum, T, background, dtype) -> RenderOutput:
@@ -63,18 +58,18 @@ class RasterizeNumba(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, mean2d, conic, opacity, color, depth, radius, width, height, stats):
-        arrays = [_np32(t) for t in (mean2d, conic, opacity, color, depth, radius)]
-        rgb, dsum, T, last, tiles = _forward(*arrays, width, height)
-        ctx.arrays, ctx.buffers = arrays, (T, last, *tiles)
+        rec = np.empty((mean2d.shape[0], nk.REC_SIZE), np.float32)
+        nk.pack_records(*(_np32(t) for t in (mean2d, conic, opacity, color, depth, radius)), rec)
+        rgb, dsum, T, saved = _rasterize(rec, width, height)
+        ctx.saved, ctx.T, ctx.n = saved, T, rec.shape[0]
         ctx.size, ctx.stats = (width, height), stats
         return torch.from_numpy(rgb), torch.from_numpy(dsum), torch.from_numpy(T)
 
     @staticmethod
     def backward(ctx, v_rgb, v_dsum, v_T):
-        mean2d, conic, opacity, color, depth, radius = ctx.arrays
-        T, last, offsets, ids, sigma_max = ctx.buffers
+        last, offsets, ids, recs = ctx.saved
         width, height = ctx.size
-        n = mean2d.shape[0]
+        n = ctx.n
         chunks = max(1, nk.num_threads())
         g_mean2d = np.zeros((chunks, n, 2), np.float32)
         g_conic = np.zeros((chunks, n, 3), np.float32)
@@ -83,7 +78,7 @@ class RasterizeNumba(torch.autograd.Function):
         g_depth = np.zeros((chunks, n), np.float32)
         g_abs = np.zeros((chunks, n, 2), np.float32)
         nk.rasterize_backward(
-            offsets, ids, mean2d, conic, opacity, color, depth, radius, sigma_max, width, height, T, last,
+            offsets, ids, recs, width, height, ctx.T, last,
             _np32(v_rgb), _np32(v_dsum), _np32(v_T), chunks,
             g_mean2d, g_conic, g_opacity, g_color, g_depth, g_abs,
         )  # fmt: skip
@@ -118,18 +113,13 @@ def render_numba(
         rgb, dsum, T = RasterizeNumba.apply(*f32, p.radius, width, height, info)
         return _finish(rgb, dsum, T, background, dtype)
 
-    n = len(g)
-    mean2d = np.empty((n, 2), np.float32)
-    conic = np.empty((n, 3), np.float32)
-    depth = np.empty(n, np.float32)
-    opacity = np.empty(n, np.float32)
-    color = np.empty((n, 3), np.float32)
-    radius = np.empty((n, 2), np.float32)
+    rec = np.empty((len(g), nk.REC_SIZE), np.float32)
     nk.project_fused(
         _np32(g.means), _np32(g.quats), _np32(g.log_scales), _np32(g.logit_opacities), _np32(g.sh),
-        g.sh_degree, viewmat64, K64, width, height, mean2d, conic, depth, opacity, color, radius,
+        g.sh_degree, viewmat64, K64, width, height, rec,
     )  # fmt: skip
-    rgb, dsum, T, _, _ = _forward(mean2d, conic, opacity, color, depth, radius, width, height)
+    rgb, dsum, T, _ = _rasterize(rec, width, height)
     if info is not None:
-        info.update(mean2d=torch.from_numpy(mean2d), radius=torch.from_numpy(radius))
+        radius = torch.from_numpy(rec[:, nk.REC_RADIUS_X : nk.REC_RADIUS_Y + 1].copy())
+        info.update(mean2d=torch.from_numpy(rec[:, : nk.REC_MEAN_Y + 1].copy()), radius=radius)
     return _finish(torch.from_numpy(rgb), torch.from_numpy(dsum), torch.from_numpy(T), background, dtype)

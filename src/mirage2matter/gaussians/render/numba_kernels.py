@@ -38,6 +38,15 @@ _EXP_STEPS = 16.0
 _EXP_TABLE = np.exp(-np.arange(130) / _EXP_STEPS)
 
 
+# One float32 record of 16 per Gaussian (a cache line): what the rasterizer reads about it.
+REC_MEAN_X, REC_MEAN_Y = 0, 1  # pixels
+REC_CONIC_A, REC_CONIC_B, REC_CONIC_C = 2, 3, 4  # inverse 2D covariance [[a, b], [b, c]]
+REC_OPACITY, REC_SIGMA_MAX, REC_INV_A = 5, 6, 7  # sigma_max: beyond it alpha < ALPHA_MIN; 1/a
+REC_R, REC_G, REC_B, REC_DEPTH = 8, 9, 10, 11
+REC_RADIUS_X, REC_RADIUS_Y = 12, 13  # box half-widths in pixels; 0 = culled
+REC_SIZE = 16
+
+
 @njit(cache=True, inline="always")
 def _exp_neg(x):
     k = int(x * _EXP_STEPS)
@@ -46,48 +55,76 @@ def _exp_neg(x):
 
 
 @njit(cache=True, inline="always")
-def _sh_color(sh, i, degree, x, y, z, out):
-    """out[i] = max(sum_k sh[i,k] Y_k(x,y,z) + 0.5, 0) for a unit direction; basis order as sh.py."""
-    for ch in range(3):
-        acc = 0.5 + _SH_C0 * sh[i, 0, ch]
-        if degree >= 1:
-            acc += _SH_C1 * (-y * sh[i, 1, ch] + z * sh[i, 2, ch] - x * sh[i, 3, ch])
+def _sh_color(sh, i, degree, x, y, z, out, col):
+    """out[i, col:col+3] = max(sum_k sh[i,k] Y_k(x,y,z) + 0.5, 0) for a unit direction; basis order as sh.py."""
+    r = 0.5 + _SH_C0 * sh[i, 0, 0]
+    g = 0.5 + _SH_C0 * sh[i, 0, 1]
+    b = 0.5 + _SH_C0 * sh[i, 0, 2]
+    if degree >= 1:
+        y1, y2, y3 = -_SH_C1 * y, _SH_C1 * z, -_SH_C1 * x
+        r += y1 * sh[i, 1, 0] + y2 * sh[i, 2, 0] + y3 * sh[i, 3, 0]
+        g += y1 * sh[i, 1, 1] + y2 * sh[i, 2, 1] + y3 * sh[i, 3, 1]
+        b += y1 * sh[i, 1, 2] + y2 * sh[i, 2, 2] + y3 * sh[i, 3, 2]
         if degree >= 2:
             xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
-            acc += (
-                _SH_C2[0] * xy * sh[i, 4, ch]
-                + _SH_C2[1] * yz * sh[i, 5, ch]
-                + _SH_C2[2] * (2.0 * zz - xx - yy) * sh[i, 6, ch]
-                + _SH_C2[3] * xz * sh[i, 7, ch]
-                + _SH_C2[4] * (xx - yy) * sh[i, 8, ch]
+            basis = (
+                _SH_C2[0] * xy,
+                _SH_C2[1] * yz,
+                _SH_C2[2] * (2.0 * zz - xx - yy),
+                _SH_C2[3] * xz,
+                _SH_C2[4] * (xx - yy),
             )
+            for k in range(5):
+                r += basis[k] * sh[i, 4 + k, 0]
+                g += basis[k] * sh[i, 4 + k, 1]
+                b += basis[k] * sh[i, 4 + k, 2]
             if degree >= 3:
-                acc += (
-                    _SH_C3[0] * y * (3.0 * xx - yy) * sh[i, 9, ch]
-                    + _SH_C3[1] * xy * z * sh[i, 10, ch]
-                    + _SH_C3[2] * y * (4.0 * zz - xx - yy) * sh[i, 11, ch]
-                    + _SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy) * sh[i, 12, ch]
-                    + _SH_C3[4] * x * (4.0 * zz - xx - yy) * sh[i, 13, ch]
-                    + _SH_C3[5] * z * (xx - yy) * sh[i, 14, ch]
-                    + _SH_C3[6] * x * (xx - 3.0 * yy) * sh[i, 15, ch]
+                basis3 = (
+                    _SH_C3[0] * y * (3.0 * xx - yy),
+                    _SH_C3[1] * xy * z,
+                    _SH_C3[2] * y * (4.0 * zz - xx - yy),
+                    _SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy),
+                    _SH_C3[4] * x * (4.0 * zz - xx - yy),
+                    _SH_C3[5] * z * (xx - yy),
+                    _SH_C3[6] * x * (xx - 3.0 * yy),
                 )
-        out[i, ch] = max(acc, 0.0)
+                for k in range(7):
+                    r += basis3[k] * sh[i, 9 + k, 0]
+                    g += basis3[k] * sh[i, 9 + k, 1]
+                    b += basis3[k] * sh[i, 9 + k, 2]
+    out[i, col] = max(r, 0.0)
+    out[i, col + 1] = max(g, 0.0)
+    out[i, col + 2] = max(b, 0.0)
 
 
 @njit(cache=True, inline="always")
-def box_radius(cov_xx, cov_yy, opacity):
-    """Opacity-aware half-widths (pixels, integral) of the box holding every pixel with alpha >= ALPHA_MIN."""
-    extend = min(_EXTEND_MAX, math.sqrt(2.0 * (math.log(opacity) - _LOG_ALPHA_MIN)))
+def box_radius(cov_xx, cov_yy, sigma_cut):
+    """Opacity-aware half-widths (pixels, integral) of the box holding every pixel with alpha >= ALPHA_MIN,
+    given sigma_cut = log(opacity / ALPHA_MIN), the Mahalanobis term where alpha falls to ALPHA_MIN."""
+    extend = min(_EXTEND_MAX, math.sqrt(2.0 * sigma_cut))
     return math.ceil(extend * math.sqrt(cov_xx)), math.ceil(extend * math.sqrt(cov_yy))
 
 
+@njit(cache=True, inline="always")
+def _write_record(rec, i, u, v, ca, cb, cc, op, sigma_cut, z, rx, ry):
+    rec[i, REC_MEAN_X] = u
+    rec[i, REC_MEAN_Y] = v
+    rec[i, REC_CONIC_A] = ca
+    rec[i, REC_CONIC_B] = cb
+    rec[i, REC_CONIC_C] = cc
+    rec[i, REC_OPACITY] = op
+    rec[i, REC_SIGMA_MAX] = sigma_cut + 1e-4  # the margin keeps rounding on the safe side
+    rec[i, REC_INV_A] = 1.0 / ca
+    rec[i, REC_DEPTH] = z
+    rec[i, REC_RADIUS_X] = rx
+    rec[i, REC_RADIUS_Y] = ry
+
+
 @njit(parallel=True, cache=True)
-def project_fused(means, quats, log_scales, logit_opacities, sh, sh_degree, viewmat, K, width, height,
-                  mean2d, conic, depth, opacity, color, radius):  # fmt: skip
-    """Project N Gaussians and evaluate their colour. Inputs means [N,3], quats [N,4] wxyz,
-    log_scales [N,3], logit_opacities [N], sh [N,K,3]; viewmat [4,4], K [3,3] (float64).
-    Outputs (preallocated float32): mean2d [N,2], conic [N,3] (a, b, c of the inverse 2D covariance),
-    depth [N] camera z, opacity [N], color [N,3], radius [N,2] (0 = culled)."""
+def project_fused(means, quats, log_scales, logit_opacities, sh, sh_degree, viewmat, K, width, height, rec):
+    """Project N Gaussians and evaluate their colour into records rec [N, REC_SIZE] float32.
+    Inputs means [N,3], quats [N,4] wxyz, log_scales [N,3], logit_opacities [N], sh [N,K,3];
+    viewmat [4,4] world-to-camera, K [3,3] (float64)."""
     n = means.shape[0]
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     lim_x_pos = (width - cx) / fx + FOV_CLAMP * 0.5 * width / fx
@@ -100,8 +137,9 @@ def project_fused(means, quats, log_scales, logit_opacities, sh, sh_degree, view
     campos_z = -(viewmat[0, 2] * viewmat[0, 3] + viewmat[1, 2] * viewmat[1, 3] + viewmat[2, 2] * viewmat[2, 3])
     W = viewmat
     for i in prange(n):
-        radius[i, 0] = 0.0
-        radius[i, 1] = 0.0
+        # culled: radius 0; the mean is zeroed too so callers never see stale memory
+        rec[i, REC_MEAN_X] = rec[i, REC_MEAN_Y] = 0.0
+        rec[i, REC_RADIUS_X] = rec[i, REC_RADIUS_Y] = 0.0
         mx, my, mz = means[i, 0], means[i, 1], means[i, 2]
         x = W[0, 0] * mx + W[0, 1] * my + W[0, 2] * mz + W[0, 3]
         y = W[1, 0] * mx + W[1, 1] * my + W[1, 2] * mz + W[1, 3]
@@ -153,25 +191,34 @@ def project_fused(means, quats, log_scales, logit_opacities, sh, sh_degree, view
         det = cov_xx * cov_yy - cov_xy * cov_xy
         if det <= 0.0:
             continue
-        rx, ry = box_radius(cov_xx, cov_yy, op)
+        sigma_cut = math.log(op) - _LOG_ALPHA_MIN
+        rx, ry = box_radius(cov_xx, cov_yy, sigma_cut)
         u = fx * x * rz + cx
         v = fy * y * rz + cy
         if u + rx <= 0 or u - rx >= width or v + ry <= 0 or v - ry >= height:
             continue
         inv_det = 1.0 / det
-        mean2d[i, 0] = u
-        mean2d[i, 1] = v
-        conic[i, 0] = cov_yy * inv_det
-        conic[i, 1] = -cov_xy * inv_det
-        conic[i, 2] = cov_xx * inv_det
-        depth[i] = z
-        opacity[i] = op
-        radius[i, 0] = rx
-        radius[i, 1] = ry
+        _write_record(rec, i, u, v, cov_yy * inv_det, -cov_xy * inv_det, cov_xx * inv_det, op, sigma_cut, z, rx, ry)
         # view-dependent colour, direction from the camera centre to the mean
         dx, dy, dz = mx - campos_x, my - campos_y, mz - campos_z
         dn = 1.0 / max(math.sqrt(dx * dx + dy * dy + dz * dz), 1e-12)
-        _sh_color(sh, i, sh_degree, dx * dn, dy * dn, dz * dn, color)
+        _sh_color(sh, i, sh_degree, dx * dn, dy * dn, dz * dn, rec, REC_R)
+
+
+@njit(parallel=True, cache=True)
+def pack_records(mean2d, conic, opacity, color, depth, radius, rec):
+    """Records from separately projected quantities (the differentiable torch projection)."""
+    for i in prange(mean2d.shape[0]):
+        rec[i, REC_MEAN_X] = rec[i, REC_MEAN_Y] = 0.0
+        rec[i, REC_RADIUS_X] = rec[i, REC_RADIUS_Y] = 0.0
+        if radius[i, 0] <= 0 or opacity[i] < ALPHA_MIN or conic[i, 0] <= 0:
+            continue
+        sigma_cut = math.log(opacity[i]) - _LOG_ALPHA_MIN
+        _write_record(rec, i, mean2d[i, 0], mean2d[i, 1], conic[i, 0], conic[i, 1], conic[i, 2],
+                      opacity[i], sigma_cut, depth[i], radius[i, 0], radius[i, 1])  # fmt: skip
+        rec[i, REC_R] = color[i, 0]
+        rec[i, REC_G] = color[i, 1]
+        rec[i, REC_B] = color[i, 2]
 
 
 @njit(cache=True)
@@ -204,34 +251,31 @@ def _pixel_range(m, r, size):
 
 
 @njit(cache=True, inline="always")
-def _row_span(mx, dy, ca, cb, cc, sigma_max, x0, x1):
-    """Pixels px in [x0, x1] of a row at offset dy = my - (py + 0.5) whose sigma is <= sigma_max:
-    the roots of 0.5 a dx^2 + b dy dx + 0.5 c dy^2 - sigma_max in dx = mx - (px + 0.5)."""
+def _row_span(mx, dy, ca, inv_ca, cb, cc, sigma_max, x0, x1):
+    """Pixels px in [x0, x1] of a row at dy = my - (py + 0.5) whose sigma is <= sigma_max: between
+    the roots of 0.5 a dx^2 + b dy dx + 0.5 c dy^2 = sigma_max in dx = mx - (px + 0.5)."""
     bdy = cb * dy
     disc = bdy * bdy - ca * (cc * dy * dy - 2.0 * sigma_max)
     if disc < 0.0:
         return 1, 0
-    root = math.sqrt(disc)
-    dx_lo = (-bdy - root) / ca
-    dx_hi = (-bdy + root) / ca
-    return max(x0, math.ceil(mx - dx_hi - 0.5)), min(x1, math.floor(mx - dx_lo - 0.5))
+    centre = mx - 0.5 + bdy * inv_ca
+    half = math.sqrt(disc) * inv_ca
+    return max(x0, math.ceil(centre - half)), min(x1, math.floor(centre + half))
 
 
 @njit(parallel=True, cache=True)
-def tile_rects(mean2d, radius, opacity, width, height, rect, sigma_max):
-    """rect [N,4] int32: inclusive tile range x0, x1, y0, y1 each Gaussian's box touches (x0 > x1: none).
-    sigma_max [N]: the Mahalanobis term beyond which its alpha is below ALPHA_MIN (plus a margin)."""
-    for g in prange(mean2d.shape[0]):
+def tile_rects(rec, width, height, rect):
+    """rect [N,4] int32: inclusive tile range x0, x1, y0, y1 each Gaussian's box touches (x0 > x1: none)."""
+    for g in prange(rec.shape[0]):
         rect[g, 0], rect[g, 1], rect[g, 2], rect[g, 3] = 1, 0, 1, 0
-        if radius[g, 0] <= 0:
+        if rec[g, REC_RADIUS_X] <= 0:
             continue
-        x0, x1 = _pixel_range(mean2d[g, 0], radius[g, 0], width)
-        y0, y1 = _pixel_range(mean2d[g, 1], radius[g, 1], height)
+        x0, x1 = _pixel_range(rec[g, REC_MEAN_X], rec[g, REC_RADIUS_X], width)
+        y0, y1 = _pixel_range(rec[g, REC_MEAN_Y], rec[g, REC_RADIUS_Y], height)
         if x0 > x1 or y0 > y1:
             continue
         rect[g, 0], rect[g, 1] = x0 // TILE_SIZE, x1 // TILE_SIZE
         rect[g, 2], rect[g, 3] = y0 // TILE_SIZE, y1 // TILE_SIZE
-        sigma_max[g] = math.log(opacity[g]) - _LOG_ALPHA_MIN + 1e-4
 
 
 @njit(cache=True)
@@ -260,38 +304,44 @@ def bin_tiles(sorted_ids, rect, width, height):
 
 
 @njit(parallel=True, cache=True)
-def rasterize_forward(offsets, ids, mean2d, conic, opacity, color, depth, radius, sigma_max, width, height,
-                      out_rgb, out_depth, out_T, out_last):  # fmt: skip
-    """Front-to-back alpha compositing per tile. Outputs [H,W(,3)]: out_rgb = sum w c (no background),
-    out_depth = sum w z, out_T final transmittance, out_last index (into ``ids``) of the last
-    Gaussian composited into the pixel (-1: none), which the backward pass starts from."""
+def gather_records(ids, rec, out):
+    """out[k] = rec[ids[k]]: the records in tile order, so the rasterizer streams through memory."""
+    for k in prange(ids.shape[0]):
+        g = ids[k]
+        for j in range(REC_SIZE):
+            out[k, j] = rec[g, j]
+
+
+@njit(parallel=True, cache=True)
+def rasterize_forward(offsets, recs, width, height, out_rgb, out_depth, out_T, out_last):
+    """Front-to-back alpha compositing per tile over recs [n_isect, REC_SIZE] (tile t owns
+    recs[offsets[t]:offsets[t+1]], front to back). Outputs [H,W(,3)]: out_rgb = sum w c (no
+    background), out_depth = sum w z, out_T final transmittance, out_last the index k of the last
+    record composited into the pixel (-1: none), where the backward pass starts."""
     tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
-    n_tiles = offsets.shape[0] - 1
-    for t in prange(n_tiles):
+    for t in prange(offsets.shape[0] - 1):
         px0 = (t % tiles_x) * TILE_SIZE
         py0 = (t // tiles_x) * TILE_SIZE
         tw = min(TILE_SIZE, width - px0)
         th = min(TILE_SIZE, height - py0)
-        T = np.ones(TILE_SIZE * TILE_SIZE, np.float32)
+        T = np.ones(TILE_SIZE * TILE_SIZE)
+        acc = np.zeros((TILE_SIZE * TILE_SIZE, 4))
         done = np.zeros(TILE_SIZE * TILE_SIZE, np.bool_)
-        acc = np.zeros((TILE_SIZE * TILE_SIZE, 4), np.float32)
         last = np.full(TILE_SIZE * TILE_SIZE, -1, np.int32)
         n_done = 0
-        n_pix = tw * th
         for k in range(offsets[t], offsets[t + 1]):
-            g = ids[k]
-            mx, my = mean2d[g, 0], mean2d[g, 1]
-            x0, x1 = _pixel_range(mx, radius[g, 0], width)
-            y0, y1 = _pixel_range(my, radius[g, 1], height)
+            mx, my = recs[k, REC_MEAN_X], recs[k, REC_MEAN_Y]
+            x0, x1 = _pixel_range(mx, recs[k, REC_RADIUS_X], width)
+            y0, y1 = _pixel_range(my, recs[k, REC_RADIUS_Y], height)
             x0, x1 = max(x0, px0), min(x1, px0 + tw - 1)
             y0, y1 = max(y0, py0), min(y1, py0 + th - 1)
-            ca, cb, cc = conic[g, 0], conic[g, 1], conic[g, 2]
-            op, smax = opacity[g], sigma_max[g]
-            cr, cg, cbl, z = color[g, 0], color[g, 1], color[g, 2], depth[g]
+            ca, cb, cc = recs[k, REC_CONIC_A], recs[k, REC_CONIC_B], recs[k, REC_CONIC_C]
+            op, smax, inv_ca = recs[k, REC_OPACITY], recs[k, REC_SIGMA_MAX], recs[k, REC_INV_A]
+            cr, cg, cbl, z = recs[k, REC_R], recs[k, REC_G], recs[k, REC_B], recs[k, REC_DEPTH]
             for py in range(y0, y1 + 1):
                 dy = my - (py + 0.5)
                 row = (py - py0) * TILE_SIZE - px0
-                sx0, sx1 = _row_span(mx, dy, ca, cb, cc, smax, x0, x1)
+                sx0, sx1 = _row_span(mx, dy, ca, inv_ca, cb, cc, smax, x0, x1)
                 for px in range(sx0, sx1 + 1):
                     p = row + px
                     if done[p]:
@@ -304,7 +354,7 @@ def rasterize_forward(offsets, ids, mean2d, conic, opacity, color, depth, radius
                     if alpha < ALPHA_MIN:
                         continue
                     next_T = T[p] * (1.0 - alpha)
-                    if next_T <= T_MIN:
+                    if next_T <= T_MIN:  # gsplat's rule: this Gaussian is left out and the pixel stops
                         done[p] = True
                         n_done += 1
                         continue
@@ -315,7 +365,7 @@ def rasterize_forward(offsets, ids, mean2d, conic, opacity, color, depth, radius
                     acc[p, 3] += w * z
                     T[p] = next_T
                     last[p] = k
-            if n_done == n_pix:
+            if n_done == tw * th:
                 break
         for ly in range(th):
             for lx in range(tw):
@@ -329,13 +379,13 @@ def rasterize_forward(offsets, ids, mean2d, conic, opacity, color, depth, radius
 
 
 @njit(parallel=True, cache=True)
-def rasterize_backward(offsets, ids, mean2d, conic, opacity, color, depth, radius, sigma_max, width, height,
-                       T_final, last, v_rgb, v_depth, v_T, n_chunks,
+def rasterize_backward(offsets, ids, recs, width, height, T_final, last, v_rgb, v_depth, v_T, n_chunks,
                        g_mean2d, g_conic, g_opacity, g_color, g_depth, g_mean2d_abs):  # fmt: skip
-    """Back-to-front gradient pass of ``rasterize_forward``. v_rgb [H,W,3], v_depth [H,W], v_T [H,W]
-    are the loss gradients w.r.t. its outputs. Gradients are accumulated per chunk of tiles into
-    g_* [n_chunks, N, ...] (no two threads write the same row), to be summed by the caller.
-    g_mean2d_abs accumulates |dL/dmean2d| per pixel, the densification statistic of 3DGS."""
+    """Back-to-front gradient pass of ``rasterize_forward`` (same offsets/recs; ids [n_isect] maps a
+    record to its Gaussian). v_rgb [H,W,3], v_depth [H,W], v_T [H,W] are the loss gradients w.r.t.
+    its outputs. Gradients go per chunk of tiles into g_* [n_chunks, N, ...] (no two threads write
+    the same row), for the caller to sum. g_mean2d_abs sums |dL/dmean2d| per pixel (3DGS's
+    densification statistic)."""
     tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
     n_tiles = offsets.shape[0] - 1
     for c in prange(n_chunks):
@@ -344,8 +394,8 @@ def rasterize_backward(offsets, ids, mean2d, conic, opacity, color, depth, radiu
             py0 = (t // tiles_x) * TILE_SIZE
             tw = min(TILE_SIZE, width - px0)
             th = min(TILE_SIZE, height - py0)
-            T = np.empty(TILE_SIZE * TILE_SIZE, np.float32)
-            S = np.zeros((TILE_SIZE * TILE_SIZE, 4), np.float32)  # sum of w*c, w*z behind the Gaussian
+            T = np.empty(TILE_SIZE * TILE_SIZE)
+            S = np.zeros((TILE_SIZE * TILE_SIZE, 4))  # sums of w*c and w*z behind the current Gaussian
             lastp = np.full(TILE_SIZE * TILE_SIZE, -1, np.int32)
             k_max = -1
             for ly in range(th):
@@ -355,20 +405,19 @@ def rasterize_backward(offsets, ids, mean2d, conic, opacity, color, depth, radiu
                     lastp[p] = last[py0 + ly, px0 + lx]
                     k_max = max(k_max, lastp[p])
             for k in range(k_max, offsets[t] - 1, -1):
-                g = ids[k]
-                mx, my = mean2d[g, 0], mean2d[g, 1]
-                x0, x1 = _pixel_range(mx, radius[g, 0], width)
-                y0, y1 = _pixel_range(my, radius[g, 1], height)
+                mx, my = recs[k, REC_MEAN_X], recs[k, REC_MEAN_Y]
+                x0, x1 = _pixel_range(mx, recs[k, REC_RADIUS_X], width)
+                y0, y1 = _pixel_range(my, recs[k, REC_RADIUS_Y], height)
                 x0, x1 = max(x0, px0), min(x1, px0 + tw - 1)
                 y0, y1 = max(y0, py0), min(y1, py0 + th - 1)
-                ca, cb, cc = conic[g, 0], conic[g, 1], conic[g, 2]
-                op, smax = opacity[g], sigma_max[g]
-                cr, cg, cbl, z = color[g, 0], color[g, 1], color[g, 2], depth[g]
+                ca, cb, cc = recs[k, REC_CONIC_A], recs[k, REC_CONIC_B], recs[k, REC_CONIC_C]
+                op, smax, inv_ca = recs[k, REC_OPACITY], recs[k, REC_SIGMA_MAX], recs[k, REC_INV_A]
+                cr, cg, cbl, z = recs[k, REC_R], recs[k, REC_G], recs[k, REC_B], recs[k, REC_DEPTH]
                 gm0 = gm1 = ga = gb = gc = go = gr = gg = gbl = gz = gabs0 = gabs1 = 0.0
                 for py in range(y0, y1 + 1):
                     dy = my - (py + 0.5)
                     row = (py - py0) * TILE_SIZE - px0
-                    sx0, sx1 = _row_span(mx, dy, ca, cb, cc, smax, x0, x1)
+                    sx0, sx1 = _row_span(mx, dy, ca, inv_ca, cb, cc, smax, x0, x1)
                     for px in range(sx0, sx1 + 1):
                         p = row + px
                         if k > lastp[p]:
@@ -410,6 +459,7 @@ def rasterize_backward(offsets, ids, mean2d, conic, opacity, color, depth, radiu
                             gm1 += d1
                             gabs0 += abs(d0)
                             gabs1 += abs(d1)
+                g = ids[k]
                 g_mean2d[c, g, 0] += gm0
                 g_mean2d[c, g, 1] += gm1
                 g_mean2d_abs[c, g, 0] += gabs0

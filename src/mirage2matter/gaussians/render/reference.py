@@ -71,7 +71,11 @@ def render_reference(
     campos = -R_cw.T @ t_cw
     color = sh_to_rgb(g.sh[idx], g.means[idx] - campos)
 
-    bg = torch.zeros(3, dtype=dtype, device=dev) if background is None else torch.as_tensor(background).to(dtype)
+    bg = (
+        torch.zeros(3, dtype=dtype, device=dev)
+        if background is None
+        else torch.as_tensor(background).to(dtype=dtype, device=dev)
+    )
     n = idx.numel()
     rows_per_chunk = max(1, min(height, max_elements // max(1, n * width)))
     rgb_rows, alpha_rows, depth_rows = [], [], []

@@ -1,0 +1,8 @@
+"""``python -m mirage2matter`` is the ``m2m`` command."""
+
+import sys
+
+from .cli import main
+
+if __name__ == "__main__":
+    sys.exit(main())

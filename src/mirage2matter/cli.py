@@ -1,0 +1,621 @@
+"""The single ``m2m`` command: ``m2m render``, ``m2m bench render``, ``m2m demo``.
+
+Only this module wires the library to files and the terminal (DESIGN.md section 4). Expected
+failures (bad files, bad fields, missing directories) print ``m2m: error: <message>`` to stderr and
+exit with status 2, without a traceback; ``m2m --debug ...`` (or ``M2M_DEBUG=1``) shows the
+traceback instead. Heavy imports (torch, numba, plyfile, PIL) happen inside the subcommands so
+that ``m2m --help`` answers at once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from . import __version__, configure_threads
+
+EXIT_ERROR = 2  # bad input, like argparse's own usage errors
+EXIT_INTERRUPTED = 130
+
+# Stages of DESIGN.md section 3 that later issues add; `m2m demo` says so.
+NOT_IMPLEMENTED = ("capture", "SfM", "alignment", "training", "objects", "physics", "datasets")
+
+_CAMERA_FIELDS = '{"width", "height", "K" (3x3, pixels), "T_world_cam" (4x4 camera-to-world, OpenCV axes)}'
+
+
+class CliError(Exception):
+    """An expected failure; printed as ``m2m: error: <message>`` with exit status 2."""
+
+
+# ---- argument types -------------------------------------------------------------------------------
+def _int_at_least(lo: int) -> Callable[[str], int]:
+    def parse(text: str) -> int:
+        try:
+            value = int(text.replace("_", ""))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < lo:
+            raise argparse.ArgumentTypeError(f"must be >= {lo}, got {value}")
+        return value
+
+    parse.__name__ = "integer"  # argparse names the type in "invalid <type> value" messages
+    return parse
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
+
+
+def _rgb(text: str) -> tuple[float, float, float]:
+    """``R,G,B`` in 0..1, or one value for grey."""
+    parts = [p.strip() for p in text.split(",")]
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected R,G,B numbers in 0..1 (e.g. 1,1,1), got {text!r}") from None
+    if len(values) == 1:
+        values *= 3
+    if len(values) != 3 or not all(0.0 <= v <= 1.0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected three values in 0..1 as R,G,B (e.g. 0.5,0.5,0.5), got {text!r}")
+    return values[0], values[1], values[2]
+
+
+# ---- small helpers ----------------------------------------------------------------------------------
+def _info(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def _check_output(path: Path, flag: str, suffixes: Sequence[str]) -> None:
+    """Fail before any expensive work when ``path`` cannot be written."""
+    if path.suffix.lower() not in suffixes:
+        raise CliError(f"{flag} {path}: unsupported file type {path.suffix or '(none)'}; use {' or '.join(suffixes)}")
+    parent = path.parent
+    if not parent.is_dir():
+        what = "is not a directory" if parent.exists() else "does not exist"
+        raise CliError(f"{flag} {path}: output directory {parent} {what}; create it first (mkdir -p {parent})")
+    if path.is_dir():
+        raise CliError(f"{flag} {path} is a directory; give a file name")
+
+
+def _resolve_backend(name: str) -> str:
+    from .gaussians.render import resolve_backend
+
+    try:
+        return resolve_backend(name)
+    except (ValueError, RuntimeError) as e:
+        raise CliError(f"--backend {name}: {e}") from e
+
+
+def _peek_json(path: Path) -> Any:
+    """The parsed JSON, or None when unreadable (used only to improve error messages)."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return None
+
+
+def _load_camera(path: Path, frame: str | None):
+    from .geometry.camera import CameraFormatError, camera_from_transforms_frame, load_camera_json
+
+    if not path.is_file():
+        what = "is a directory" if path.is_dir() else "not found"
+        raise CliError(
+            f"camera file {path} {what}; pass a camera JSON {_CAMERA_FIELDS} or a transforms.json with --frame NAME"
+        )
+    if frame is not None:
+        data = _peek_json(path)
+        if isinstance(data, dict) and "frames" not in data:
+            raise CliError(
+                f"{path} has no 'frames' list, so --frame {frame!r} cannot apply; drop --frame for a single-camera JSON"
+            )
+        return camera_from_transforms_frame(path, frame)
+    try:
+        return load_camera_json(path)
+    except CameraFormatError as e:
+        data = _peek_json(path)
+        if isinstance(data, dict) and isinstance(data.get("frames"), list):
+            names = [fr.get("file_path") for fr in data["frames"][:3] if isinstance(fr, dict)]
+            raise CliError(
+                f"{path} is a transforms.json ({len(data['frames'])} frame(s)), not a single camera; "
+                f"choose one with --frame NAME (e.g. {', '.join(map(str, names)) or 'a file_path'})"
+            ) from e
+        raise CliError(f"{e} (a camera JSON holds {_CAMERA_FIELDS})") from e
+
+
+def _to_uint8(rgb) -> Any:
+    """[H,W,3] float tensor -> uint8 array; values clamped to [0,1], rounded to nearest."""
+    import numpy as np
+
+    a = rgb.detach().to("cpu").float().numpy()
+    a = np.nan_to_num(a, nan=0.0, posinf=1.0, neginf=0.0)
+    return (np.clip(a, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def _write_png(path: Path, image) -> None:
+    """Write a uint8 [H,W,3] (RGB) or uint16 [H,W] (16-bit grey) array as PNG, atomically."""
+    from PIL import Image
+
+    from .atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        Image.fromarray(image).save(tmp, format="PNG")
+
+
+def _write_depth(path: Path, depth) -> str:
+    """``.npy``: float32 metres; ``.png``: uint16 millimetres (0 = nothing seen, clipped at 65.535 m)."""
+    import numpy as np
+
+    from .atomic import atomic_write
+
+    d = np.nan_to_num(depth.detach().to("cpu").float().numpy(), nan=0.0, posinf=0.0, neginf=0.0)
+    if path.suffix.lower() == ".npy":
+        with atomic_write(path, "wb") as f:
+            np.save(f, d.astype(np.float32))
+        return "float32 metres"
+    _write_png(path, np.clip(np.round(d * 1000.0), 0, 65535).astype(np.uint16))
+    return "16-bit millimetres"
+
+
+def _show(path: Path) -> str:
+    """A path as the user would type it: relative to the current directory when below it."""
+    try:
+        return str(path.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path)
+
+
+# ---- m2m render ---------------------------------------------------------------------------------------
+def _cmd_render(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    _check_output(out, "--out", (".png",))
+    depth_out = Path(args.depth_out) if args.depth_out else None
+    if depth_out is not None:
+        _check_output(depth_out, "--depth-out", (".png", ".npy"))
+        if depth_out.resolve() == out.resolve():
+            raise CliError("--depth-out must differ from --out")
+    ply = Path(args.ply)
+    if not ply.is_file():
+        what = "is a directory" if ply.is_dir() else "not found"
+        raise CliError(
+            f"PLY file {ply} {what}; pass a 3D Gaussian Splatting .ply (e.g. <workspace>/scene/gaussians.ply)"
+        )
+    cam = _load_camera(Path(args.camera), args.frame)
+    if args.scale != 1.0:
+        cam = cam.scaled(args.scale)
+    backend = _resolve_backend(args.backend)
+
+    import torch
+
+    from .gaussians.ply import read_ply
+    from .gaussians.render import render
+
+    configure_threads()
+    g = read_ply(ply)
+    with torch.no_grad():
+        t0 = time.perf_counter()
+        result = render(
+            g,
+            torch.from_numpy(cam.viewmat),
+            torch.from_numpy(cam.K),
+            cam.width,
+            cam.height,
+            background=torch.tensor(args.background, dtype=torch.float32),
+            backend=backend,
+        )
+        if backend == "cuda":
+            torch.cuda.synchronize()
+        ms = (time.perf_counter() - t0) * 1e3
+    _write_png(out, _to_uint8(result.rgb))
+    extra = ""
+    if depth_out is not None:
+        extra = f"; depth ({_write_depth(depth_out, result.depth)}) to {depth_out}"
+    print(f"wrote {out} ({cam.width}x{cam.height}, {len(g):,} Gaussians, {backend} backend, {ms:.1f} ms){extra}")
+    return 0
+
+
+# ---- m2m bench render --------------------------------------------------------------------------------
+def _cmd_bench_render(args: argparse.Namespace) -> int:
+    from .bench import RenderBenchConfig, bench_render
+
+    cfg = RenderBenchConfig(
+        gaussians=args.gaussians,
+        size=args.size,
+        backend=_resolve_backend(args.backend),
+        sh_degree=args.sh_degree,
+        views=args.views,
+        repeats=args.repeats,
+        warmup=args.warmup,
+        seed=args.seed,
+    )
+    cfg.validate()
+    threads = configure_threads()
+    _info(f"bench render: {cfg.backend} backend, {threads} CPU thread(s)")
+    result = bench_render(cfg, log=_info)
+    print(json.dumps(result), flush=True)  # machine-readable: always the last line on stdout
+    return 0
+
+
+# ---- m2m demo ---------------------------------------------------------------------------------------------
+@dataclass
+class DemoConfig:
+    """Settings of ``m2m demo``; the bench_* fields size its render benchmark."""
+
+    workspace: Path = Path("workspaces/demo")
+    gaussians: int = 300_000
+    size: int = 448
+    views: int = 4
+    sh_degree: int = 3
+    seed: int = 0
+    backend: str = "auto"
+    bench_gaussians: int = 100_000
+    bench_size: int = 224
+    bench_views: int = 4
+    bench_repeats: int = 3
+    bench_warmup: int = 2
+
+
+class _Steps:
+    """One stderr line per finished step: ``[i/n] what  [step seconds, total seconds]``."""
+
+    def __init__(self, total: int, log: Callable[[str], None]) -> None:
+        self.total, self.log = total, log
+        self.done = 0
+        self.t_start = self.t_step = time.perf_counter()
+
+    def finish(self, what: str) -> float:
+        now = time.perf_counter()
+        dt, self.t_step = now - self.t_step, now
+        self.done += 1
+        self.log(f"[{self.done}/{self.total}] {what}  [{dt:.2f} s, total {now - self.t_start:.1f} s]")
+        return round(dt, 3)
+
+    def begin(self) -> None:
+        """Restart the step clock (after work that should not count towards the next step)."""
+        self.t_step = time.perf_counter()
+
+
+def _contact_sheet(images: list, cols: int = 2):
+    """Tile equally sized uint8 [H,W,3] images into a grid, row-major; empty cells are black."""
+    import numpy as np
+
+    rows = -(-len(images) // cols)
+    blank = np.zeros_like(images[0])
+    cells = images + [blank] * (rows * cols - len(images))
+    return np.concatenate([np.concatenate(cells[r * cols : (r + 1) * cols], axis=1) for r in range(rows)], axis=0)
+
+
+def run_demo(cfg: DemoConfig, log: Callable[[str], None] = _info) -> dict[str, Any]:
+    """Build, save, reload, render and benchmark the synthetic tabletop scene in ``cfg.workspace``.
+
+    Returns the summary also written to ``<workspace>/demo_summary.json``; output paths in it are
+    relative to the workspace. Every file is written atomically, so a rerun simply replaces them.
+    """
+    ws = Path(cfg.workspace)
+    if ws.exists() and not ws.is_dir():
+        raise CliError(f"workspace {ws} exists and is not a directory; choose another with -w")
+    backend = _resolve_backend(cfg.backend)
+    from .bench import RenderBenchConfig
+
+    bench_cfg = RenderBenchConfig(
+        gaussians=cfg.bench_gaussians,
+        size=cfg.bench_size,
+        backend=backend,
+        sh_degree=cfg.sh_degree,
+        views=cfg.bench_views,
+        repeats=cfg.bench_repeats,
+        warmup=cfg.bench_warmup,
+        seed=cfg.seed,
+    )
+    bench_cfg.validate()  # before minutes of work, not after
+
+    import numpy as np
+    import torch
+
+    from .atomic import atomic_write
+    from .bench import bench_render
+    from .gaussians.ply import read_ply, write_ply
+    from .gaussians.render import render
+    from .gaussians.synthetic import orbit_cameras, tabletop_scene
+    from .geometry.camera import Camera, load_camera_json, save_camera_json
+
+    try:
+        (ws / "scene").mkdir(parents=True, exist_ok=True)
+        (ws / "renders").mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise CliError(f"cannot create workspace folders in {ws} ({_describe(e)}); choose another with -w") from e
+    threads = configure_threads()
+    steps = _Steps(7, log)
+    timings: dict[str, float] = {}
+
+    g = tabletop_scene(cfg.gaussians, cfg.sh_degree, cfg.seed)
+    timings["build_scene"] = steps.finish(
+        f"built the synthetic tabletop scene: {len(g):,} Gaussians, SH degree {g.sh_degree}"
+    )
+
+    ply_rel = "scene/gaussians.ply"
+    write_ply(ws / ply_rel, g)
+    ply_bytes = (ws / ply_rel).stat().st_size
+    timings["write_ply"] = steps.finish(f"wrote {_show(ws / ply_rel)} ({ply_bytes / 1e6:.1f} MB)")
+
+    g_read = read_ply(ws / ply_rel)
+    exact = all(torch.equal(a, b) for a, b in zip(g.tensors().values(), g_read.tensors().values(), strict=True))
+    if not exact:
+        raise RuntimeError(
+            f"PLY round trip changed the Gaussians in {ws / ply_rel}; this is a bug in write_ply/read_ply"
+        )
+    timings["read_ply"] = steps.finish(f"read it back: {len(g_read):,} Gaussians, identical to what was written")
+
+    cams = orbit_cameras(cfg.views, cfg.size, cfg.size, seed=cfg.seed)
+    view_rels = [f"renders/view_{i}.png" for i in range(len(cams))]
+    images, render_ms = [], []
+    with torch.no_grad():
+        for (viewmat, K), rel in zip(cams, view_rels, strict=True):
+            t0 = time.perf_counter()
+            out = render(g_read, torch.from_numpy(viewmat), torch.from_numpy(K), cfg.size, cfg.size, backend=backend)
+            if backend == "cuda":
+                torch.cuda.synchronize()
+            render_ms.append(round((time.perf_counter() - t0) * 1e3, 2))
+            images.append(_to_uint8(out.rgb))
+            _write_png(ws / rel, images[-1])
+    # The first view's camera as a file, so `m2m render` can reproduce view_0.png from the PLY.
+    cam_rel = "renders/view_0.camera.json"
+    viewmat0, K0 = cams[0]
+    save_camera_json(ws / cam_rel, Camera(K0, np.linalg.inv(viewmat0), cfg.size, cfg.size, name="view_0"))
+    cam_back = load_camera_json(ws / cam_rel)
+    camera_ok = bool(np.allclose(cam_back.viewmat, viewmat0, atol=1e-9) and np.allclose(cam_back.K, K0))
+    if not camera_ok:
+        raise RuntimeError(f"camera JSON round trip changed the camera in {ws / cam_rel}; this is a bug")
+    timings["render_views"] = steps.finish(
+        f"rendered {len(cams)} views at {cfg.size}x{cfg.size} on {backend} into {_show(ws / 'renders')}/ "
+        f"(ms per view: {', '.join(f'{m:.0f}' for m in render_ms)}; the first includes JIT load)"
+    )
+
+    sheet_rel = "renders/contact_sheet.png"
+    _write_png(ws / sheet_rel, _contact_sheet(images))
+    timings["contact_sheet"] = steps.finish(f"wrote the 2x2 contact sheet {_show(ws / sheet_rel)}")
+
+    bench = bench_render(bench_cfg, log=lambda m: log(f"      {m}"))
+    timings["benchmark"] = steps.finish(
+        f"benchmark: {bench['gaussians']:,} Gaussians at {bench['width']}x{bench['height']}, "
+        f"median {bench['ms_median']:.2f} ms"
+    )
+
+    summary_rel = "demo_summary.json"
+    timings["total"] = round(time.perf_counter() - steps.t_start, 3)
+    summary: dict[str, Any] = {
+        "mirage2matter_version": __version__,
+        "workspace": str(ws.resolve()),
+        "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()},
+        "threads": threads,
+        "scene": {
+            "ply": ply_rel,
+            "gaussians": len(g),
+            "sh_degree": g.sh_degree,
+            "ply_bytes": ply_bytes,
+            "ply_roundtrip_exact": exact,
+        },
+        "renders": {
+            "backend": backend,
+            "width": cfg.size,
+            "height": cfg.size,
+            "views": view_rels,
+            "contact_sheet": sheet_rel,
+            "camera": cam_rel,
+            "camera_roundtrip_ok": camera_ok,
+            "ms": render_ms,
+            "ms_median": round(statistics.median(render_ms), 2),
+        },
+        "benchmark": bench,
+        "timings_s": timings,
+        "not_implemented": list(NOT_IMPLEMENTED),
+    }
+    with atomic_write(ws / summary_rel, "w", encoding="utf-8") as f:
+        json.dump(summary, f, indent=2)
+        f.write("\n")
+    steps.finish(f"wrote {_show(ws / summary_rel)}")
+    return summary
+
+
+def _print_demo_summary(ws: Path, s: dict[str, Any], elapsed: float) -> None:
+    sc, r, b = s["scene"], s["renders"], s["benchmark"]
+    p = lambda rel: _show(ws / rel)
+    n_views = len(r["views"])
+    ply, cam = p(sc["ply"]), p(r["camera"])
+    lines = [
+        f"m2m demo finished in {elapsed:.1f} s; workspace {_show(ws)}/",
+        f"  scene      {ply}: {sc['gaussians']:,} Gaussians, SH degree {sc['sh_degree']}, "
+        f"{sc['ply_bytes'] / 1e6:.1f} MB (Inria 3DGS layout; opens in SuperSplat), read back identical",
+        f"  renders    {p('renders')}/view_0..{n_views - 1}.png: {r['width']}x{r['height']}, {r['backend']} backend, "
+        f"median {r['ms_median']:.0f} ms per view",
+        f"  sheet      {p(r['contact_sheet'])}: the {n_views} views as a grid",
+        f"  camera     {cam}: re-render view 0 with",
+        f"             m2m render {ply} --camera {cam} --out view_0.png",
+        f"  benchmark  {b['gaussians']:,} Gaussians at {b['width']}x{b['height']}, "
+        f"SH {b['sh_degree']}, {b['backend']}: "
+        f"median {b['ms_median']:.2f} ms (min {b['ms_min']:.2f}, max {b['ms_max']:.2f}) over {b['runs']} renders",
+        f"  summary    {p('demo_summary.json')}: all numbers above as JSON",
+        f"  not implemented yet: {', '.join(s['not_implemented'])} (coming in later issues)",
+    ]
+    print("\n".join(lines), flush=True)
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    cfg = DemoConfig(
+        workspace=Path(args.workspace),
+        gaussians=args.gaussians,
+        size=args.size,
+        seed=args.seed,
+        backend=args.backend,
+        bench_gaussians=args.bench_gaussians,
+        bench_size=args.bench_size,
+        bench_views=args.bench_views,
+        bench_repeats=args.bench_repeats,
+        bench_warmup=args.bench_warmup,
+    )
+    t0 = time.perf_counter()
+    summary = run_demo(cfg)
+    _print_demo_summary(cfg.workspace, summary, time.perf_counter() - t0)
+    return 0
+
+
+# ---- the parser ---------------------------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    fmt = argparse.RawDescriptionHelpFormatter
+    parser = argparse.ArgumentParser(
+        prog="m2m",
+        description=(
+            "Mirage2Matter: multi-view video of a robot workspace -> photorealistic, physically grounded simulator."
+        ),
+        epilog=(
+            "examples:\n"
+            "  m2m demo                                   what the pipeline does today, in ./workspaces/demo\n"
+            "  m2m render scene.ply --camera cam.json --out view.png\n"
+            "  m2m render scene.ply --camera transforms.json --frame 0001 --out view.png --scale 0.5\n"
+            "  m2m bench render --gaussians 100000 --size 224"
+        ),
+        formatter_class=fmt,
+    )
+    parser.add_argument("--version", action="version", version=f"m2m (mirage2matter) {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show Python tracebacks for errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    # m2m render
+    p = sub.add_parser(
+        "render",
+        help="render a 3DGS PLY from a camera to a PNG",
+        description=(
+            "Render a 3D Gaussian Splatting PLY (Inria layout) from one camera to an 8-bit RGB PNG.\n"
+            f"The camera is a JSON file {_CAMERA_FIELDS};\n"
+            "or, with --frame NAME, one frame of an instant-ngp / nerfstudio transforms.json."
+        ),
+        formatter_class=fmt,
+    )
+    p.add_argument("ply", help="3DGS .ply file")
+    p.add_argument("--camera", required=True, metavar="JSON", help="camera JSON, or transforms.json with --frame")
+    p.add_argument("--frame", metavar="NAME", help="frame of the transforms.json: file_path, basename or stem")
+    p.add_argument("--out", required=True, metavar="PNG", help="output image (.png); its directory must exist")
+    p.add_argument(
+        "--backend",
+        default="auto",
+        choices=("auto", "cpu", "cuda", "reference"),
+        help="renderer (default auto: cuda if available, else cpu)",
+    )
+    p.add_argument(
+        "--background",
+        type=_rgb,
+        default=(0.0, 0.0, 0.0),
+        metavar="R,G,B",
+        help="background colour in 0..1 (default 0,0,0)",
+    )
+    p.add_argument(
+        "--scale", type=_positive_float, default=1.0, metavar="F", help="resize the camera by F (0.5 = half resolution)"
+    )
+    p.add_argument(
+        "--depth-out",
+        metavar="PNG|NPY",
+        help="also write expected depth: .npy float32 metres or .png uint16 millimetres (0 = nothing)",
+    )
+    p.set_defaults(func=_cmd_render)
+
+    # m2m bench render
+    bench = sub.add_parser("bench", help="benchmarks (prints one JSON line last on stdout)")
+    bench_sub = bench.add_subparsers(dest="what", metavar="WHAT", required=True)
+    b = bench_sub.add_parser(
+        "render",
+        help="time the renderer on a synthetic tabletop scene",
+        description=(
+            "Time render() on tabletop_scene(N) from V orbit cameras: W untimed warm-up renders, then R rounds "
+            "of all V views. Progress goes to stderr; the last stdout line is JSON with backend, gaussians, width, "
+            "height, sh_degree, ms_median, ms_min, ms_max, runs."
+        ),
+    )
+    b.add_argument("--gaussians", type=_int_at_least(1), required=True, metavar="N", help="scene size")
+    b.add_argument("--size", type=_int_at_least(1), required=True, metavar="S", help="square image side in pixels")
+    b.add_argument(
+        "--backend", default="auto", choices=("auto", "cpu", "cuda"), help="default auto: cuda if available, else cpu"
+    )
+    b.add_argument("--sh-degree", type=int, default=3, choices=range(4), metavar="D", help="SH degree 0..3 (default 3)")
+    b.add_argument("--views", type=_int_at_least(1), default=8, metavar="V", help="cameras per round (default 8)")
+    b.add_argument("--repeats", type=_int_at_least(1), default=5, metavar="R", help="timed rounds (default 5)")
+    b.add_argument(
+        "--warmup", type=_int_at_least(0), default=2, metavar="W", help="untimed warm-up renders (default 2)"
+    )
+    b.add_argument("--seed", type=_int_at_least(0), default=0, help="scene and camera seed (default 0)")
+    b.set_defaults(func=_cmd_bench_render)
+
+    # m2m demo
+    d = sub.add_parser(
+        "demo",
+        help="show what the pipeline does today on a synthetic tabletop scene",
+        description=(
+            "Build the synthetic tabletop scene, save it as scene/gaussians.ply, read it back, render 4 views and "
+            "a contact sheet into renders/, run a short render benchmark and write demo_summary.json. "
+            "Rerunning overwrites the outputs (atomically)."
+        ),
+    )
+    d.add_argument(
+        "-w",
+        "--workspace",
+        default="workspaces/demo",
+        metavar="DIR",
+        help="workspace folder (default ./workspaces/demo)",
+    )
+    d.add_argument(
+        "--gaussians", type=_int_at_least(1), default=300_000, metavar="N", help="scene size (default 300000)"
+    )
+    d.add_argument(
+        "--size", type=_int_at_least(1), default=448, metavar="S", help="render size in pixels (default 448)"
+    )
+    d.add_argument("--backend", default="auto", choices=("auto", "cpu", "cuda"), help="renderer (default auto)")
+    d.add_argument("--seed", type=_int_at_least(0), default=0, help=argparse.SUPPRESS)
+    # Advanced: size of the built-in benchmark (tests shrink it).
+    d.add_argument("--bench-gaussians", type=_int_at_least(1), default=100_000, help=argparse.SUPPRESS)
+    d.add_argument("--bench-size", type=_int_at_least(1), default=224, help=argparse.SUPPRESS)
+    d.add_argument("--bench-views", type=_int_at_least(1), default=4, help=argparse.SUPPRESS)
+    d.add_argument("--bench-repeats", type=_int_at_least(1), default=3, help=argparse.SUPPRESS)
+    d.add_argument("--bench-warmup", type=_int_at_least(0), default=2, help=argparse.SUPPRESS)
+    d.set_defaults(func=_cmd_demo)
+    return parser
+
+
+def _describe(e: BaseException) -> str:
+    if isinstance(e, OSError) and e.filename and e.strerror:
+        return f"{e.filename}: {e.strerror}"
+    return str(e) or type(e).__name__
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``m2m`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as e:  # --help, --version and usage errors; return rather than exit for in-process callers
+        return e.code if isinstance(e.code, int) else (0 if e.code is None else EXIT_ERROR)
+    debug = args.debug or os.environ.get("M2M_DEBUG", "") not in ("", "0")
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        print("m2m: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except (CliError, ValueError, OSError) as e:
+        # ValueError covers PlyFormatError, CameraFormatError and the validators' messages, which
+        # name the file / field; OSError covers missing or unwritable files.
+        if debug:
+            raise
+        print(f"m2m: error: {_describe(e)}", file=sys.stderr)
+        return EXIT_ERROR

@@ -1,0 +1,404 @@
+"""The numba CPU rasterizer (backend="cpu") against the dense pure-torch reference and independent math.
+
+The reference renders in float64 and the CPU backend in float32, so every comparison here crosses
+two independent implementations (and precisions). Scenes are small: the reference is O(N*H*W).
+"""
+
+import functools
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from mirage2matter.gaussians.model import Gaussians
+from mirage2matter.gaussians.render import render
+from mirage2matter.gaussians.synthetic import orbit_cameras, random_gaussians, tabletop_scene
+
+BG = torch.tensor([0.2, 0.5, 0.8])
+PARAMS = ("means", "quats", "log_scales", "logit_opacities", "sh")
+GRAD_RTOL = 1e-3
+
+
+# ---- helpers -----------------------------------------------------------------------------------
+def psnr(a: torch.Tensor, b: torch.Tensor, peak: float = 1.0) -> float:
+    mse = torch.mean((a.detach().double().cpu() - b.detach().double().cpu()) ** 2).item()
+    return 10.0 * math.log10(peak**2 / max(mse, 1e-30))
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """World-to-camera [4,4] (OpenCV axes: x right, y down, z forward)."""
+    eye, target = np.asarray(eye, float), np.asarray(target, float)
+    z = (target - eye) / np.linalg.norm(target - eye)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    R = np.stack([x, np.cross(z, x), z])  # rows: camera axes in world coordinates
+    V = np.eye(4)
+    V[:3, :3], V[:3, 3] = R, -R @ eye
+    return V
+
+
+def intrinsics(width: int, height: int, fov_deg: float = 60.0) -> np.ndarray:
+    f = 0.5 * width / math.tan(math.radians(fov_deg) / 2)
+    return np.array([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]])
+
+
+def with_(g: Gaussians, **kw) -> Gaussians:
+    return Gaussians(**{**g.tensors(), **kw})
+
+
+def empty_gaussians(dtype=torch.float32, degree: int = 3) -> Gaussians:
+    z = lambda *s: torch.zeros(*s, dtype=dtype)
+    return Gaussians(z(0, 3), z(0, 4), z(0, 3), z(0), z(0, (degree + 1) ** 2, 3))
+
+
+# ---- scenes: (Gaussians float32, viewmat, K, width, height, background) ---------------------------
+@functools.cache
+def scene(name: str):
+    if name == "random":  # unstructured cloud seen from a few units away; quats not normalised
+        g = random_gaussians(1000, 3, seed=1)
+        scale = torch.from_numpy(np.random.default_rng(1).uniform(0.5, 2.0, (len(g), 1))).float()
+        return with_(g, quats=g.quats * scale), look_at([3.0, -2.0, 1.5], [0, 0, 0]), intrinsics(96, 72), 96, 72, None
+    if name == "tabletop":  # structured scene, downscaled orbit view
+        (V, K), *_ = orbit_cameras(1, 96, 72, seed=0)
+        return tabletop_scene(2000, 3, seed=0), V, K, 96, 72, BG
+    if name == "opaque":  # large near-opaque Gaussians: alpha clamp at 0.999 and early stop at T_MIN
+        g = random_gaussians(600, 3, seed=3)
+        g = with_(g, log_scales=g.log_scales + 1.0, logit_opacities=torch.full_like(g.logit_opacities, 8.0))
+        return g, look_at([3.0, -2.0, 1.5], [0, 0, 0]), intrinsics(64, 48), 64, 48, BG
+    if name == "outside":  # camera inside a wide cloud: many Gaussians cross or lie beyond the borders
+        K = np.array([[70.0, 0.0, 40.3], [0.0, 64.0, 20.7], [0.0, 0.0, 1.0]])  # fx != fy, off-centre
+        return random_gaussians(600, 3, seed=4, extent=2.0), look_at([0.3, -1.0, 0.4], [0, 0, 0]), K, 77, 45, BG
+    raise KeyError(name)
+
+
+def small(name: str):
+    """Cheaper variants for the gradient tests (the reference's backward is the slow part)."""
+    g, V, K, w, h, bg = scene(name)
+    if name == "random":
+        return g.select(slice(0, 500)), V, intrinsics(64, 48), 64, 48, BG
+    if name == "tabletop":
+        (V, K), *_ = orbit_cameras(1, 64, 48, seed=0)
+        return tabletop_scene(1000, 3, seed=0), V, K, 64, 48, BG
+    return g, V, K, w, h, bg
+
+
+def project_means(g: Gaussians, V, K) -> tuple[torch.Tensor, torch.Tensor]:
+    """Independent pinhole projection: pixel coordinates [N,2] and camera z [N] (float64)."""
+    V, K = torch.as_tensor(V, dtype=torch.float64), torch.as_tensor(K, dtype=torch.float64)
+    p = g.means.double() @ V[:3, :3].T + V[:3, 3]
+    uv = torch.stack([K[0, 0] * p[:, 0] / p[:, 2] + K[0, 2], K[1, 1] * p[:, 1] / p[:, 2] + K[1, 2]], -1)
+    return uv, p[:, 2]
+
+
+def assert_images_match(out, ref, min_psnr: float = 60.0):
+    assert out.rgb.shape == ref.rgb.shape and out.alpha.shape == ref.alpha.shape == ref.depth.shape
+    p_rgb, p_alpha = psnr(out.rgb, ref.rgb), psnr(out.alpha, ref.alpha)
+    assert p_rgb >= min_psnr, f"rgb PSNR {p_rgb:.1f} dB < {min_psnr}"
+    assert p_alpha >= min_psnr, f"alpha PSNR {p_alpha:.1f} dB < {min_psnr}"
+    mask = ref.alpha > 0.5
+    assert mask.float().mean() > 0.05, "too little coverage for the depth check to mean anything"
+    d_ref, d_out = ref.depth[mask].double(), out.depth.detach()[mask].double()
+    err = (d_out - d_ref).abs().max().item()
+    assert err <= 1e-4 * d_ref.max().item(), f"depth error {err:.3g} (max depth {d_ref.max():.3g})"
+
+
+# ---- 1. forward against the reference -------------------------------------------------------------
+@pytest.mark.parametrize("name", ["random", "tabletop", "opaque", "outside"])
+def test_forward_matches_reference(name):
+    g, V, K, w, h, bg = scene(name)
+    out = render(g, V, K, w, h, background=bg, backend="cpu")
+    ref = render(g.to(torch.float64), V, K, w, h, background=bg, backend="reference")
+    assert out.rgb.dtype == torch.float32 and ref.rgb.dtype == torch.float64
+    assert out.rgb.shape == (h, w, 3)
+    assert_images_match(out, ref)
+    # Not trivially empty or saturated: the scene really covers part of the image.
+    assert 0.1 < ref.alpha.mean().item() and ref.rgb.std().item() > 0.05
+
+
+def test_outside_scene_really_crosses_the_borders():
+    """Guards the 'outside' scene above: some Gaussians project off-image, some inside, some behind."""
+    g, V, K, w, h, _ = scene("outside")
+    uv, z = project_means(g, V, K)
+    front = z > 0.01
+    inside = front & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    assert inside.sum() > 20 and (front & ~inside).sum() > 100 and (~front).sum() > 20
+
+
+def test_gaussians_straddling_the_image_border():
+    """Large Gaussians centred on and beyond every edge and corner, only part of each visible."""
+    w, h = 61, 37  # not multiples of 16: partial tiles on the right and bottom
+    K = np.array([[50.0, 0.0, 30.0], [0.0, 52.0, 19.0], [0.0, 0.0, 1.0]])
+    uv = [(-3, 18), (64, 18), (30, -4), (30, 41), (-2, -2), (63, 39), (-9, 39), (70, -6), (0.2, 36.9)]
+    z = 2.0
+    means = torch.tensor([[(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z] for u, v in uv])
+    n = len(uv)
+    rng = torch.Generator().manual_seed(0)
+    g = Gaussians(
+        means=means,
+        quats=torch.randn(n, 4, generator=rng),
+        log_scales=torch.log(torch.rand(n, 3, generator=rng) * 0.2 + 0.15),
+        logit_opacities=torch.full((n,), 2.0),
+        sh=torch.randn(n, 4, 3, generator=rng) * 0.3,
+    )
+    out = render(g, np.eye(4), K, w, h, background=BG, backend="cpu")
+    ref = render(g.to(torch.float64), np.eye(4), K, w, h, background=BG, backend="reference")
+    assert_images_match(out, ref)
+    # every border row/column is touched
+    for edge in (ref.alpha[0], ref.alpha[-1], ref.alpha[:, 0], ref.alpha[:, -1]):
+        assert edge.max() > 0.3
+
+
+def test_non_square_odd_size_background_and_offcentre_principal_point():
+    g, V, _, _, _, _ = scene("random")
+    w, h = 77, 45
+    K = np.array([[80.0, 0.0, 35.2], [0.0, 71.0, 25.9], [0.0, 0.0, 1.0]])
+    bg = torch.tensor([0.9, 0.1, 0.4])
+    out = render(g, V, K, w, h, background=bg, backend="cpu")
+    ref = render(g.to(torch.float64), V, K, w, h, background=bg, backend="reference")
+    assert out.rgb.shape == (h, w, 3) and out.alpha.shape == (h, w) and out.depth.shape == (h, w)
+    assert_images_match(out, ref)
+    # The background shows where nothing is: rgb == bg * (1 - alpha) + (splat colour) -> == bg at alpha 0.
+    empty = ref.alpha < 1e-12
+    assert empty.sum() > 50
+    torch.testing.assert_close(out.rgb[empty], bg.expand(int(empty.sum()), 3), atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2])
+def test_lower_sh_degrees_match_reference(degree):
+    g = random_gaussians(300, degree, seed=10 + degree)
+    if degree > 0:  # strong view dependence so a wrong basis function shows
+        rng = torch.Generator().manual_seed(degree)
+        g = with_(g, sh=torch.cat([g.sh[:, :1], 0.3 * torch.randn(g.sh[:, 1:].shape, generator=rng)], 1))
+    V, K = look_at([-2.5, 2.0, 1.0], [0, 0, 0]), intrinsics(64, 48)
+    out = render(g, V, K, 64, 48, background=BG, backend="cpu")
+    ref = render(g.to(torch.float64), V, K, 64, 48, background=BG, backend="reference")
+    assert_images_match(out, ref)
+
+
+@pytest.mark.parametrize("backend", ["cpu", "reference"])
+@pytest.mark.parametrize("requires_grad", [False, True])
+def test_empty_scene_renders_background(backend, requires_grad):
+    dtype = torch.float32 if backend == "cpu" else torch.float64
+    g = empty_gaussians(dtype).map(lambda t: t.requires_grad_(requires_grad))
+    w, h = 40, 23
+    out = render(g, look_at([3, 0, 0], [0, 0, 0]), intrinsics(w, h), w, h, background=BG, backend=backend)
+    assert out.rgb.shape == (h, w, 3)
+    assert torch.equal(out.alpha.detach(), torch.zeros(h, w, dtype=dtype))
+    assert torch.equal(out.depth.detach(), torch.zeros(h, w, dtype=dtype))
+    torch.testing.assert_close(out.rgb.detach(), BG.to(dtype).expand(h, w, 3), atol=1e-7, rtol=0)
+    if requires_grad:
+        (out.rgb.sum() + out.alpha.sum() + out.depth.sum()).backward()
+        assert g.means.grad is not None and g.means.grad.shape == (0, 3)
+
+
+@pytest.mark.parametrize("backend", ["cpu", "reference"])
+def test_scene_behind_the_camera_is_invisible(backend):
+    dtype = torch.float32 if backend == "cpu" else torch.float64
+    g = random_gaussians(300, 3, seed=2).to(dtype)
+    w, h = 48, 32
+    K = intrinsics(w, h)
+    # Sanity: looking at the cloud shows it, so the empty image below is not an accident.
+    seen = render(g, look_at([4.0, 0, 0], [0, 0, 0]), K, w, h, background=BG, backend=backend)
+    assert seen.alpha.max() > 0.5
+    # Now the camera sits at x=4 looking away (+x); the whole cloud (|x| <= 1) is behind it.
+    g = g.map(lambda t: t.detach().requires_grad_(True))
+    out = render(g, look_at([4.0, 0, 0], [8.0, 0, 0]), K, w, h, background=BG, backend=backend)
+    assert torch.equal(out.alpha.detach(), torch.zeros(h, w, dtype=dtype))
+    assert torch.equal(out.depth.detach(), torch.zeros(h, w, dtype=dtype))
+    torch.testing.assert_close(out.rgb.detach(), BG.to(dtype).expand(h, w, 3), atol=1e-7, rtol=0)
+    (out.rgb.sum() + out.alpha.sum() + out.depth.sum()).backward()
+    for name in PARAMS:
+        grad = getattr(g, name).grad
+        assert grad is not None and torch.isfinite(grad).all() and not grad.any(), name
+
+
+# ---- 2. gradients against the reference -----------------------------------------------------------
+def loss_weights(h: int, w: int, seed: int = 0) -> tuple[torch.Tensor, ...]:
+    rng = torch.Generator().manual_seed(seed)
+    return tuple(torch.randn(*shape, generator=rng, dtype=torch.float64) for shape in ((h, w, 3), (h, w), (h, w)))
+
+
+def render_grads(g: Gaussians, V, K, w, h, bg, backend: str, weights, info=None):
+    """Gradients (float64) of L = sum(rgb*W1) + sum(alpha*W2) + sum(depth*W3) w.r.t. every parameter."""
+    g = g.map(lambda t: t.detach().clone().requires_grad_(True))
+    dt = g.means.dtype
+    out = render(g, V, K, w, h, background=None if bg is None else bg.to(dt), backend=backend, info=info)
+    W1, W2, W3 = (x.to(dt) for x in weights)
+    loss = (out.rgb * W1).sum() + (out.alpha * W2).sum() + (out.depth * W3).sum()
+    loss.backward()
+    return {name: getattr(g, name).grad.double() for name in PARAMS}
+
+
+def rel_err(a: torch.Tensor, b: torch.Tensor) -> float:
+    return ((a - b).norm() / b.norm()).item()
+
+
+@pytest.mark.parametrize("name", ["random", "tabletop", "opaque", "outside"])
+def test_gradients_match_reference(name):
+    g, V, K, w, h, bg = small(name)
+    weights = loss_weights(h, w)
+    g_cpu = render_grads(g, V, K, w, h, bg, "cpu", weights)
+    g_ref = render_grads(g.to(torch.float64), V, K, w, h, bg, "reference", weights)
+    errs = {k: rel_err(g_cpu[k], g_ref[k]) for k in PARAMS}
+    for k in PARAMS:
+        assert torch.isfinite(g_cpu[k]).all(), k
+        assert g_ref[k].norm() > 1e-3, f"{k}: reference gradient ~0, the comparison would be vacuous"
+    assert all(e <= GRAD_RTOL for e in errs.values()), errs
+
+    # The check can fail: the gradient of a slightly different loss (weights perturbed by 2%) is far off.
+    rng = torch.Generator().manual_seed(123)
+    other = tuple(x * (1 + 0.02 * torch.randn(x.shape, generator=rng, dtype=x.dtype)) for x in weights)
+    g_wrong = render_grads(g, V, K, w, h, bg, "cpu", other)
+    wrong = {k: rel_err(g_wrong[k], g_ref[k]) for k in PARAMS}
+    assert all(e > 10 * GRAD_RTOL for e in wrong.values()), wrong
+
+
+# ---- 3. the grad path (torch projection) and the fused no-grad path -------------------------------
+@pytest.mark.parametrize("name", ["random", "tabletop", "outside"])
+def test_grad_and_nograd_paths_agree(name):
+    g, V, K, w, h, bg = scene(name)
+    info_fast: dict = {}
+    with torch.no_grad():
+        fast = render(g.map(lambda t: t.clone().requires_grad_(True)), V, K, w, h, bg, backend="cpu", info=info_fast)
+    info_grad: dict = {}
+    gg = g.map(lambda t: t.clone().requires_grad_(True))
+    slow = render(gg, V, K, w, h, bg, backend="cpu", info=info_grad)
+    assert slow.rgb.requires_grad and not fast.rgb.requires_grad
+    assert psnr(fast.rgb, slow.rgb) >= 80 and psnr(fast.alpha, slow.alpha) >= 80
+    mask = slow.alpha.detach() > 0.5
+    torch.testing.assert_close(fast.depth[mask], slow.depth.detach()[mask], rtol=1e-5, atol=0)
+    # Same culling, and the screen-space means of the visible Gaussians match an independent projection.
+    r_fast, r_grad = info_fast["radius"], info_grad["radius"]
+    assert r_fast.shape == r_grad.shape == (len(g), 2)
+    visible = (r_grad > 0).all(1)
+    assert torch.equal(visible, (r_fast > 0).all(1)) and visible.sum() > 50
+    assert (r_fast - r_grad).abs().max() <= 1  # integral box half-widths; float rounding may flip a ceil
+    uv, _ = project_means(g, V, K)
+    for info in (info_fast, info_grad):
+        torch.testing.assert_close(info["mean2d"].detach()[visible].double(), uv[visible], atol=2e-3, rtol=1e-5)
+
+
+def test_info_mean2d_grad_and_absgrad():
+    g, V, *_ = scene("random")
+    w, h, bg = 64, 48, BG
+    K = torch.tensor([[55.0, 0.0, 31.0], [0.0, 57.0, 25.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    weights = loss_weights(h, w, seed=7)
+    info: dict = {}
+    render_grads(g, V, K, w, h, bg, "cpu", weights, info=info)
+    mean2d, absgrad = info["mean2d"], info["mean2d_absgrad"]
+    assert mean2d.shape == (len(g), 2) and mean2d.grad is not None and mean2d.grad.shape == (len(g), 2)
+    assert absgrad.shape == (len(g), 2)
+    grad = mean2d.grad
+    assert (absgrad >= 0).all()
+    assert (absgrad >= grad.abs() * (1 - 1e-6)).all()
+    assert (absgrad > 1.01 * grad.abs()).any()  # a sum of |.| per pixel, not |sum|
+    culled = (info["radius"] == 0).all(1)
+    assert not grad[culled].any() and not absgrad[culled].any()
+
+    # Independent check of mean2d.grad: moving the principal point shifts every projected mean by
+    # the same amount and (with no Gaussian at the FOV clamp) changes nothing else, so
+    # dL/dcx = sum_i dL/du_i and dL/dcy = sum_i dL/dv_i. dL/dK comes from the reference's autograd.
+    uv, z = project_means(g, V, K)
+    lim_x = (K[0, 2] + 0.15 * w) / K[0, 0], (w - K[0, 2] + 0.15 * w) / K[0, 0]
+    lim_y = (K[1, 2] + 0.15 * h) / K[1, 1], (h - K[1, 2] + 0.15 * h) / K[1, 1]
+    xz, yz = (uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1]
+    assert (z > 0.01).all() and (xz > -lim_x[0]).all() and (xz < lim_x[1]).all()
+    assert (yz > -lim_y[0]).all() and (yz < lim_y[1]).all()
+    K_ref = K.clone().requires_grad_(True)
+    gd = g.to(torch.float64)
+    out = render(gd, V, K_ref, w, h, background=bg.double(), backend="reference")
+    W1, W2, W3 = weights
+    ((out.rgb * W1).sum() + (out.alpha * W2).sum() + (out.depth * W3).sum()).backward()
+    d_cx, d_cy = K_ref.grad[0, 2].item(), K_ref.grad[1, 2].item()
+    sums = grad.double().sum(0)
+    scale = absgrad.double().sum(0)  # the size of the cancelling terms
+    assert abs(sums[0].item() - d_cx) <= 1e-4 * scale[0].item(), (sums, d_cx, d_cy)
+    assert abs(sums[1].item() - d_cy) <= 1e-4 * scale[1].item(), (sums, d_cx, d_cy)
+
+
+def test_single_gaussian_mean2d_grad_and_absgrad_analytic():
+    """One Gaussian, camera at the origin, L = sum(alpha * W): the screen-space mean, dL/dmean2d and
+    the per-pixel absolute-gradient sum, all computed here from the EWA formulas in float64."""
+    w, h = 64, 48
+    fx, fy, cx, cy = 60.0, 55.0, 33.3, 23.1
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    mean = np.array([0.12, -0.07, 2.0])
+    q_wxyz = np.array([0.8, 0.3, -0.4, 0.33])
+    scales = np.array([0.06, 0.1, 0.03])
+    opacity = 0.8
+    g = Gaussians(
+        means=torch.tensor(mean[None], dtype=torch.float32),
+        quats=torch.tensor(q_wxyz[None], dtype=torch.float32),
+        log_scales=torch.log(torch.tensor(scales[None], dtype=torch.float32)),
+        logit_opacities=torch.tensor([math.log(opacity / (1 - opacity))], dtype=torch.float32),
+        sh=torch.zeros(1, 1, 3),
+    )
+    W = torch.randn(h, w, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    info: dict = {}
+    gg = g.map(lambda t: t.clone().requires_grad_(True))
+    out = render(gg, np.eye(4), K, w, h, backend="cpu", info=info)
+    (out.alpha * W.float()).sum().backward()
+
+    # independent EWA splat
+    x, y, z = mean
+    R = Rotation.from_quat(np.roll(q_wxyz, -1)).as_matrix()  # scipy wants xyzw
+    cov3 = R @ np.diag(scales**2) @ R.T
+    J = np.array([[fx / z, 0.0, -fx * x / z**2], [0.0, fy / z, -fy * y / z**2]])
+    conic = np.linalg.inv(J @ cov3 @ J.T + 0.3 * np.eye(2))
+    u, v = fx * x / z + cx, fy * y / z + cy
+    px, py = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    d = np.stack([u - px, v - py], -1)  # [h,w,2]
+    cd = d @ conic  # conic symmetric
+    alpha = opacity * np.exp(-0.5 * (cd * d).sum(-1))
+    alpha = np.where(alpha >= 1 / 255, np.minimum(alpha, 0.999), 0.0)
+    torch.testing.assert_close(out.alpha.detach().double(), torch.from_numpy(alpha), atol=1e-5, rtol=0)
+    per_pixel = -(W.numpy() * alpha)[..., None] * cd  # dL/d(u, v) from each pixel
+    grad, absgrad = per_pixel.sum((0, 1)), np.abs(per_pixel).sum((0, 1))
+
+    np.testing.assert_allclose(info["mean2d"].detach().numpy()[0], [u, v], atol=1e-4, rtol=0)
+    np.testing.assert_allclose(info["mean2d"].grad.numpy()[0], grad, atol=1e-3 * absgrad.max(), rtol=0)
+    np.testing.assert_allclose(info["mean2d_absgrad"].numpy()[0], absgrad, rtol=1e-3, atol=0)
+    assert absgrad.min() > 1e-2 and (absgrad > 2 * np.abs(grad)).any()  # non-trivial, with cancellation
+
+
+# ---- errors and backend selection ----------------------------------------------------------------
+def _tiny():
+    return random_gaussians(5, 0, seed=0), look_at([3, 0, 0], [0, 0, 0]), intrinsics(16, 12)
+
+
+def test_unknown_backend_names_the_choices():
+    g, V, K = _tiny()
+    with pytest.raises(ValueError, match="nope") as e:
+        render(g, V, K, 16, 12, backend="nope")
+    for choice in ("auto", "cpu", "cuda", "reference"):
+        assert choice in str(e.value)
+
+
+def test_environment_variable_overrides_auto(monkeypatch):
+    g, V, K = _tiny()
+    monkeypatch.setenv("M2M_RENDER_BACKEND", "nope")
+    with pytest.raises(ValueError, match="nope"):
+        render(g, V, K, 16, 12)  # backend="auto" reads the variable
+    render(g, V, K, 16, 12, backend="cpu")  # an explicit backend ignores it
+
+
+def test_cuda_backend_without_cuda_says_use_cpu(monkeypatch):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    g, V, K = _tiny()
+    with pytest.raises(RuntimeError, match="cpu"):
+        render(g, V, K, 16, 12, backend="cuda")
+    # and "auto" then falls back to the CPU rasterizer, which agrees with the reference
+    monkeypatch.delenv("M2M_RENDER_BACKEND", raising=False)
+    out = render(g, V, K, 16, 12)
+    ref = render(g.to(torch.float64), V, K, 16, 12, backend="reference")
+    assert out.rgb.dtype == torch.float32 and psnr(out.rgb, ref.rgb) >= 60
+
+
+@pytest.mark.parametrize("backend", ["cpu", "reference", "auto"])
+@pytest.mark.parametrize(("width", "height"), [(0, 12), (16, 0), (-4, 12), (16, -1)])
+def test_non_positive_image_size_raises(backend, width, height):
+    g, V, K = _tiny()
+    with pytest.raises(ValueError, match="size"):
+        render(g, V, K, width, height, backend=backend)

@@ -1,0 +1,318 @@
+"""The ``m2m`` command: render, bench render and demo, run in-process through ``main``.
+
+Outputs are checked against the library called directly (``render``, ``read_ply``), and every
+expected failure must exit with status 2, name the offending file or field, print no traceback and
+leave no output (or temporary) file behind.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import plyfile
+import pytest
+import torch
+from PIL import Image
+
+import mirage2matter
+from mirage2matter.bench import RESULT_KEYS, bench_render
+from mirage2matter.cli import main
+from mirage2matter.gaussians.ply import read_ply, write_ply
+from mirage2matter.gaussians.render import render
+from mirage2matter.gaussians.synthetic import orbit_cameras, tabletop_scene
+from mirage2matter.geometry.camera import Camera, save_camera_json
+
+W, H = 64, 48  # not square, so a width/height mix-up shows
+BACKGROUND = (0.2, 0.4, 0.6)
+# Right-multiplying an OpenCV camera-to-world pose by this gives the OpenGL one (flip y and z).
+CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+@pytest.fixture(scope="module")
+def assets(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    d = tmp_path_factory.mktemp("cli_assets")
+    g = tabletop_scene(3000, sh_degree=3, seed=1)
+    write_ply(d / "scene.ply", g)
+    cams = []
+    for i, (viewmat, K) in enumerate(orbit_cameras(2, W, H, seed=3)):
+        cams.append(Camera(K, np.linalg.inv(viewmat), W, H, name=f"cam{i}"))
+    save_camera_json(d / "cam1.json", cams[1])
+    return {
+        "dir": d,
+        "ply": d / "scene.ply",
+        "camera": d / "cam1.json",
+        "cams": cams,
+        "gaussians": read_ply(d / "scene.ply"),
+    }
+
+
+def _direct_render(g, cam: Camera, background=BACKGROUND) -> tuple[np.ndarray, torch.Tensor]:
+    with torch.no_grad():
+        out = render(
+            g,
+            torch.from_numpy(cam.viewmat),
+            torch.from_numpy(cam.K),
+            cam.width,
+            cam.height,
+            background=torch.tensor(background, dtype=torch.float32),
+            backend="cpu",
+        )
+    return out.rgb.clamp(0, 1).numpy(), out.depth
+
+
+def _png(path: Path) -> np.ndarray:
+    with Image.open(path) as im:
+        assert im.mode == "RGB"
+        return np.asarray(im).astype(np.float64) / 255.0
+
+
+def _no_debris(d: Path) -> None:
+    assert not [p.name for p in d.iterdir() if ".tmp-" in p.name]
+
+
+# ---- m2m render -------------------------------------------------------------------------------------
+def test_render_matches_library(assets: dict, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "view.png"
+    bg = ",".join(map(str, BACKGROUND))
+    rc = main(["render", str(assets["ply"]), "--camera", str(assets["camera"]), "--out", str(out)]
+              + ["--backend", "cpu", "--background", bg])  # fmt: skip
+    assert rc == 0
+    stdout = capsys.readouterr().out
+    assert str(out) in stdout and f"{W}x{H}" in stdout and "3,000 Gaussians" in stdout and "ms" in stdout
+    got = _png(out)
+    expected, _ = _direct_render(assets["gaussians"], assets["cams"][1])
+    assert got.shape == (H, W, 3)
+    assert np.abs(got - expected).max() <= 1 / 255 + 1e-6
+    # The scene is really in view: not just background.
+    assert np.abs(got - np.array(BACKGROUND)).max(axis=2).mean() > 0.1
+    _no_debris(tmp_path)
+
+
+def test_render_from_transforms_frame_matches_opencv_camera(assets: dict, tmp_path: Path) -> None:
+    cams: list[Camera] = assets["cams"]
+    K = cams[0].K
+    transforms = {
+        "fl_x": K[0, 0], "fl_y": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "w": W, "h": H,
+        "frames": [
+            {"file_path": f"images/{i:04d}.png", "transform_matrix": (c.T_world_cam @ CV_TO_GL).tolist()}
+            for i, c in enumerate(cams)
+        ],
+    }  # fmt: skip
+    tj = tmp_path / "transforms.json"
+    tj.write_text(json.dumps(transforms), encoding="utf-8")
+    common = [str(assets["ply"]), "--backend", "cpu"]
+    assert main(["render", *common, "--camera", str(tj), "--frame", "0001", "--out", str(tmp_path / "frame.png")]) == 0
+    assert main(["render", *common, "--camera", str(assets["camera"]), "--out", str(tmp_path / "cv.png")]) == 0
+    from_frame, from_cv = _png(tmp_path / "frame.png"), _png(tmp_path / "cv.png")
+    assert from_frame.shape == (H, W, 3)
+    assert np.abs(from_frame - from_cv).max() <= 1 / 255 + 1e-6
+    # The other frame is a different view: the frame choice matters.
+    assert (
+        main(["render", *common, "--camera", str(tj), "--frame", "images/0000.png", "--out", str(tmp_path / "f0.png")])
+        == 0
+    )
+    assert np.abs(_png(tmp_path / "f0.png") - from_cv).mean() > 0.02
+
+
+def test_render_scale_and_depth(assets: dict, tmp_path: Path) -> None:
+    args = [
+        "render",
+        str(assets["ply"]),
+        "--camera",
+        str(assets["camera"]),
+        "--backend",
+        "cpu",
+        "--background",
+        "0.2,0.4,0.6",
+    ]
+    assert (
+        main([*args, "--scale", "0.5", "--out", str(tmp_path / "half.png"), "--depth-out", str(tmp_path / "d.npy")])
+        == 0
+    )
+    cam = assets["cams"][1].scaled(0.5)
+    expected, depth = _direct_render(assets["gaussians"], cam)
+    got = _png(tmp_path / "half.png")
+    assert got.shape == (H // 2, W // 2, 3)
+    assert np.abs(got - expected).max() <= 1 / 255 + 1e-6
+    d = np.load(tmp_path / "d.npy")
+    assert d.dtype == np.float32 and d.shape == (H // 2, W // 2)
+    np.testing.assert_allclose(d, depth.numpy(), rtol=1e-6, atol=1e-6)
+    assert (d > 0).any()
+    # PNG depth: uint16 millimetres.
+    assert main([*args, "--out", str(tmp_path / "full.png"), "--depth-out", str(tmp_path / "d.png")]) == 0
+    with Image.open(tmp_path / "d.png") as im:
+        mm = np.asarray(im).astype(np.float64)
+    _, depth_full = _direct_render(assets["gaussians"], assets["cams"][1])
+    assert mm.shape == (H, W)
+    assert np.abs(mm - np.clip(depth_full.numpy() * 1000, 0, 65535)).max() <= 0.5 + 1e-3
+
+
+def _write_point_cloud_ply(path: Path) -> None:
+    v = np.zeros(5, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    plyfile.PlyData([plyfile.PlyElement.describe(v, "vertex")]).write(str(path))
+
+
+@pytest.mark.parametrize(
+    "case",
+    ["missing_ply", "point_cloud_ply", "camera_missing_field", "missing_camera", "unknown_frame",
+     "frame_without_transforms", "transforms_without_frame", "missing_out_dir", "bad_out_suffix"],
+)  # fmt: skip
+def test_render_bad_input(assets: dict, tmp_path: Path, capsys: pytest.CaptureFixture, case: str) -> None:
+    ply, camera, out = assets["ply"], assets["camera"], tmp_path / "out.png"
+    extra: list[str] = []
+    transforms = tmp_path / "transforms.json"
+    transforms.write_text(json.dumps({"fl_x": 50.0, "w": W, "h": H, "frames": [
+        {"file_path": "images/a.png", "transform_matrix": np.eye(4).tolist()}]}), encoding="utf-8")  # fmt: skip
+    if case == "missing_ply":
+        ply = tmp_path / "nope.ply"
+        expect = ["nope.ply", "not found"]
+    elif case == "point_cloud_ply":
+        ply = tmp_path / "points.ply"
+        _write_point_cloud_ply(ply)
+        expect = ["points.ply", "point cloud"]
+    elif case == "camera_missing_field":
+        camera = tmp_path / "cam_no_k.json"
+        data = json.loads(assets["camera"].read_text())
+        del data["K"]
+        camera.write_text(json.dumps(data))
+        expect = ["cam_no_k.json", "missing field", "K"]
+    elif case == "missing_camera":
+        camera = tmp_path / "nocam.json"
+        expect = ["nocam.json", "not found"]
+    elif case == "unknown_frame":
+        camera, extra = transforms, ["--frame", "zzz_missing"]
+        expect = ["transforms.json", "zzz_missing", "images/a.png"]
+    elif case == "frame_without_transforms":
+        extra = ["--frame", "0001"]
+        expect = [assets["camera"].name, "frames", "drop --frame"]
+    elif case == "transforms_without_frame":
+        camera = transforms
+        expect = ["transforms.json", "--frame"]
+    elif case == "missing_out_dir":
+        out = tmp_path / "no_such_dir" / "out.png"
+        expect = ["no_such_dir", "does not exist"]
+    else:
+        out = tmp_path / "out.jpg"
+        expect = ["out.jpg", ".png"]
+    rc = main(["render", str(ply), "--camera", str(camera), "--out", str(out), "--backend", "cpu", *extra])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert err.startswith("m2m: error: ") and "Traceback" not in err
+    for word in expect:
+        assert word in err, (word, err)
+    assert not out.exists()
+    _no_debris(tmp_path)
+
+
+def test_usage_errors_return_2(assets: dict, capsys: pytest.CaptureFixture) -> None:
+    assert main([]) == 2
+    assert (
+        main(
+            ["render", str(assets["ply"]), "--camera", str(assets["camera"]), "--out", "x.png", "--background", "2,0,0"]
+        )
+        == 2
+    )
+    assert "R,G,B" in capsys.readouterr().err
+    assert main(["render", "--help"]) == 0
+
+
+# ---- m2m bench render ---------------------------------------------------------------------------------
+def test_bench_render_function() -> None:
+    r = bench_render(gaussians=2000, size=64, backend="cpu", views=2, repeats=1, warmup=1, log=None)
+    assert tuple(r) == RESULT_KEYS
+    assert r["backend"] == "cpu" and r["gaussians"] == 2000 and r["width"] == r["height"] == 64
+    assert r["sh_degree"] == 3 and r["runs"] == 2
+    assert 0 < r["ms_min"] <= r["ms_median"] <= r["ms_max"] < 60_000
+    with pytest.raises(ValueError, match="repeats"):
+        bench_render(gaussians=10, size=8, repeats=0, log=None)
+    with pytest.raises(TypeError, match="gausians"):
+        bench_render(gausians=10, log=None)
+
+
+def test_bench_render_cli_prints_json_last(capsys: pytest.CaptureFixture) -> None:
+    rc = main(["bench", "render", "--gaussians", "2000", "--size", "32", "--backend", "cpu", "--sh-degree", "1"]
+              + ["--views", "2", "--repeats", "2", "--warmup", "1"])  # fmt: skip
+    assert rc == 0
+    captured = capsys.readouterr()
+    result = json.loads(captured.out.strip().splitlines()[-1])
+    assert tuple(result) == RESULT_KEYS
+    assert result["runs"] == 4 and result["sh_degree"] == 1 and result["width"] == 32
+    assert "bench render" in captured.err  # progress goes to stderr
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the no-GPU message")
+def test_bench_cuda_without_gpu_is_a_clear_error(capsys: pytest.CaptureFixture) -> None:
+    assert main(["bench", "render", "--gaussians", "10", "--size", "8", "--backend", "cuda"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("m2m: error: --backend cuda") and "Traceback" not in err
+
+
+# ---- m2m demo ------------------------------------------------------------------------------------------------
+def test_demo_small(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    ws = tmp_path / "ws"
+    args = ["demo", "-w", str(ws), "--gaussians", "5000", "--size", "96", "--backend", "cpu"]
+    args += ["--bench-gaussians", "2000", "--bench-size", "32", "--bench-views", "2", "--bench-repeats", "1"]
+    assert main(args) == 0
+    captured = capsys.readouterr()
+    files = ["scene/gaussians.ply", "renders/contact_sheet.png", "renders/view_0.camera.json", "demo_summary.json"]
+    files += [f"renders/view_{i}.png" for i in range(4)]
+    for rel in files:
+        assert (ws / rel).is_file(), rel
+
+    s = json.loads((ws / "demo_summary.json").read_text())
+    assert s["scene"]["gaussians"] == 5000 and s["scene"]["ply_roundtrip_exact"] is True
+    assert s["scene"]["ply_bytes"] == (ws / "scene/gaussians.ply").stat().st_size
+    assert s["renders"]["views"] == [f"renders/view_{i}.png" for i in range(4)]
+    assert len(s["renders"]["ms"]) == 4 and s["renders"]["camera_roundtrip_ok"] is True
+    assert tuple(s["benchmark"]) == RESULT_KEYS and s["benchmark"]["runs"] == 2
+    assert s["benchmark"]["gaussians"] == 2000 and s["benchmark"]["width"] == 32
+    assert set(s["timings_s"]) >= {"build_scene", "write_ply", "read_ply", "render_views", "benchmark", "total"}
+    assert "physics" in s["not_implemented"]
+
+    assert len(read_ply(ws / "scene/gaussians.ply")) == 5000
+    views = [_png(ws / f"renders/view_{i}.png") for i in range(4)]
+    sheet = _png(ws / "renders/contact_sheet.png")
+    assert sheet.shape == (192, 192, 3) and all(v.shape == (96, 96, 3) for v in views)
+    np.testing.assert_array_equal(sheet[:96, :96], views[0])
+    np.testing.assert_array_equal(sheet[96:, 96:], views[3])
+
+    assert "coming in later issues" in captured.out and "demo_summary.json" in captured.out
+    assert "[7/7]" in captured.err
+
+    # The saved camera lets `m2m render` reproduce view 0 from the saved PLY.
+    rerender = tmp_path / "again.png"
+    ply, cam = str(ws / "scene/gaussians.ply"), str(ws / "renders/view_0.camera.json")
+    assert main(["render", ply, "--camera", cam, "--out", str(rerender), "--backend", "cpu"]) == 0
+    assert np.abs(_png(rerender) - views[0]).max() <= 1 / 255 + 1e-6
+
+    # Rerunning overwrites in place: same files, no temporaries left.
+    before = sorted(p.relative_to(ws) for p in ws.rglob("*"))
+    assert main(args) == 0
+    assert sorted(p.relative_to(ws) for p in ws.rglob("*")) == before
+    np.testing.assert_array_equal(_png(ws / "renders/view_0.png"), views[0])
+
+
+def test_demo_workspace_is_a_file(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    f = tmp_path / "ws"
+    f.write_text("not a folder")
+    assert main(["demo", "-w", str(f), "--gaussians", "100"]) == 2
+    assert "ws" in capsys.readouterr().err
+
+
+# ---- the installed entry points ------------------------------------------------------------------------------
+def test_entry_points_and_light_import() -> None:
+    m2m = Path(sys.executable).parent / "m2m"
+    if not m2m.exists():
+        pytest.skip("m2m console script not installed next to this interpreter")
+    r = subprocess.run([str(m2m), "--version"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and mirage2matter.__version__ in r.stdout
+    r = subprocess.run([sys.executable, "-m", "mirage2matter", "--help"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and "render" in r.stdout and "demo" in r.stdout
+    # `m2m --help` stays fast: the CLI module does not import torch or numba.
+    code = "import sys, mirage2matter.cli; print(sorted(m for m in ('torch', 'numba') if m in sys.modules))"
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout.strip() == "[]"
