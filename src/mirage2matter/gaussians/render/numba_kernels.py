@@ -278,37 +278,51 @@ def tile_rects(rec, width, height, rect):
         rect[g, 2], rect[g, 3] = y0 // TILE_SIZE, y1 // TILE_SIZE
 
 
-@njit(cache=True)
-def bin_tiles(sorted_ids, rect, width, height):
-    """Lists of Gaussians per tile, each front to back. Returns offsets [n_tiles+1] int64 and the
-    concatenated ids [n_isect] int32 (tile t holds ids[offsets[t]:offsets[t+1]])."""
+@njit(parallel=True, cache=True)
+def bin_tiles(sorted_ids, rect, width, height, n_chunks):
+    """Per-tile lists of Gaussians, each front to back. Returns offsets [n_tiles+1] int64 and
+    ids [n_isect] int32: tile t owns ids[offsets[t]:offsets[t+1]].
+    Parallel: each chunk of the depth-sorted ids gets its own slot range in every tile, after the
+    slots of the chunks in front of it, so the lists stay sorted."""
     tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
-    tiles_y = (height + TILE_SIZE - 1) // TILE_SIZE
-    offsets = np.zeros(tiles_x * tiles_y + 1, np.int64)
-    for g in range(rect.shape[0]):
-        for ty in range(rect[g, 2], rect[g, 3] + 1):
-            for tx in range(rect[g, 0], rect[g, 1] + 1):
-                offsets[ty * tiles_x + tx + 1] += 1
-    for t in range(tiles_x * tiles_y):
-        offsets[t + 1] += offsets[t]
-    ids = np.empty(offsets[-1], np.int32)
-    cursor = offsets[:-1].copy()
-    for j in range(sorted_ids.shape[0]):  # in depth order, so each tile's list comes out sorted
-        g = sorted_ids[j]
-        for ty in range(rect[g, 2], rect[g, 3] + 1):
-            for tx in range(rect[g, 0], rect[g, 1] + 1):
-                t = ty * tiles_x + tx
-                ids[cursor[t]] = g
-                cursor[t] += 1
+    n_tiles = tiles_x * ((height + TILE_SIZE - 1) // TILE_SIZE)
+    m = sorted_ids.shape[0]
+    counts = np.zeros((n_chunks, n_tiles), np.int64)
+    for c in prange(n_chunks):
+        for j in range(m * c // n_chunks, m * (c + 1) // n_chunks):
+            g = sorted_ids[j]
+            for ty in range(rect[g, 2], rect[g, 3] + 1):
+                for tx in range(rect[g, 0], rect[g, 1] + 1):
+                    counts[c, ty * tiles_x + tx] += 1
+    offsets = np.empty(n_tiles + 1, np.int64)
+    pos = 0
+    for t in range(n_tiles):
+        offsets[t] = pos
+        for c in range(n_chunks):
+            n_c = counts[c, t]
+            counts[c, t] = pos  # becomes this chunk's write cursor in tile t
+            pos += n_c
+    offsets[n_tiles] = pos
+    ids = np.empty(pos, np.int32)
+    for c in prange(n_chunks):
+        for j in range(m * c // n_chunks, m * (c + 1) // n_chunks):
+            g = sorted_ids[j]
+            for ty in range(rect[g, 2], rect[g, 3] + 1):
+                for tx in range(rect[g, 0], rect[g, 1] + 1):
+                    k = counts[c, ty * tiles_x + tx]
+                    counts[c, ty * tiles_x + tx] = k + 1
+                    ids[k] = g
     return offsets, ids
 
 
 @njit(parallel=True, cache=True)
 def gather_records(ids, rec, out):
-    """out[k] = rec[ids[k]]: the records in tile order, so the rasterizer streams through memory."""
+    """out[k] = rec[ids[k]]: the records in tile order, so the rasterizer streams through memory.
+    Pass the float32 records viewed as complex128 ([N, REC_SIZE // 4]): the copy is then 4 moves
+    per record instead of 16, which keeps ~3x more of these cache-missing loads in flight."""
     for k in prange(ids.shape[0]):
         g = ids[k]
-        for j in range(REC_SIZE):
+        for j in range(rec.shape[1]):
             out[k, j] = rec[g, j]
 
 
