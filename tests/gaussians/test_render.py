@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from render_helpers import intrinsics, look_at, psnr
 from scipy.spatial.transform import Rotation
 
 from mirage2matter.gaussians.model import Gaussians
@@ -22,26 +23,6 @@ GRAD_RTOL = 1e-3
 
 
 # ---- helpers -----------------------------------------------------------------------------------
-def psnr(a: torch.Tensor, b: torch.Tensor, peak: float = 1.0) -> float:
-    mse = torch.mean((a.detach().double().cpu() - b.detach().double().cpu()) ** 2).item()
-    return 10.0 * math.log10(peak**2 / max(mse, 1e-30))
-
-
-def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """World-to-camera [4,4] (OpenCV axes: x right, y down, z forward)."""
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    z = (target - eye) / np.linalg.norm(target - eye)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    R = np.stack([x, np.cross(z, x), z])  # rows: camera axes in world coordinates
-    V = np.eye(4)
-    V[:3, :3], V[:3, 3] = R, -R @ eye
-    return V
-
-
-def intrinsics(width: int, height: int, fov_deg: float = 60.0) -> np.ndarray:
-    f = 0.5 * width / math.tan(math.radians(fov_deg) / 2)
-    return np.array([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]])
 
 
 def with_(g: Gaussians, **kw) -> Gaussians:

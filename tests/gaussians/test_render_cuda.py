@@ -4,11 +4,9 @@ Needs a CUDA GPU, torch built with CUDA and gsplat (its kernels may be JIT-compi
 which can take minutes once per machine). Everything else skips. Outputs are compared on the CPU.
 """
 
-import math
-
-import numpy as np
 import pytest
 import torch
+from render_helpers import intrinsics, look_at, psnr
 
 from mirage2matter.gaussians.model import Gaussians
 from mirage2matter.gaussians.render import render
@@ -30,28 +28,6 @@ pytestmark = [pytest.mark.cuda, pytest.mark.skipif(_REASON is not None, reason=_
 
 BG = torch.tensor([0.2, 0.5, 0.8])
 PARAMS = ("means", "quats", "log_scales", "logit_opacities", "sh")
-
-
-def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
-    mse = torch.mean((a.detach().double().cpu() - b.detach().double().cpu()) ** 2).item()
-    return 10.0 * math.log10(1.0 / max(mse, 1e-30))
-
-
-def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """World-to-camera [4,4] (OpenCV axes: x right, y down, z forward)."""
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    z = (target - eye) / np.linalg.norm(target - eye)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    R = np.stack([x, np.cross(z, x), z])
-    V = np.eye(4)
-    V[:3, :3], V[:3, 3] = R, -R @ eye
-    return V
-
-
-def intrinsics(width: int, height: int, fov_deg: float = 60.0) -> np.ndarray:
-    f = 0.5 * width / math.tan(math.radians(fov_deg) / 2)
-    return np.array([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]])
 
 
 def assert_depth_close(out, ref, rel: float):

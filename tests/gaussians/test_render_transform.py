@@ -13,6 +13,8 @@ import math
 import numpy as np
 import pytest
 import torch
+from render_helpers import intrinsics as _intrinsics
+from render_helpers import look_at, psnr
 
 from mirage2matter.gaussians.model import Gaussians
 from mirage2matter.gaussians.render import render
@@ -25,26 +27,8 @@ MIN_PSNR = 45.0
 W, H = 80, 60
 
 
-def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
-    mse = torch.mean((a.detach().double() - b.detach().double()) ** 2).item()
-    return 10.0 * math.log10(1.0 / max(mse, 1e-30))
-
-
-def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """World-to-camera [4,4] (OpenCV axes: x right, y down, z forward)."""
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    z = (target - eye) / np.linalg.norm(target - eye)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    R = np.stack([x, np.cross(z, x), z])
-    V = np.eye(4)
-    V[:3, :3], V[:3, 3] = R, -R @ eye
-    return V
-
-
 def intrinsics(width: int, height: int, fov_deg: float = 60.0) -> np.ndarray:
-    f = 0.5 * width / math.tan(math.radians(fov_deg) / 2)
-    return np.array([[f, 0.0, width / 2 + 0.7], [0.0, 1.05 * f, height / 2 - 1.3], [0.0, 0.0, 1.0]])
+    return _intrinsics(width, height, fov_deg, offset=(0.7, -1.3), aspect=1.05)
 
 
 @functools.cache

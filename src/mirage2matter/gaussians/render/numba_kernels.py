@@ -15,20 +15,12 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from ..sh import SH_C0 as _SH_C0
+from ..sh import SH_C1 as _SH_C1
+from ..sh import SH_C2 as _SH_C2
+from ..sh import SH_C3 as _SH_C3
 from .conventions import ALPHA_MAX, ALPHA_MIN, EPS2D, FAR_PLANE, FOV_CLAMP, NEAR_PLANE, T_MIN, TILE_SIZE
 
-_SH_C0 = 0.28209479177387814
-_SH_C1 = 0.4886025119029199
-_SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
-_SH_C3 = (
-    -0.5900435899266435,
-    2.890611442640554,
-    -0.4570457994644658,
-    0.3731763325901154,
-    -0.4570457994644658,
-    1.445305721320277,
-    -0.5900435899266435,
-)
 _LOG_ALPHA_MIN = math.log(ALPHA_MIN)
 _EXTEND_MAX = 3.33  # gsplat's cap on the box half-width in standard deviations
 
@@ -251,6 +243,14 @@ def _pixel_range(m, r, size):
 
 
 @njit(cache=True, inline="always")
+def _box_in_tile(recs, k, px0, py0, tw, th, width, height):
+    """Inclusive pixel box x0, x1, y0, y1 of record k inside the tile at (px0, py0) of size tw x th."""
+    x0, x1 = _pixel_range(recs[k, REC_MEAN_X], recs[k, REC_RADIUS_X], width)
+    y0, y1 = _pixel_range(recs[k, REC_MEAN_Y], recs[k, REC_RADIUS_Y], height)
+    return max(x0, px0), min(x1, px0 + tw - 1), max(y0, py0), min(y1, py0 + th - 1)
+
+
+@njit(cache=True, inline="always")
 def _row_span(mx, dy, ca, inv_ca, cb, cc, sigma_max, x0, x1):
     """Pixels px in [x0, x1] of a row at dy = my - (py + 0.5) whose sigma is <= sigma_max: between
     the roots of 0.5 a dx^2 + b dy dx + 0.5 c dy^2 = sigma_max in dx = mx - (px + 0.5)."""
@@ -345,10 +345,7 @@ def rasterize_forward(offsets, recs, width, height, out_rgb, out_depth, out_T, o
         n_done = 0
         for k in range(offsets[t], offsets[t + 1]):
             mx, my = recs[k, REC_MEAN_X], recs[k, REC_MEAN_Y]
-            x0, x1 = _pixel_range(mx, recs[k, REC_RADIUS_X], width)
-            y0, y1 = _pixel_range(my, recs[k, REC_RADIUS_Y], height)
-            x0, x1 = max(x0, px0), min(x1, px0 + tw - 1)
-            y0, y1 = max(y0, py0), min(y1, py0 + th - 1)
+            x0, x1, y0, y1 = _box_in_tile(recs, k, px0, py0, tw, th, width, height)
             ca, cb, cc = recs[k, REC_CONIC_A], recs[k, REC_CONIC_B], recs[k, REC_CONIC_C]
             op, smax, inv_ca = recs[k, REC_OPACITY], recs[k, REC_SIGMA_MAX], recs[k, REC_INV_A]
             cr, cg, cbl, z = recs[k, REC_R], recs[k, REC_G], recs[k, REC_B], recs[k, REC_DEPTH]
@@ -420,10 +417,7 @@ def rasterize_backward(offsets, ids, recs, width, height, T_final, last, v_rgb, 
                     k_max = max(k_max, lastp[p])
             for k in range(k_max, offsets[t] - 1, -1):
                 mx, my = recs[k, REC_MEAN_X], recs[k, REC_MEAN_Y]
-                x0, x1 = _pixel_range(mx, recs[k, REC_RADIUS_X], width)
-                y0, y1 = _pixel_range(my, recs[k, REC_RADIUS_Y], height)
-                x0, x1 = max(x0, px0), min(x1, px0 + tw - 1)
-                y0, y1 = max(y0, py0), min(y1, py0 + th - 1)
+                x0, x1, y0, y1 = _box_in_tile(recs, k, px0, py0, tw, th, width, height)
                 ca, cb, cc = recs[k, REC_CONIC_A], recs[k, REC_CONIC_B], recs[k, REC_CONIC_C]
                 op, smax, inv_ca = recs[k, REC_OPACITY], recs[k, REC_SIGMA_MAX], recs[k, REC_INV_A]
                 cr, cg, cbl, z = recs[k, REC_R], recs[k, REC_G], recs[k, REC_B], recs[k, REC_DEPTH]
