@@ -1,0 +1,1 @@
+"""The bundled sample: a deterministic, rendered capture of a robot workspace with ground truth."""
