@@ -1,0 +1,215 @@
+"""`m2m sample make`: the bundled sample capture with ground truth, rendered with Genesis.
+
+Writes, into a new directory (built under a temporary name and renamed at the end, so a sample is
+never half-written):
+
+    scene.mp4            hand-held orbit around the table (no robot), H.264
+    head_view.png        the fixed head camera's view of the same scene (no robot)
+    handeye/images/*.png the head camera's view of a ChArUco board held by the robot's gripper
+    handeye/joints.json  the joint angles of each hand-eye image
+    gt/*.obj             ground-truth meshes (with .mtl and texture .png) of the board and objects
+    board.json           the ChArUco board spec
+    ground_truth.json    intrinsics, every frame's pose, board/object poses, T_base_headcam, extent
+    contact_sheet.jpg    a few video frames and hand-eye images, for a person to look at
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..calib.board import BoardSpec
+from .trajectory import OrbitConfig, orbit_poses
+
+GROUND_TRUTH_VERSION = 1
+
+
+@dataclass(frozen=True)
+class SampleConfig:
+    seed: int = 0
+    width: int = 640
+    height: int = 480
+    fov_deg: float = 50.0  # vertical field of view of a phone's main camera (and of the head camera)
+    # The board lies where the robot base will stand. At 640x480 a 5x7 board of 4 cm squares is
+    # too small to detect beyond ~1 m at the orbit's grazing angles; 7 cm squares with 4x4-bit
+    # markers (bigger cells) and a higher, closer orbit put it in every sampled frame (probe: 30/30).
+    board: BoardSpec = field(default_factory=lambda: BoardSpec(square=0.07, marker=0.055, dictionary="DICT_4X4_50"))
+    # The board the robot holds for hand-eye calibration: smaller, so the arm can show it at many poses.
+    handeye_board: BoardSpec = field(default_factory=lambda: BoardSpec(square=0.06, marker=0.045))
+    orbit: OrbitConfig = field(
+        default_factory=lambda: OrbitConfig(target=(0.2, 0.0, 0.0), radius=(0.75, 1.1), height=(0.5, 0.85))
+    )
+    handeye_views: int = 18
+    crf: int = 23  # H.264 quality: visually clean at a few MB for the shipped sample
+
+    @classmethod
+    def short(cls, seed: int = 0) -> SampleConfig:
+        """A quick version for tests: a few seconds of video at a low frame rate, fewer hand-eye views."""
+        full = cls(seed=seed)
+        return replace(full, orbit=replace(full.orbit, duration_s=4.0, fps=5.0), handeye_views=6)
+
+
+class SampleError(ValueError):
+    """Bad output location or failed generation; the message says what to do."""
+
+
+def _check_output_dir(out: Path) -> None:
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise SampleError(f"{out} already exists and is not an empty directory; choose a new path or remove it")
+    parent = out.parent
+    if not parent.is_dir():
+        raise SampleError(f"parent directory {parent} does not exist; create it first (mkdir -p {parent})")
+    if not os.access(parent, os.W_OK):
+        raise SampleError(f"cannot write into {parent}; choose a writable location")
+
+
+def _save_png(path: Path, image: np.ndarray) -> None:
+    from PIL import Image
+
+    Image.fromarray(image).save(path, optimize=False)
+
+
+def _contact_sheet(path: Path, tiles: list[np.ndarray], columns: int = 4, width: int = 320) -> None:
+    from PIL import Image
+
+    h = int(round(tiles[0].shape[0] * width / tiles[0].shape[1]))
+    rows = (len(tiles) + columns - 1) // columns
+    sheet = Image.new("RGB", (columns * width, rows * h), (255, 255, 255))
+    for i, tile in enumerate(tiles):
+        sheet.paste(
+            Image.fromarray(tile).resize((width, h), Image.Resampling.BILINEAR),
+            ((i % columns) * width, (i // columns) * h),
+        )
+    sheet.save(path, quality=88)
+
+
+def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Callable[[str], None] = print) -> dict:
+    """Generate the sample into the new directory ``out``; returns the ground truth dict."""
+    out = Path(out)
+    _check_output_dir(out)  # before the slow imports, so a bad path fails at once
+
+    from ..video import write_video
+    from .assets import board_asset, build_assets, export_assets, ground_truth_entries
+    from .render import RenderConfig, SampleRenderer, default_T_base_headcam, sample_handeye_configurations
+
+    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    (tmp / "handeye" / "images").mkdir(parents=True)
+    t_start = time.perf_counter()
+    try:
+        board = config.board
+        assets = build_assets(seed=config.seed, board=board)
+        board.save(tmp / "board.json")
+        ground_truth_assets = [a for a in assets if a.category in ("board", "object", "button")]
+        mesh_paths = export_assets(ground_truth_assets, tmp / "gt")
+        log(f"assets: {len(assets)} meshes, ground truth for {', '.join(mesh_paths)}")
+
+        render_cfg = RenderConfig(width=config.width, height=config.height, fov_deg=config.fov_deg)
+        times, poses = orbit_poses(config.orbit, seed=config.seed)
+        T_base_headcam = default_T_base_headcam()
+        tiles: list[np.ndarray] = []
+        with SampleRenderer(assets, render_cfg, workdir=tmp / ".render") as renderer:
+            K = renderer.K
+
+            def frames():
+                pick = set(np.linspace(0, len(poses) - 1, 8).round().astype(int).tolist())
+                for i, T in enumerate(poses):
+                    image = renderer.render(T)
+                    if i in pick:
+                        tiles.append(image)
+                    if i % 100 == 0:
+                        log(f"video: frame {i + 1}/{len(poses)}")
+                    yield image
+
+            n = write_video(tmp / "scene.mp4", frames(), fps=config.orbit.fps, crf=config.crf)
+            log(f"video: {n} frames at {config.width}x{config.height}, {config.orbit.fps:g} fps")
+            head_view = renderer.render(T_base_headcam)
+            _save_png(tmp / "head_view.png", head_view)
+
+        table_board = next(a for a in assets if a.category == "board")
+        held_board = board_asset(config.handeye_board)  # same name: it replaces the table board
+        with SampleRenderer(
+            assets, render_cfg, with_robot=True, held_board=held_board, workdir=tmp / ".render_robot"
+        ) as robot_renderer:
+            try:
+                configurations = sample_handeye_configurations(
+                    config.handeye_views, config.seed, T_base_headcam, robot_renderer
+                )
+            except RuntimeError as exc:
+                raise SampleError(f"hand-eye poses: {exc}; use a smaller hand-eye board or fewer views") from None
+            records = []
+            for i, q in enumerate(configurations):
+                robot_renderer.set_joints(q)
+                image = robot_renderer.render(T_base_headcam)
+                name = f"{i:04d}.png"
+                _save_png(tmp / "handeye" / "images" / name, image)
+                if i < 4:
+                    tiles.append(image)
+                records.append(
+                    {
+                        "image": f"images/{name}",
+                        "joints": [float(v) for v in q],
+                        "T_base_hand": robot_renderer.T_base_link("hand").tolist(),
+                    }
+                )
+            # the renderer mounts the slab's object frame; the ground truth is the ChArUco board frame
+            T_hand_board = robot_renderer.T_hand_board @ np.asarray(held_board.meta["T_obj_board"])
+        (tmp / "handeye" / "joints.json").write_text(
+            json.dumps({"robot": robot_renderer.robot_file, "link": "hand", "views": records}, indent=1)
+        )
+        log(f"hand-eye: {len(records)} views of the held board from the head camera")
+
+        verts = np.concatenate([(a.T_base_obj[:3, :3] @ a.mesh.vertices.T).T + a.T_base_obj[:3, 3] for a in assets])
+        ground_truth = {
+            "version": GROUND_TRUTH_VERSION,
+            "seed": config.seed,
+            "units": "metres, seconds",
+            "frame": "robot base: z up, origin at the robot base; the table top is z = 0",
+            "camera_convention": "OpenCV (x right, y down, z forward); K pixel centres at +0.5; T_a_b maps b to a",
+            "camera": {"width": config.width, "height": config.height, "K": np.asarray(K).tolist(), "distortion": None},
+            "video": {"file": "scene.mp4", "fps": config.orbit.fps, "n_frames": len(poses), "crf": config.crf},
+            "frames": [
+                {"index": i, "timestamp": float(t), "T_base_cam": T.tolist()}
+                for i, (t, T) in enumerate(zip(times, poses, strict=True))
+            ],
+            "board": {
+                "spec": board.to_json(),
+                "T_base_board": np.asarray(table_board.meta["T_base_board"]).tolist(),
+            },
+            "objects": ground_truth_entries(ground_truth_assets, mesh_dir="gt"),
+            "head_camera": {
+                "T_base_headcam": np.asarray(T_base_headcam).tolist(),
+                "K": np.asarray(K).tolist(),
+                "width": config.width,
+                "height": config.height,
+                "image": "head_view.png",
+            },
+            "handeye": {
+                "images": "handeye/images",
+                "joints": "handeye/joints.json",
+                "mount": "head (eye-to-hand)",
+                "T_hand_board": np.asarray(T_hand_board).tolist(),
+                "board": config.handeye_board.to_json(),
+            },
+            "world_extent": {"min": verts.min(0).tolist(), "max": verts.max(0).tolist()},
+            "config": asdict(config),
+        }
+        (tmp / "ground_truth.json").write_text(json.dumps(ground_truth, indent=1))
+        _contact_sheet(tmp / "contact_sheet.jpg", tiles)
+        for scratch in (".render", ".render_robot"):
+            shutil.rmtree(tmp / scratch, ignore_errors=True)
+        if out.exists():
+            out.rmdir()  # empty (checked above)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    log(f"sample written to {out} in {time.perf_counter() - t_start:.0f} s")
+    return ground_truth

@@ -1,0 +1,696 @@
+"""Rendering layer of the bundled sample: one Genesis rasterizer scene, a camera in our convention.
+
+The scene holds the placed assets (textured meshes, robot-base frame = Genesis world) and, for the
+hand-eye images, the Franka Panda (base at the origin) holding a board between its fingers.
+
+Genesis 1.4.5 camera convention, converted here at the border (checked by
+``tests/sample/test_render.py::test_projection_convention``):
+
+- ``Camera.set_pose(transform=T)`` takes camera-to-world with OpenGL axes (x right, y up, looking
+  along -z; ``gs.utils.geom.pos_lookat_up_to_T`` builds ``z = pos - lookat``). Ours is OpenCV axes,
+  so ``T_gl = T_world_cam @ GL_TO_CV``.
+- Intrinsics: ``fx = fy = (H / 2) / tan(fov_y / 2)`` (``fov`` is vertical, degrees), principal point
+  ``(W / 2, H / 2)`` with pixel centres at +0.5 (Genesis' own depth unprojection uses ``u + 0.5``),
+  i.e. the same convention as ours. Only square pixels and a centred principal point are possible.
+- Depth is planar (distance along the optical axis), not the ray length.
+- Without a physics step, state changes (``set_qpos``, ``set_pos``) reach the rasterizer only with
+  ``render(force_render=True)``; every render here forces.
+- Anti-aliasing: the offscreen rasterizer always resolves 4x MSAA (``min(GL_MAX_SAMPLES, 4)``); it is
+  not configurable (``render(antialiasing=...)`` is for the batch renderer only).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+
+import numpy as np
+import trimesh
+
+from mirage2matter.geometry.camera import GL_TO_CV
+from mirage2matter.geometry.rotation import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix, rotation_angle
+from mirage2matter.sample.types import PlacedAsset
+
+__all__ = [
+    "PANDA_MJCF",
+    "PANDA_HOME",
+    "DirectionalLight",
+    "HandeyeCheck",
+    "RenderConfig",
+    "SampleRenderer",
+    "board_face",
+    "check_handeye_configuration",
+    "default_T_base_headcam",
+    "default_T_hand_board",
+    "ensure_genesis",
+    "look_at_T",
+    "sample_handeye_configurations",
+]
+
+PANDA_MJCF = "xml/franka_emika_panda/panda.xml"  # bundled with genesis-world
+# Arm joints of the Panda's usual "ready" pose; set_joints adds the fingers.
+PANDA_HOME = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+# Hand-frame depth (along the approach axis z) of the board edge held by the fingers. The fingertip
+# pads span z ~ 0.094..0.111 m in the Panda hand frame, so the board is gripped over ~1.1 cm.
+BOARD_GRIP_EDGE_Z = 0.10
+# Inner face of a fingertip pad sits ~1.5 mm from the finger joint's zero, so the joint value that
+# just touches a board of thickness t is t/2 - 1.5 mm (clipped to the joint range).
+_PAD_INSET = 0.0015
+
+
+# ---- configuration -------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class DirectionalLight:
+    """A directional light (shadows come from these). ``dir`` is the direction light travels (world)."""
+
+    dir: tuple[float, float, float]
+    color: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    intensity: float = 3.0
+
+
+def _default_lights() -> tuple[DirectionalLight, ...]:
+    # A key light from above-front-left and a weaker fill from the other side: faces of a box get
+    # distinct shades, which SfM and the eye need.
+    return (
+        DirectionalLight(dir=(-0.6, -0.8, -1.0), intensity=3.0),
+        DirectionalLight(dir=(0.8, 0.5, -0.7), color=(0.95, 0.97, 1.0), intensity=1.2),
+    )
+
+
+@dataclass
+class RenderConfig:
+    """Camera and lighting of a :class:`SampleRenderer`.
+
+    width, height   image size in pixels
+    fov_deg         vertical field of view in degrees; ignored when ``fy`` is given
+    fy              focal length in pixels (fx = fy; principal point at the image centre)
+    ambient         ambient light colour (linear, 0..1)
+    lights          directional lights
+    background      background colour (0..1) where no geometry is hit
+    shadow          shadow maps for the directional lights
+    near, far       clipping planes (metres). Depth reads ~far where nothing is hit and is quantised to
+                    ~z^2 / (near * 2^24) (metres near ``far``), so readings beyond far / 2 count as "nothing"
+    Anti-aliasing is fixed at 4x MSAA by Genesis' offscreen rasterizer.
+    """
+
+    width: int = 640
+    height: int = 480
+    fov_deg: float = 50.0
+    fy: float | None = None
+    ambient: tuple[float, float, float] = (0.3, 0.3, 0.3)
+    lights: tuple[DirectionalLight, ...] = field(default_factory=_default_lights)
+    background: tuple[float, float, float] = (0.62, 0.66, 0.70)
+    shadow: bool = True
+    near: float = 0.02
+    far: float = 20.0
+
+    @property
+    def focal(self) -> float:
+        """fx = fy in pixels."""
+        if self.fy is not None:
+            return float(self.fy)
+        return 0.5 * self.height / math.tan(math.radians(0.5 * self.fov_deg))
+
+    @property
+    def effective_fov_deg(self) -> float:
+        """Vertical field of view in degrees (from ``fy`` when given), as Genesis takes it."""
+        return math.degrees(2.0 * math.atan(0.5 * self.height / self.focal))
+
+    @property
+    def K(self) -> np.ndarray:
+        """[3,3] intrinsics, pixel centres at +0.5 (principal point at W/2, H/2)."""
+        f = self.focal
+        return np.array([[f, 0.0, 0.5 * self.width], [0.0, f, 0.5 * self.height], [0.0, 0.0, 1.0]])
+
+
+# ---- small geometry helpers ----------------------------------------------------------------------
+def look_at_T(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
+    """[4,4] camera-to-world (OpenCV axes) at ``eye`` looking at ``target``; image up follows ``up``."""
+    eye = np.asarray(eye, dtype=np.float64)
+    z = np.asarray(target, dtype=np.float64) - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, np.asarray(up, dtype=np.float64))
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
+    T[:3, 3] = eye
+    return T
+
+
+def default_T_base_headcam(
+    eye: tuple[float, float, float] = (-0.1, 0.45, 0.95), target: tuple[float, float, float] = (0.5, 0.0, 0.0)
+) -> np.ndarray:
+    """[4,4] T_base_headcam of the sample's fixed head camera (OpenCV axes).
+
+    Over the robot's left shoulder, 0.95 m above the table, looking down at the workspace centre: it
+    sees the table in front of the robot, the objects there, and a board held up in front of it. A
+    camera straight behind the base (y = 0) looks through the Panda's upper arm in its home pose.
+    """
+    return look_at_T(np.array(eye), np.array(target))
+
+
+def _rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T
+
+
+def _inv(T: np.ndarray) -> np.ndarray:
+    R, t = T[:3, :3], T[:3, 3]
+    return _rigid(R.T, -R.T @ t)
+
+
+def _pos_quat(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position [3] and wxyz quaternion [4] of a rigid [4,4]."""
+    return T[:3, 3].copy(), matrix_to_quat(np.ascontiguousarray(T[:3, :3], dtype=np.float64))
+
+
+def board_face(mesh: trimesh.Trimesh, face_normal_obj: np.ndarray = (0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Printed face of a board mesh: its outer rectangle and in-plane axes, in the board's object frame.
+
+    ``face_normal_obj`` is the outward normal of the printed face and must be an object-frame axis
+    (+-x, +-y, +-z); the face is the mesh's bounding box side on that axis.
+
+    Returns ``corners [4,3]`` (counter-clockwise seen from the front, starting at the (a_min, b_min)
+    corner) and ``axes [3,3]`` whose columns are (a, b, n): a = the longer in-plane axis, b = n x a,
+    n = the face normal, so (a, b, n) is right-handed.
+    """
+    n = np.asarray(face_normal_obj, dtype=np.float64)
+    n = n / np.linalg.norm(n)
+    k = int(np.argmax(np.abs(n)))
+    if abs(abs(n[k]) - 1.0) > 1e-9:
+        raise ValueError(f"board face normal must be an object-frame axis, got {face_normal_obj}")
+    lo, hi = np.asarray(mesh.bounds, dtype=np.float64)
+    i, j = (ax for ax in range(3) if ax != k)
+    ia = i if hi[i] - lo[i] >= hi[j] - lo[j] else j
+    a = np.eye(3)[ia]
+    b = np.cross(n, a)
+    centre = 0.5 * (lo + hi)
+    centre[k] = hi[k] if n[k] > 0 else lo[k]
+    ha = 0.5 * (hi - lo) @ np.abs(a)
+    hb = 0.5 * (hi - lo) @ np.abs(b)
+    corners = np.stack([centre + sa * ha * a + sb * hb * b for sa, sb in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+    return corners, np.stack([a, b, n], axis=1)
+
+
+def _face_normal_obj(board: PlacedAsset) -> np.ndarray:
+    return np.asarray(board.meta.get("face_normal_obj", (0.0, 0.0, 1.0)), dtype=np.float64)
+
+
+def default_T_hand_board(board: PlacedAsset) -> np.ndarray:
+    """[4,4] fixed mount of a board in the Panda ``hand`` frame: gripped by one long edge.
+
+    The hand frame has z along the approach (fingers at z ~ 0.06..0.11 m) and the fingers close
+    along y. The board stands in the hand's x-z plane, centred between the fingers: its longer
+    in-plane axis a along hand x, its printed face looking along hand +y, its near edge at
+    z = ``BOARD_GRIP_EDGE_Z`` so the fingertip pads pinch its margin, the rest of it beyond the
+    fingers. Board axes (a, b, n) -> hand (x, -z, y).
+    """
+    _, axes = board_face(board.mesh, _face_normal_obj(board))
+    lo, hi = np.asarray(board.mesh.bounds, dtype=np.float64)
+    b = axes[:, 1]
+    R_hand_board = np.stack([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]], axis=1) @ axes.T
+    centre_obj = 0.5 * (lo + hi)  # mid-thickness, so the fingers grip it symmetrically
+    extent_b = float(np.abs(b) @ (hi - lo))
+    mount_hand = np.array([0.0, 0.0, BOARD_GRIP_EDGE_Z + 0.5 * extent_b])
+    return _rigid(R_hand_board, mount_hand - R_hand_board @ centre_obj)
+
+
+def _board_thickness(board: PlacedAsset) -> float:
+    lo, hi = np.asarray(board.mesh.bounds, dtype=np.float64)
+    return float(np.abs(_face_normal_obj(board)) @ (hi - lo))
+
+
+# ---- Genesis -------------------------------------------------------------------------------------
+def ensure_genesis(backend: str = "cpu") -> object:
+    """Import Genesis and initialise it once per process (``gs.init`` may only run once)."""
+    import genesis as gs
+
+    if not gs._initialized:
+        gs.init(backend=getattr(gs, backend), logging_level="warning")
+    return gs
+
+
+def _slug(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "asset"
+
+
+def _export_obj(mesh: trimesh.Trimesh, folder: Path) -> Path:
+    """OBJ (+ MTL + texture PNG) of ``mesh`` in its own folder: trimesh names materials generically."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "mesh.obj"
+    mesh.export(path)
+    return path
+
+
+class SampleRenderer:
+    """One Genesis scene of placed assets (optionally the Panda holding a board) and one camera.
+
+    assets        static / object meshes, placed at their ``T_base_obj`` (Genesis world = robot base)
+    config        camera and lights
+    with_robot    add the Franka Panda (bundled MJCF), base at the origin
+    held_board    a board (category "board") mounted in the gripper at ``T_hand_board``; needs the robot.
+                  Its printed face normal in its object frame is ``meta["face_normal_obj"]`` (default +z).
+                  An asset of the same name in ``assets`` (the board lying on the table) is left out.
+    T_hand_board  [4,4] mount of the board in the ``hand`` link frame (default: :func:`default_T_hand_board`)
+    workdir       where the OBJ exports go
+
+    Building the scene takes ~35-60 s (kernel caches in ~/.cache make it faster); use it as a
+    context manager, or call :meth:`close`.
+    """
+
+    def __init__(
+        self,
+        assets: list[PlacedAsset],
+        config: RenderConfig | None = None,
+        with_robot: bool = False,
+        held_board: PlacedAsset | None = None,
+        *,
+        workdir: Path,
+        T_hand_board: np.ndarray | None = None,
+    ) -> None:
+        if held_board is not None and not with_robot:
+            raise ValueError("held_board needs with_robot=True")
+        self.config = config or RenderConfig()
+        cfg = self.config
+        workdir = Path(workdir)
+        gs = ensure_genesis()
+
+        self._scene = gs.Scene(
+            show_viewer=False,
+            renderer=gs.renderers.Rasterizer(),
+            vis_options=gs.options.VisOptions(
+                ambient_light=tuple(cfg.ambient),
+                background_color=tuple(cfg.background),
+                lights=[
+                    {"type": "directional", "dir": tuple(li.dir), "color": tuple(li.color), "intensity": li.intensity}
+                    for li in cfg.lights
+                ],
+                shadow=cfg.shadow,
+                segmentation_level="entity",
+            ),
+        )
+        self.entity_names: list[str] = []  # segmentation label i <-> entity_names[i]
+        self._entities: dict[str, object] = {}
+
+        def add_mesh(asset: PlacedAsset, index: int) -> object:
+            obj = _export_obj(asset.mesh, workdir / f"{index:03d}_{_slug(asset.name)}")
+            pos, quat = _pos_quat(np.asarray(asset.T_base_obj, dtype=np.float64))
+            entity = self._scene.add_entity(
+                gs.morphs.Mesh(file=str(obj), pos=tuple(pos), quat=tuple(quat), fixed=True, collision=False),
+                surface=gs.surfaces.Default(),
+            )
+            self._register(asset.name, entity)
+            return entity
+
+        if held_board is not None:  # one board, in the gripper
+            assets = [a for a in assets if a.name != held_board.name]
+        for i, asset in enumerate(assets):
+            add_mesh(asset, i)
+
+        self.robot = None
+        self.board = held_board
+        self._board_entity = None
+        self.T_hand_board: np.ndarray | None = None
+        if with_robot:
+            self.robot = self._scene.add_entity(gs.morphs.MJCF(file=PANDA_MJCF, pos=(0.0, 0.0, 0.0)))
+            self._register("robot", self.robot)
+        if held_board is not None:
+            self._board_entity = add_mesh(held_board, len(assets))
+            self.T_hand_board = np.asarray(
+                default_T_hand_board(held_board) if T_hand_board is None else T_hand_board, dtype=np.float64
+            )
+            self.board_corners_obj, self.board_axes_obj = board_face(held_board.mesh, _face_normal_obj(held_board))
+            # Fingers just touching the board (visual only: the board does not collide).
+            self.finger_q = float(np.clip(0.5 * _board_thickness(held_board) - _PAD_INSET, 0.0, 0.04))
+        else:
+            self.board_corners_obj = self.board_axes_obj = None
+            self.finger_q = 0.04
+
+        self._cam = self._scene.add_camera(
+            res=(cfg.width, cfg.height),
+            pos=(1.0, 0.0, 1.0),
+            lookat=(0.0, 0.0, 0.0),
+            fov=cfg.effective_fov_deg,
+            near=cfg.near,
+            far=cfg.far,
+            GUI=False,
+        )
+        self._scene.build()
+        if not np.allclose(np.asarray(self._cam.intrinsics), self.K, atol=1e-6):
+            raise RuntimeError(f"Genesis intrinsics {self._cam.intrinsics} differ from ours {self.K}")
+        self._seg_lut: np.ndarray | None = None
+        if self.robot is not None:
+            self.set_joints(PANDA_HOME)
+
+    def _register(self, name: str, entity: object) -> None:
+        if name in self._entities:
+            raise ValueError(f"duplicate entity name {name!r}")
+        self._entities[name] = entity
+        self.entity_names.append(name)
+
+    # ---- lifecycle -------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Free the Genesis scene (GL context, solver). The renderer is unusable afterwards."""
+        if self._scene is not None:
+            self._scene.destroy()
+            self._scene = None
+
+    def __enter__(self) -> SampleRenderer:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    # ---- camera ----------------------------------------------------------------------------------
+    @property
+    def K(self) -> np.ndarray:
+        """[3,3] intrinsics of every render (pixel centres at +0.5)."""
+        return self.config.K
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) in pixels."""
+        return self.config.width, self.config.height
+
+    def _render(self, T_world_cam: np.ndarray, **what: bool) -> tuple:
+        T_world_cam = np.asarray(T_world_cam, dtype=np.float64)
+        if T_world_cam.shape != (4, 4):
+            raise ValueError(f"T_world_cam must be [4,4], got {T_world_cam.shape}")
+        self._cam.set_pose(transform=T_world_cam @ GL_TO_CV)
+        return self._cam.render(force_render=True, **what)
+
+    def render(self, T_world_cam: np.ndarray) -> np.ndarray:
+        """RGB image uint8 [H,W,3] seen by a camera with pose ``T_world_cam`` [4,4] (OpenCV axes)."""
+        rgb, *_ = self._render(T_world_cam, rgb=True)
+        return np.array(rgb, dtype=np.uint8, copy=True)
+
+    def render_rgbd(self, T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """RGB uint8 [H,W,3] and planar depth float32 [H,W] (metres along z; inf where nothing is hit)."""
+        rgb, depth, *_ = self._render(T_world_cam, rgb=True, depth=True)
+        return np.array(rgb, dtype=np.uint8, copy=True), self._clean_depth(depth)
+
+    def render_depth(self, T_world_cam: np.ndarray) -> np.ndarray:
+        """Planar depth float32 [H,W] in metres (camera z); inf where no geometry is hit."""
+        _, depth, *_ = self._render(T_world_cam, rgb=False, depth=True)
+        return self._clean_depth(depth)
+
+    def _clean_depth(self, depth: np.ndarray) -> np.ndarray:
+        depth = np.array(depth, dtype=np.float32, copy=True)
+        # The cleared depth buffer linearises to ~far; 24-bit quantisation is metres there: call it "nothing".
+        depth[depth >= 0.5 * self.config.far] = np.inf
+        return depth
+
+    def render_segmentation(self, T_world_cam: np.ndarray) -> np.ndarray:
+        """Entity labels int32 [H,W]: i -> ``entity_names[i]``, -1 where nothing is hit."""
+        _, _, seg, _ = self._render(T_world_cam, rgb=False, segmentation=True)
+        seg = np.asarray(seg).astype(np.int64)
+        if self._seg_lut is None:
+            # Genesis numbers segmentation "idxc" in node-creation order; map them to our entity order.
+            idx_of = {id(e): i for i, e in enumerate(self._entities.values())}
+            by_entity_idx = {e.idx: idx_of[id(e)] for e in self._entities.values()}
+            idxc_map = self._scene.segmentation_idx_dict
+            lut = np.full(max(idxc_map) + 2, -1, dtype=np.int32)
+            for idxc, key in idxc_map.items():
+                if key in by_entity_idx:
+                    lut[idxc] = by_entity_idx[key]
+            self._seg_lut = lut
+        seg = np.where((seg >= 0) & (seg < len(self._seg_lut) - 1), seg, len(self._seg_lut) - 1)
+        return self._seg_lut[seg]
+
+    def render_mask(self, T_world_cam: np.ndarray, name: str) -> np.ndarray:
+        """bool [H,W]: pixels where entity ``name`` (an asset's name, "robot") is the visible surface."""
+        return self.render_segmentation(T_world_cam) == self.entity_names.index(name)
+
+    # ---- robot -----------------------------------------------------------------------------------
+    @property
+    def robot_file(self) -> str:
+        """The robot description, relative to Genesis' bundled assets."""
+        return PANDA_MJCF
+
+    def _need_robot(self) -> object:
+        if self.robot is None:
+            raise RuntimeError("this renderer was built without the robot")
+        return self.robot
+
+    @property
+    def joint_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lower [9], upper [9]) joint limits: 7 arm joints (rad) then 2 finger joints (m)."""
+        lo, hi = self._need_robot().get_dofs_limit()
+        return np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+
+    def set_joints(self, q: np.ndarray) -> None:
+        """Set the arm [7] (fingers then grip the board, or open) or arm + fingers [9]; re-place the board."""
+        robot = self._need_robot()
+        q = np.asarray(q, dtype=np.float64).reshape(-1)
+        if q.shape == (7,):
+            q = np.concatenate([q, [self.finger_q, self.finger_q]])
+        if q.shape != (9,):
+            raise ValueError(f"q must have 7 or 9 values, got {q.shape}")
+        robot.set_qpos(q)
+        if self._board_entity is not None:
+            pos, quat = _pos_quat(self.T_base_board)
+            self._board_entity.set_pos(pos)
+            self._board_entity.set_quat(quat)
+
+    def get_joints(self) -> np.ndarray:
+        """Current joint positions [9] (arm then fingers)."""
+        return np.asarray(self._need_robot().get_qpos(), dtype=np.float64)
+
+    def T_base_link(self, name: str = "hand") -> np.ndarray:
+        """[4,4] pose of a Panda link ("link0".."link7", "hand", "left_finger", ...) from Genesis FK."""
+        link = self._need_robot().get_link(name)
+        q = np.asarray(link.get_quat(), dtype=np.float64)
+        return _rigid(quat_to_matrix(q / np.linalg.norm(q)), np.asarray(link.get_pos(), dtype=np.float64))
+
+    @property
+    def T_base_board(self) -> np.ndarray:
+        """[4,4] current pose of the held board's object frame: T_base_hand @ T_hand_board."""
+        if self.T_hand_board is None:
+            raise RuntimeError("this renderer holds no board")
+        return self.T_base_link("hand") @ self.T_hand_board
+
+    def board_corners_base(self) -> np.ndarray:
+        """[4,3] corners of the held board's printed face in the base frame (see :func:`board_face`)."""
+        T = self.T_base_board
+        return self.board_corners_obj @ T[:3, :3].T + T[:3, 3]
+
+    def self_collision(self) -> bool:
+        """Whether the arm's collision geometry intersects itself in the current joint state."""
+        return len(self._need_robot().detect_collision()) > 0
+
+    def board_intersects_arm(self, clearance: float = 0.01) -> bool:
+        """Whether an arm link (link0..link7, hand; not the fingers holding it) reaches into the held
+        board: the board does not collide in Genesis, so this is checked on the links' collision
+        vertices, in the board's face frame. A link counts when its vertices over the face rectangle
+        (grown by ``clearance``) come within ``clearance`` of the slab or lie on both sides of it.
+        """
+        robot = self._need_robot()
+        T = self.T_base_board
+        corners = self.board_corners_obj
+        a, b, n = self.board_axes_obj.T
+        centre = corners.mean(axis=0)
+        half_a = 0.5 * np.ptp(corners @ a)
+        half_b = 0.5 * np.ptp(corners @ b)
+        thickness = _board_thickness(self.board)
+        for link in robot.links:
+            if link.name in ("left_finger", "right_finger") or link.n_verts == 0:
+                continue
+            X = np.asarray(link.get_verts(), dtype=np.float64)
+            X_obj = (X - T[:3, 3]) @ T[:3, :3] - centre  # base -> board object frame, face centre origin
+            over = (np.abs(X_obj @ a) <= half_a + clearance) & (np.abs(X_obj @ b) <= half_b + clearance)
+            if not over.any():
+                continue
+            h = X_obj[over] @ n  # height over the printed face; the slab is [-thickness, 0]
+            if h.min() < clearance and h.max() > -thickness - clearance:
+                return True
+        return False
+
+
+# ---- hand-eye configurations --------------------------------------------------------------------
+def _project(K: np.ndarray, T_world_cam: np.ndarray, X_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels [N,2] and camera depths [N] of world points [N,3]."""
+    V = _inv(T_world_cam)
+    Xc = X_world @ V[:3, :3].T + V[:3, 3]
+    uvw = Xc @ K.T
+    return uvw[:, :2] / uvw[:, 2:3], Xc[:, 2]
+
+
+def _polygon_mask(uv: np.ndarray, width: int, height: int) -> np.ndarray:
+    """bool [H,W]: pixel centres inside the convex polygon uv [N,2] (vertices in order)."""
+    u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    n = len(uv)
+    sides = []
+    for i in range(n):
+        p, q = uv[i], uv[(i + 1) % n]
+        sides.append((q[0] - p[0]) * (v - p[1]) - (q[1] - p[1]) * (u - p[0]))
+    sides = np.stack(sides)
+    return np.all(sides >= 0, axis=0) | np.all(sides <= 0, axis=0)
+
+
+def _rotation_axes_spread_deg(Rs: list[np.ndarray]) -> float:
+    """Largest angle (deg, 0..90) between the rotation axes of relative motions R_i^T R_j (i < j)."""
+    axes = []
+    for i in range(len(Rs)):
+        for j in range(i + 1, len(Rs)):
+            R = Rs[i].T @ Rs[j]
+            w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+            if np.linalg.norm(w) > 1e-6:
+                axes.append(w / np.linalg.norm(w))
+    if len(axes) < 2:
+        return 0.0
+    A = np.stack(axes)
+    cos = np.clip(np.abs(A @ A.T), 0.0, 1.0)
+    return float(np.degrees(np.arccos(cos.min())))
+
+
+@dataclass
+class HandeyeCheck:
+    """Why a configuration was accepted or not (for diagnostics and tests)."""
+
+    ok: bool
+    reason: str = ""
+    facing_deg: float = float("nan")
+    visible_fraction: float = float("nan")
+
+
+def check_handeye_configuration(
+    renderer: SampleRenderer,
+    T_base_headcam: np.ndarray,
+    *,
+    margin_px: float = 20.0,
+    max_facing_deg: float = 60.0,
+    min_visible: float = 0.9,
+    min_height: float = 0.03,
+    render_check: bool = True,
+) -> HandeyeCheck:
+    """Check the renderer's current joint state for a hand-eye image from the head camera.
+
+    In view: all printed-face corners project inside the image with ``margin_px`` and in front of
+    the camera. Facing: face normal within ``max_facing_deg`` of the direction to the camera. No
+    self-collision, no arm link through the board; board and hand above the table
+    (z >= ``min_height``). With ``render_check``,
+    at least ``min_visible`` of the projected face is the board's own surface in a segmentation
+    render (not hidden by the arm).
+    """
+    W, H = renderer.size
+    K = renderer.K
+    lo, hi = renderer.joint_limits
+    q = renderer.get_joints()
+    if np.any(q < lo - 1e-6) or np.any(q > hi + 1e-6):
+        return HandeyeCheck(False, "joint limits")
+    corners = renderer.board_corners_base()
+    uv, z = _project(K, T_base_headcam, corners)
+    if np.any(z <= renderer.config.near):
+        return HandeyeCheck(False, "behind camera")
+    if np.any(uv < margin_px) or np.any(uv[:, 0] > W - margin_px) or np.any(uv[:, 1] > H - margin_px):
+        return HandeyeCheck(False, "out of view")
+    T_base_board = renderer.T_base_board
+    n_base = T_base_board[:3, :3] @ renderer.board_axes_obj[:, 2]
+    to_cam = T_base_headcam[:3, 3] - corners.mean(axis=0)
+    facing = float(np.degrees(np.arccos(np.clip(n_base @ to_cam / np.linalg.norm(to_cam), -1.0, 1.0))))
+    if facing > max_facing_deg:
+        return HandeyeCheck(False, "not facing", facing)
+    if corners[:, 2].min() < min_height or renderer.T_base_link("hand")[2, 3] < min_height:
+        return HandeyeCheck(False, "below table", facing)
+    if renderer.self_collision():
+        return HandeyeCheck(False, "self collision", facing)
+    if renderer.board_intersects_arm():
+        return HandeyeCheck(False, "board in arm", facing)
+    visible = float("nan")
+    if render_check:
+        poly = _polygon_mask(uv, W, H)
+        mask = renderer.render_mask(T_base_headcam, renderer.board.name)
+        visible = float((mask & poly).sum() / max(poly.sum(), 1))
+        if visible < min_visible:
+            return HandeyeCheck(False, "occluded", facing, visible)
+    return HandeyeCheck(True, "", facing, visible)
+
+
+def sample_handeye_configurations(
+    n: int,
+    seed: int,
+    T_base_headcam: np.ndarray,
+    renderer: SampleRenderer,
+    *,
+    depth_range: tuple[float, float] | None = None,
+    image_fill: tuple[float, float] = (0.4, 0.8),
+    tilt_deg: tuple[float, float] = (5.0, 35.0),
+    roll_deg: float = 90.0,
+    min_separation_deg: float = 10.0,
+    max_attempts: int = 2000,
+    **check_kwargs: float,
+) -> list[np.ndarray]:
+    """``n`` joint configurations [9] of the Panda for hand-eye images from the fixed head camera.
+
+    Each draws a board pose in front of the camera: centre on a random ray through the middle
+    half of the image at ``depth_range`` metres from the camera (default: where the board's diagonal
+    spans ``image_fill`` of the image's smaller side), printed face towards the camera tilted by
+    ``tilt_deg`` about a random in-plane axis and rolled up to +-``roll_deg`` about its normal.
+    Inverse kinematics of the hand (``T_base_board @ inv(T_hand_board)``) from the home pose gives
+    the joints; :func:`check_handeye_configuration` accepts or rejects them, and a board orientation
+    closer than ``min_separation_deg`` to an accepted one is skipped. The random tilt axes make the
+    relative motions rotate about non-parallel axes (Tsai-Lenz needs that); this is checked.
+
+    Deterministic for a given seed. Leaves the renderer at the last configuration tried.
+    """
+    if renderer.board is None or renderer.robot is None:
+        raise ValueError("the renderer must hold a board")
+    rng = np.random.default_rng(seed)
+    W, H = renderer.size
+    K_inv = np.linalg.inv(renderer.K)
+    T_base_headcam = np.asarray(T_base_headcam, dtype=np.float64)
+    cam_centre = T_base_headcam[:3, 3]
+    hand = renderer.robot.get_link("hand")
+    T_board_hand = _inv(renderer.T_hand_board)
+    axes_obj = renderer.board_axes_obj
+    # Face centre -> object-frame origin, to place the face centre on the sampled ray.
+    face_centre_obj = renderer.board_corners_obj.mean(axis=0)
+    q_home = np.concatenate([PANDA_HOME, [renderer.finger_q] * 2])
+    if depth_range is None:
+        diagonal = float(np.linalg.norm(renderer.board_corners_obj[2] - renderer.board_corners_obj[0]))
+        span = renderer.K[1, 1] * diagonal / min(W, H)  # depth at which the diagonal fills the image
+        depth_range = (span / image_fill[1], span / image_fill[0])
+    accepted: list[np.ndarray] = []
+    R_accepted: list[np.ndarray] = []
+    for _ in range(max_attempts):
+        if len(accepted) >= n and _rotation_axes_spread_deg(R_accepted) > 30.0:
+            break
+        u = rng.uniform(0.25 * W, 0.75 * W)
+        v = rng.uniform(0.25 * H, 0.75 * H)
+        ray = T_base_headcam[:3, :3] @ (K_inv @ np.array([u, v, 1.0]))
+        p_base = cam_centre + rng.uniform(*depth_range) * ray
+        n_des = (cam_centre - p_base) / np.linalg.norm(cam_centre - p_base)
+        # Tilt about a random axis perpendicular to the normal, then roll about the tilted normal.
+        perp = np.cross(n_des, rng.standard_normal(3))
+        n_des = axis_angle_to_matrix(perp, math.radians(rng.uniform(*tilt_deg))) @ n_des
+        up = np.array([0.0, 0.0, 1.0]) - n_des[2] * n_des  # board "b" axis nominally up in the image
+        b_des = axis_angle_to_matrix(n_des, math.radians(rng.uniform(-roll_deg, roll_deg))) @ (up / np.linalg.norm(up))
+        a_des = np.cross(b_des, n_des)
+        R_base_board = np.stack([a_des, b_des, n_des], axis=1) @ axes_obj.T
+        if any(rotation_angle(R.T @ R_base_board) < math.radians(min_separation_deg) for R in R_accepted):
+            continue
+        T_base_board = _rigid(R_base_board, p_base - R_base_board @ face_centre_obj)
+        pos, quat = _pos_quat(T_base_board @ T_board_hand)
+        q = renderer.robot.inverse_kinematics(
+            link=hand, pos=pos, quat=quat, init_qpos=q_home, max_samples=10, seed=int(rng.integers(2**31))
+        )
+        q = np.asarray(q, dtype=np.float64)
+        q[7:] = renderer.finger_q
+        renderer.set_joints(q)
+        T_err = _inv(renderer.T_base_link("hand")) @ (T_base_board @ T_board_hand)
+        if np.linalg.norm(T_err[:3, 3]) > 2e-3 or rotation_angle(T_err[:3, :3]) > math.radians(1.0):
+            continue
+        if not check_handeye_configuration(renderer, T_base_headcam, **check_kwargs).ok:
+            continue
+        accepted.append(q)
+        R_accepted.append(renderer.T_base_board[:3, :3])
+    if len(accepted) < n:
+        raise RuntimeError(f"found only {len(accepted)} of {n} hand-eye configurations in {max_attempts} attempts")
+    return accepted
