@@ -281,7 +281,7 @@ def test_demo_small(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     np.testing.assert_array_equal(sheet[96:, 96:], views[3])
 
     assert "coming in later issues" in captured.out and "demo_summary.json" in captured.out
-    assert "[7/7]" in captured.err
+    assert "[8/8]" in captured.err
 
     # The saved camera lets `m2m render` reproduce view 0 from the saved PLY.
     rerender = tmp_path / "again.png"

@@ -26,7 +26,7 @@ EXIT_ERROR = 2  # bad input, like argparse's own usage errors
 EXIT_INTERRUPTED = 130
 
 # Stages of DESIGN.md section 3 that later issues add; `m2m demo` says so.
-NOT_IMPLEMENTED = ("capture", "SfM", "alignment", "training", "objects", "physics", "datasets")
+NOT_IMPLEMENTED = ("keyframes + SfM", "alignment", "training", "objects", "physics", "datasets")
 
 _CAMERA_FIELDS = '{"width", "height", "K" (3x3, pixels), "T_world_cam" (4x4 camera-to-world, OpenCV axes)}'
 
@@ -339,8 +339,19 @@ def run_demo(cfg: DemoConfig, log: Callable[[str], None] = _info) -> dict[str, A
     except OSError as e:
         raise CliError(f"cannot create workspace folders in {ws} ({_describe(e)}); choose another with -w") from e
     threads = configure_threads()
-    steps = _Steps(7, log)
+    steps = _Steps(8, log)
     timings: dict[str, float] = {}
+
+    # The pipeline starts from a video like a user's: today it reads the bundled sample capture and
+    # checks its board against the ground truth; SfM and the rest come in later issues.
+    from .sample.inspect import BUNDLED_SAMPLE, inspect_sample
+
+    sample = inspect_sample(BUNDLED_SAMPLE)
+    timings["sample"] = steps.finish(
+        f"read the bundled sample video {_show(BUNDLED_SAMPLE / 'scene.mp4')}: {sample['video_frames']} frames; "
+        f"ChArUco board found in {sample['board_detected']}/{sample['frames_checked']} checked frames, "
+        f"{sample['board_corner_error_px_median']:.2f} px from the ground truth"
+    )
 
     g = tabletop_scene(cfg.gaussians, cfg.sh_degree, cfg.seed)
     timings["build_scene"] = steps.finish(
@@ -402,6 +413,7 @@ def run_demo(cfg: DemoConfig, log: Callable[[str], None] = _info) -> dict[str, A
         "workspace": str(ws.resolve()),
         "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()},
         "threads": threads,
+        "sample": sample,
         "scene": {
             "ply": ply_rel,
             "gaussians": len(g),
@@ -436,8 +448,14 @@ def _print_demo_summary(ws: Path, s: dict[str, Any], elapsed: float) -> None:
     p = lambda rel: _show(ws / rel)
     n_views = len(r["views"])
     ply, cam = p(sc["ply"]), p(r["camera"])
+    sm = s["sample"]
     lines = [
         f"m2m demo finished in {elapsed:.1f} s; workspace {_show(ws)}/",
+        f"  sample     {_show(Path(sm['sample']))}/scene.mp4: {sm['video_frames']} frames at "
+        f"{sm['size'][0]}x{sm['size'][1]}, "
+        f"board in {sm['board_detected']}/{sm['frames_checked']} checked frames "
+        f"({sm['board_corner_error_px_median']:.2f} px from ground truth), {sm['handeye_views']} hand-eye views; "
+        "see its contact_sheet.jpg",
         f"  scene      {ply}: {sc['gaussians']:,} Gaussians, SH degree {sc['sh_degree']}, "
         f"{sc['ply_bytes'] / 1e6:.1f} MB (Inria 3DGS layout; opens in SuperSplat), read back identical",
         f"  renders    {p('renders')}/view_0..{n_views - 1}.png: {r['width']}x{r['height']}, {r['backend']} backend, "

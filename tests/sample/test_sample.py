@@ -211,3 +211,14 @@ def test_pycolmap_registers_frames_sampled_from_the_video(gt, tmp_path):
     models = pycolmap.incremental_mapping(db, images, tmp_path / "sparse")
     registered = max((m.num_reg_images() for m in models.values()), default=0)
     assert registered >= 0.95 * len(names), f"registered {registered}/{len(names)} frames"
+
+
+def test_inspect_sample_reads_the_video_like_a_user_capture(gt, tmp_path):
+    from mirage2matter.sample.inspect import inspect_sample
+
+    summary = inspect_sample(SAMPLE, n_checked=12)
+    assert summary["video_frames"] == gt["video"]["n_frames"]
+    assert summary["board_detected"] >= 0.5 * summary["frames_checked"] >= 6
+    assert summary["board_corner_error_px_median"] < 1.0
+    with pytest.raises(FileNotFoundError, match="m2m sample make"):
+        inspect_sample(tmp_path / "nothing")
