@@ -15,12 +15,12 @@ import pytest
 import trimesh
 from PIL import Image
 
+from mirage2matter.geometry.camera import look_at_pose
 from mirage2matter.sample.render import (
     PANDA_HOME,
     RenderConfig,
     SampleRenderer,
     default_T_base_headcam,
-    look_at_T,
     sample_handeye_configurations,
 )
 from mirage2matter.sample.types import PlacedAsset
@@ -135,8 +135,8 @@ def test_config_intrinsics() -> None:
 
 # Two views of the markers, rolled so that an x/y swap or a flip cannot pass by symmetry.
 MARKER_VIEWS = [
-    _with_roll(look_at_T(np.array([1.3, -0.9, 0.8]), np.array([0.55, -0.3, 0.12])), 12.0),
-    _with_roll(look_at_T(np.array([0.2, -1.1, 0.5]), np.array([0.6, -0.3, 0.12])), -20.0),
+    _with_roll(look_at_pose(np.array([1.3, -0.9, 0.8]), np.array([0.55, -0.3, 0.12])), 12.0),
+    _with_roll(look_at_pose(np.array([0.2, -1.1, 0.5]), np.array([0.6, -0.3, 0.12])), -20.0),
 ]
 
 
@@ -181,7 +181,7 @@ def _board_view(renderer: SampleRenderer) -> np.ndarray:
     a, b, n = (T_base_board[:3, :3] @ renderer.board_axes_obj).T
     centre = renderer.board_corners_base().mean(axis=0)
     eye = centre + 0.45 * (n + 0.25 * a - 0.2 * b) / np.linalg.norm(n + 0.25 * a - 0.2 * b)
-    return look_at_T(eye, centre, up=b)
+    return look_at_pose(eye, centre, up=b)
 
 
 @pytest.mark.parametrize("q", [PANDA_HOME, np.array([0.5, -0.3, -0.3, -2.0, 0.4, 2.1, 0.3])])

@@ -1,12 +1,13 @@
 import numpy as np
 import pytest
 
-from mirage2matter.sample.trajectory import OrbitConfig, look_at_opencv, orbit_poses
+from mirage2matter.geometry.camera import look_at_pose
+from mirage2matter.sample.trajectory import OrbitConfig, orbit_poses
 
 
 def test_look_at_points_the_optical_axis_at_the_target():
     eye, target = np.array([1.0, -0.5, 0.7]), np.array([0.2, 0.1, 0.0])
-    T = look_at_opencv(eye, target)
+    T = look_at_pose(eye, target)
     R = T[:3, :3]
     assert np.allclose(R.T @ R, np.eye(3)) and np.isclose(np.linalg.det(R), 1.0)
     # the target projects to the principal point: its camera-frame x, y are 0 and z > 0

@@ -237,16 +237,9 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def look_at(
-    eye: np.ndarray,
-    target: np.ndarray,
-    up: np.ndarray,
-    K: np.ndarray,
-    width: int,
-    height: int,
-    name: str = "",
-) -> Camera:
-    """A camera at ``eye`` looking at ``target``; image "up" follows world ``up`` (OpenCV axes)."""
+def look_at_pose(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
+    """T_world_cam [4,4] of a camera at ``eye`` looking at ``target``, OpenCV axes (x right, y down,
+    z forward); image "up" follows world ``up``."""
     eye = np.asarray(eye, dtype=np.float64).reshape(3)
     target = np.asarray(target, dtype=np.float64).reshape(3)
     up = np.asarray(up, dtype=np.float64).reshape(3)
@@ -262,7 +255,20 @@ def look_at(
     T = np.eye(4)
     T[:3, :3] = np.stack([x, y, z], axis=1)
     T[:3, 3] = eye
-    return Camera(K, T, width, height, name)
+    return T
+
+
+def look_at(
+    eye: np.ndarray,
+    target: np.ndarray,
+    up: np.ndarray,
+    K: np.ndarray,
+    width: int,
+    height: int,
+    name: str = "",
+) -> Camera:
+    """A camera at ``eye`` looking at ``target``; image "up" follows world ``up`` (OpenCV axes)."""
+    return Camera(K, look_at_pose(eye, target, up), width, height, name)
 
 
 # ---- camera JSON files --------------------------------------------------------------------------

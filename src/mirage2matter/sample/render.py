@@ -30,7 +30,7 @@ from types import TracebackType
 import numpy as np
 import trimesh
 
-from mirage2matter.geometry.camera import GL_TO_CV
+from mirage2matter.geometry.camera import GL_TO_CV, look_at_pose
 from mirage2matter.geometry.rotation import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix, rotation_angle
 from mirage2matter.sample.types import PlacedAsset
 
@@ -46,7 +46,6 @@ __all__ = [
     "default_T_base_headcam",
     "default_T_hand_board",
     "ensure_genesis",
-    "look_at_T",
     "sample_handeye_configurations",
 ]
 
@@ -127,19 +126,6 @@ class RenderConfig:
 
 
 # ---- small geometry helpers ----------------------------------------------------------------------
-def look_at_T(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
-    """[4,4] camera-to-world (OpenCV axes) at ``eye`` looking at ``target``; image up follows ``up``."""
-    eye = np.asarray(eye, dtype=np.float64)
-    z = np.asarray(target, dtype=np.float64) - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, np.asarray(up, dtype=np.float64))
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
-    T[:3, 3] = eye
-    return T
-
-
 def default_T_base_headcam(
     eye: tuple[float, float, float] = (-0.1, 0.45, 0.95), target: tuple[float, float, float] = (0.5, 0.0, 0.0)
 ) -> np.ndarray:
@@ -149,7 +135,7 @@ def default_T_base_headcam(
     sees the table in front of the robot, the objects there, and a board held up in front of it. A
     camera straight behind the base (y = 0) looks through the Panda's upper arm in its home pose.
     """
-    return look_at_T(np.array(eye), np.array(target))
+    return look_at_pose(eye, target)
 
 
 def _rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry.camera import look_at_pose
+
 
 @dataclass(frozen=True)
 class OrbitConfig:
@@ -48,21 +50,6 @@ def _smooth_noise(rng: np.random.Generator, t: np.ndarray, n_waves: int, min_per
     weights = rng.uniform(0.5, 1.0, n_waves)
     signal = (weights[:, None] * np.sin(2 * math.pi * t[None] / periods[:, None] + phases[:, None])).sum(0)
     return signal / weights.sum()
-
-
-def look_at_opencv(eye: np.ndarray, target: np.ndarray, up: tuple[float, float, float] = (0.0, 0.0, 1.0)) -> np.ndarray:
-    """T_world_cam [4,4] of a camera at ``eye`` looking at ``target``, OpenCV axes (x right, y down, z forward)."""
-    z = target - eye
-    z = z / np.linalg.norm(z)
-    x = np.cross(z, np.asarray(up, float))
-    if np.linalg.norm(x) < 1e-9:
-        raise ValueError("look_at: viewing direction is parallel to 'up'")
-    x = x / np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z], axis=1)
-    T[:3, 3] = eye
-    return T
 
 
 def _small_rotation(rx: float, ry: float, rz: float) -> np.ndarray:
@@ -102,7 +89,7 @@ def orbit_poses(config: OrbitConfig = OrbitConfig(), seed: int = 0) -> tuple[np.
     )
     poses = np.empty((n, 4, 4))
     for i in range(n):
-        T = look_at_opencv(eyes[i] + shake_t[i], aims[i])
+        T = look_at_pose(eyes[i] + shake_t[i], aims[i])
         T[:3, :3] = T[:3, :3] @ _small_rotation(*shake_r[i])
         poses[i] = T
     return t, poses
