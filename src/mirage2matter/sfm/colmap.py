@@ -1,0 +1,345 @@
+"""Structure from motion with pycolmap (pipeline stage ``sfm``), and pose evaluation.
+
+One shared camera for all images (a single phone / video capture) with the OPENCV model, and
+bundle adjustment refines the principal point: a model that pins it at the image centre
+(SIMPLE_RADIAL) tilted every fox camera by about 0.5 degrees (FIELD_NOTES.md, pycolmap).
+
+COLMAP and we share conventions (OpenCV axes, pixel centres at +0.5), so intrinsics pass through
+as they are and poses only need inverting: COLMAP stores world-to-camera, we keep
+camera-to-world. The SfM world frame is kept as COLMAP returns it (arbitrary scale and origin);
+align-scene maps it to the robot base later.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import shutil
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..geometry.camera import Camera
+from ..geometry.rotation import rotation_angle
+from ..geometry.umeyama import umeyama
+
+__all__ = ["SfMConfig", "SfMError", "SfMResult", "compare_poses", "load_sfm_summary", "run_sfm"]
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
+MIN_IMAGES = 3
+
+
+class SfMError(RuntimeError):
+    """SfM that cannot run or did not reconstruct enough; the message says what to do."""
+
+
+@dataclass
+class SfMConfig:
+    """pycolmap settings.
+
+    camera_model        COLMAP camera model shared by all images (OPENCV fits phone lenses)
+    matching            "sequential" (video order, neighbours within ``overlap``), "exhaustive"
+                        (all pairs) or "auto": exhaustive below ``exhaustive_below`` images
+    loop_detection      sequential matching also matches visually similar far-apart frames;
+                        needs a COLMAP vocabulary tree file (``vocab_tree_path``)
+    max_num_features    SIFT features per image
+    downscale           features are extracted at this fraction of the image size (keypoints
+                        are scaled back, so intrinsics stay in full-resolution pixels)
+    refine_principal_point  let bundle adjustment move cx, cy
+    min_registered_fraction  fewer registered images than this fraction is an error
+    verbose             keep COLMAP's INFO log (thousands of lines); otherwise warnings and up only
+    """
+
+    camera_model: str = "OPENCV"
+    matching: str = "auto"
+    exhaustive_below: int = 40
+    overlap: int = 10
+    loop_detection: bool = False
+    vocab_tree_path: str | None = None
+    max_num_features: int = 8192
+    downscale: float = 1.0
+    refine_principal_point: bool = True
+    min_registered_fraction: float = 0.5
+    num_threads: int = -1
+    seed: int = 0
+    verbose: bool = False
+
+    def validate(self) -> None:
+        if self.matching not in ("sequential", "exhaustive", "auto"):
+            raise SfMError(f"sfm config: matching must be sequential, exhaustive or auto, got {self.matching!r}")
+        if not 0 < self.downscale <= 1:
+            raise SfMError(f"sfm config: downscale must be in (0, 1], got {self.downscale}")
+        if self.loop_detection and not (self.vocab_tree_path and Path(self.vocab_tree_path).is_file()):
+            raise SfMError(
+                "sfm config: loop_detection needs vocab_tree_path pointing at a COLMAP vocabulary tree file "
+                f"(got {self.vocab_tree_path!r}); download one or turn loop_detection off"
+            )
+        if self.overlap < 1 or self.max_num_features < 100:
+            raise SfMError(f"sfm config: overlap >= 1 and max_num_features >= 100, got {self.overlap}, "
+                           f"{self.max_num_features}")  # fmt: skip
+
+
+@dataclass(eq=False)
+class SfMResult:
+    """The largest reconstructed model, in our conventions.
+
+    cameras   registered images, sorted by name; ``Camera.name`` is the file name relative to
+              the image folder, ``T_world_cam`` camera-to-world (OpenCV), distortion as
+              {k1, k2, p1, p2, ...}
+    points    [M, 3] float64 3D points (SfM world frame); colors [M, 3] uint8 RGB
+    registered / total   registered images / images given
+    """
+
+    cameras: list[Camera]
+    points: np.ndarray
+    colors: np.ndarray
+    registered: int
+    total: int
+    mean_reprojection_error: float
+    model_dir: Path
+    seconds: float = 0.0
+    unregistered: list[str] = field(default_factory=list)
+
+    @property
+    def poses(self) -> dict[str, np.ndarray]:
+        """name -> T_world_cam."""
+        return {c.name: c.T_world_cam for c in self.cameras}
+
+
+# ---- conversion ---------------------------------------------------------------------------------
+_PARAM_RENAME = {"k": "k1"}  # SIMPLE_RADIAL / RADIAL_FISHEYE name their first radial term "k"
+
+
+def _camera_from_colmap(image: Any, cam: Any) -> Camera:
+    names = [s.strip() for s in cam.params_info.split(",")]
+    params = dict(zip(names, (float(v) for v in cam.params), strict=True))
+    distortion = {_PARAM_RENAME.get(k, k): v for k, v in params.items() if k not in ("f", "fx", "fy", "cx", "cy")}
+    T_cam_world = np.eye(4)
+    T_cam_world[:3, :4] = image.cam_from_world().matrix()
+    R, t = T_cam_world[:3, :3], T_cam_world[:3, 3]
+    T_world_cam = np.eye(4)
+    T_world_cam[:3, :3] = R.T
+    T_world_cam[:3, 3] = -R.T @ t
+    return Camera(np.asarray(cam.calibration_matrix()), T_world_cam, cam.width, cam.height, image.name, distortion)
+
+
+def _result_from_reconstruction(rec: Any, total: int, names: list[str], model_dir: Path) -> SfMResult:
+    cameras = sorted(
+        (_camera_from_colmap(img, rec.cameras[img.camera_id]) for img in rec.images.values() if img.has_pose),
+        key=lambda c: c.name,
+    )
+    pts = list(rec.points3D.values())
+    points = np.array([p.xyz for p in pts], dtype=np.float64).reshape(-1, 3)
+    colors = np.array([p.color for p in pts], dtype=np.uint8).reshape(-1, 3)
+    registered = {c.name for c in cameras}
+    return SfMResult(
+        cameras=cameras,
+        points=points,
+        colors=colors,
+        registered=len(cameras),
+        total=total,
+        mean_reprojection_error=float(rec.compute_mean_reprojection_error()),
+        model_dir=model_dir,
+        unregistered=[n for n in names if n not in registered],
+    )
+
+
+# ---- running ------------------------------------------------------------------------------------
+def _list_images(image_dir: Path) -> list[str]:
+    if not image_dir.is_dir():
+        raise SfMError(f"{image_dir}: image folder not found; run the capture stage first")
+    names = sorted(p.name for p in image_dir.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if len(names) < MIN_IMAGES:
+        raise SfMError(
+            f"{image_dir}: {len(names)} image(s); SfM needs at least {MIN_IMAGES} overlapping views "
+            "(capture more keyframes)"
+        )
+    return names
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    from PIL import Image  # reads only the header
+
+    try:
+        with Image.open(path) as im:
+            return im.size
+    except Exception as e:
+        raise SfMError(f"{path}: not a readable image ({e}); remove or replace it") from None
+
+
+def run_sfm(
+    image_dir: str | os.PathLike[str], out_dir: str | os.PathLike[str], config: SfMConfig | None = None
+) -> SfMResult:
+    """Features, matching and incremental mapping on every image in ``image_dir``.
+
+    Writes ``out_dir/database.db``, ``out_dir/model/`` (the largest COLMAP model, binary) and
+    ``out_dir/sfm.json`` (config, counts, timings, reprojection error, cameras in our
+    conventions). ``out_dir`` is built under a temporary name and renamed only on success.
+
+    Raises SfMError when fewer than ``min_registered_fraction`` of the images register, or
+    when the images are unusable (too few, different sizes, unreadable).
+    """
+    import pycolmap
+
+    config = config or SfMConfig()
+    config.validate()
+    image_dir, out_dir = Path(image_dir).resolve(), Path(out_dir)
+    names = _list_images(image_dir)
+    sizes = {n: _image_size(image_dir / n) for n in names}
+    width, height = sizes[names[0]]
+    odd = [n for n in names if sizes[n] != (width, height)]
+    if odd:
+        raise SfMError(
+            f"{image_dir}: images have different sizes ({names[0]} is {width}x{height}, {odd[0]} is "
+            f"{sizes[odd[0]][0]}x{sizes[odd[0]][1]}); SfM assumes one camera, so resize them to one size"
+        )
+
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out_dir.with_name(f".{out_dir.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}")
+    tmp.mkdir()
+    log_level = pycolmap.logging.minloglevel
+    if not config.verbose:
+        pycolmap.logging.minloglevel = 1  # glog WARNING
+    try:
+        t0 = time.perf_counter()
+        db = tmp / "database.db"
+        eo = pycolmap.FeatureExtractionOptions()
+        eo.num_threads = config.num_threads
+        eo.sift.max_num_features = config.max_num_features
+        eo.max_image_size = max(16, round(max(width, height) * config.downscale))
+        pycolmap.extract_features(
+            db,
+            image_dir,
+            image_names=names,
+            camera_mode=pycolmap.CameraMode.SINGLE,
+            reader_options=pycolmap.ImageReaderOptions(camera_model=config.camera_model),
+            extraction_options=eo,
+            device=pycolmap.Device.cpu,
+        )
+        t_features = time.perf_counter()
+
+        matching = config.matching
+        if matching == "auto":
+            matching = "exhaustive" if len(names) < config.exhaustive_below else "sequential"
+        mo = pycolmap.FeatureMatchingOptions()
+        mo.num_threads = config.num_threads
+        if matching == "exhaustive":
+            pycolmap.match_exhaustive(db, matching_options=mo, device=pycolmap.Device.cpu)
+        else:
+            po = pycolmap.SequentialPairingOptions()
+            po.overlap = config.overlap
+            po.loop_detection = config.loop_detection
+            if config.loop_detection:
+                po.vocab_tree_path = str(config.vocab_tree_path)
+            pycolmap.match_sequential(db, matching_options=mo, pairing_options=po, device=pycolmap.Device.cpu)
+        t_matching = time.perf_counter()
+
+        opts = pycolmap.IncrementalPipelineOptions()
+        opts.ba_refine_principal_point = config.refine_principal_point
+        opts.num_threads = config.num_threads
+        opts.random_seed = config.seed
+        models = pycolmap.incremental_mapping(db, image_dir, tmp / "mapper", options=opts)
+        t_mapping = time.perf_counter()
+        if not models:
+            raise SfMError(
+                f"{image_dir}: SfM found no initial image pair ({len(names)} images); capture more parallax "
+                "(move the camera, do not only rotate it) and more texture"
+            )
+        rec = max(models.values(), key=lambda r: r.num_reg_images())
+        model_dir = tmp / "model"
+        model_dir.mkdir()
+        rec.write(model_dir)
+        shutil.rmtree(tmp / "mapper", ignore_errors=True)  # all models; the largest is in model/
+
+        result = _result_from_reconstruction(rec, len(names), names, out_dir / "model")
+        result.seconds = t_mapping - t0
+        if result.registered < config.min_registered_fraction * len(names):
+            raise SfMError(
+                f"{image_dir}: SfM registered only {result.registered} of {len(names)} images (need "
+                f"{config.min_registered_fraction:.0%}); capture more parallax / texture (walk around the scene, "
+                "avoid blur and blank surfaces) or use exhaustive matching"
+            )
+        summary = {
+            "image_dir": str(image_dir),
+            "config": asdict(config),
+            "matching_used": matching,
+            "registered": result.registered,
+            "total": result.total,
+            "unregistered": result.unregistered,
+            "models_found": len(models),
+            "num_points": int(result.points.shape[0]),
+            "mean_reprojection_error": result.mean_reprojection_error,
+            "seconds": {
+                "features": t_features - t0,
+                "matching": t_matching - t_features,
+                "mapping": t_mapping - t_matching,
+                "total": t_mapping - t0,
+            },
+            "cameras": [c.to_json() for c in result.cameras],
+        }
+        with open(tmp / "sfm.json", "w", encoding="utf-8") as f:
+            json.dump(summary, f, indent=1)
+            f.write("\n")
+        old = None
+        if out_dir.exists():
+            old = out_dir.with_name(f".{out_dir.name}.old-{os.getpid()}-{secrets.token_hex(4)}")
+            os.replace(out_dir, old)
+        os.replace(tmp, out_dir)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    finally:
+        pycolmap.logging.minloglevel = log_level
+    return result
+
+
+def load_sfm_summary(out_dir: str | os.PathLike[str]) -> tuple[dict[str, Any], list[Camera]]:
+    """``sfm.json`` written by ``run_sfm`` and its cameras (our conventions)."""
+    path = Path(out_dir) / "sfm.json"
+    if not path.is_file():
+        raise SfMError(f"{path}: not found; run the sfm stage first")
+    with open(path, encoding="utf-8") as f:
+        summary = json.load(f)
+    cams = [Camera.from_json(c, source=f"{path}: camera {i}") for i, c in enumerate(summary["cameras"])]
+    return summary, cams
+
+
+# ---- evaluation ---------------------------------------------------------------------------------
+def compare_poses(estimated: dict[str, np.ndarray], reference: dict[str, np.ndarray]) -> dict[str, Any]:
+    """Compare camera-to-world poses up to a similarity (SfM has no scale or origin of its own).
+
+    Fits ``sim3_est_to_ref`` by Umeyama on the camera centres of the names both hold, applies it
+    to the estimated poses and reports, in degrees, the rotation difference of each camera
+    (angle of ``R_ref^T R_aligned``), and the centre difference as a fraction of the mean
+    distance of the reference cameras from their centroid (a scale-free "scene extent").
+    """
+    common = sorted(set(estimated) & set(reference))
+    if len(common) < 3:
+        raise ValueError(f"compare_poses: need >= 3 cameras in common, got {len(common)}")
+    T_est = np.stack([np.asarray(estimated[n], dtype=np.float64) for n in common])
+    T_ref = np.stack([np.asarray(reference[n], dtype=np.float64) for n in common])
+    sim = umeyama(T_est[:, :3, 3], T_ref[:, :3, 3])
+    T_aligned = sim.apply_pose(T_est)
+    rot_err = np.degrees(rotation_angle(np.swapaxes(T_ref[:, :3, :3], 1, 2) @ T_aligned[:, :3, :3]))
+    c_ref = T_ref[:, :3, 3]
+    extent = float(np.linalg.norm(c_ref - c_ref.mean(0), axis=1).mean())
+    ctr_err = np.linalg.norm(T_aligned[:, :3, 3] - c_ref, axis=1) / extent
+    return {
+        "n": len(common),
+        "rotation_deg_median": float(np.median(rot_err)),
+        "rotation_deg_max": float(rot_err.max()),
+        "center_frac_median": float(np.median(ctr_err)),
+        "center_frac_max": float(ctr_err.max()),
+        "extent": extent,
+        "sim3_est_to_ref": sim.to_json(),
+        "per_camera": {
+            n: {"rotation_deg": float(r), "center_frac": float(c)}
+            for n, r, c in zip(common, rot_err, ctr_err, strict=True)
+        },  # fmt: skip
+    }
