@@ -26,7 +26,7 @@ EXIT_ERROR = 2  # bad input, like argparse's own usage errors
 EXIT_INTERRUPTED = 130
 
 # Stages of DESIGN.md section 3 that later issues add; `m2m demo` says so.
-NOT_IMPLEMENTED = ("keyframes + SfM", "alignment", "training", "objects", "physics", "datasets")
+NOT_IMPLEMENTED = ("metric alignment", "scene training", "objects", "physics", "datasets")
 
 _CAMERA_FIELDS = '{"width", "height", "K" (3x3, pixels), "T_world_cam" (4x4 camera-to-world, OpenCV axes)}'
 
@@ -267,6 +267,7 @@ class DemoConfig:
     bench_views: int = 4
     bench_repeats: int = 3
     bench_warmup: int = 2
+    sfm_keyframes: int = 24  # keyframes of the sample video for capture + SfM (0: skip those steps)
 
 
 class _Steps:
@@ -339,7 +340,7 @@ def run_demo(cfg: DemoConfig, log: Callable[[str], None] = _info) -> dict[str, A
     except OSError as e:
         raise CliError(f"cannot create workspace folders in {ws} ({_describe(e)}); choose another with -w") from e
     threads = configure_threads()
-    steps = _Steps(8, log)
+    steps = _Steps(10 if cfg.sfm_keyframes else 8, log)
     timings: dict[str, float] = {}
 
     # The pipeline starts from a video like a user's: today it reads the bundled sample capture and
@@ -352,6 +353,18 @@ def run_demo(cfg: DemoConfig, log: Callable[[str], None] = _info) -> dict[str, A
         f"ChArUco board found in {sample['board_detected']}/{sample['frames_checked']} checked frames, "
         f"{sample['board_corner_error_px_median']:.2f} px from the ground truth"
     )
+
+    reconstruction = None
+    if cfg.sfm_keyframes:
+        reconstruction = _demo_capture_and_sfm(ws, BUNDLED_SAMPLE, cfg.sfm_keyframes)
+        timings["capture"] = steps.finish(
+            f"capture: {reconstruction['keyframes']} keyframes from the sample video into {_show(ws / 'capture')}"
+        )
+        timings["sfm"] = steps.finish(
+            f"SfM: registered {reconstruction['registered']}/{reconstruction['keyframes']}, vs ground truth "
+            f"{reconstruction['rotation_deg_median']:.3f} deg / {100 * reconstruction['centre_frac_median']:.3f}% "
+            f"(median, after a Sim3 fit) into {_show(ws / 'sfm')}"
+        )
 
     g = tabletop_scene(cfg.gaussians, cfg.sh_degree, cfg.seed)
     timings["build_scene"] = steps.finish(
@@ -414,6 +427,7 @@ def run_demo(cfg: DemoConfig, log: Callable[[str], None] = _info) -> dict[str, A
         "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()},
         "threads": threads,
         "sample": sample,
+        "reconstruction": reconstruction,
         "scene": {
             "ply": ply_rel,
             "gaussians": len(g),
@@ -443,6 +457,31 @@ def run_demo(cfg: DemoConfig, log: Callable[[str], None] = _info) -> dict[str, A
     return summary
 
 
+def _demo_capture_and_sfm(ws: Path, sample: Path, n_keyframes: int) -> dict[str, Any]:
+    """Keyframes from the sample video, SfM, and the poses compared with the sample's ground truth."""
+    import numpy as np
+
+    from .capture import CaptureConfig, extract_keyframes
+    from .sfm import SfMConfig, SfMError, compare_poses, run_sfm
+
+    keyframes = extract_keyframes(sample / "scene.mp4", ws / "capture", CaptureConfig(max_keyframes=n_keyframes))
+    try:
+        result = run_sfm(ws / "capture", ws / "sfm", SfMConfig())
+    except SfMError as e:
+        raise CliError(f"SfM of the sample failed: {e}") from None
+    gt = json.loads((sample / "ground_truth.json").read_text())
+    reference = {k["file"]: np.asarray(gt["frames"][k["frame_index"]]["T_base_cam"]) for k in keyframes}
+    errors = compare_poses(result.poses, reference)
+    return {
+        "keyframes": len(keyframes),
+        "registered": result.registered,
+        "reprojection_px": result.mean_reprojection_error,
+        "points": len(result.points),
+        "rotation_deg_median": errors["rotation_deg_median"],
+        "centre_frac_median": errors["center_frac_median"],
+    }
+
+
 def _print_demo_summary(ws: Path, s: dict[str, Any], elapsed: float) -> None:
     sc, r, b = s["scene"], s["renders"], s["benchmark"]
     p = lambda rel: _show(ws / rel)
@@ -456,6 +495,15 @@ def _print_demo_summary(ws: Path, s: dict[str, Any], elapsed: float) -> None:
         f"board in {sm['board_detected']}/{sm['frames_checked']} checked frames "
         f"({sm['board_corner_error_px_median']:.2f} px from ground truth), {sm['handeye_views']} hand-eye views; "
         "see its contact_sheet.jpg",
+        *(
+            [
+                f"  sfm        {p('sfm')}: {rc['registered']}/{rc['keyframes']} keyframes registered, "
+                f"{rc['points']:,} points, {rc['reprojection_px']:.2f} px; poses vs ground truth "
+                f"{rc['rotation_deg_median']:.3f} deg / {100 * rc['centre_frac_median']:.3f}% (median)"
+            ]
+            if (rc := s["reconstruction"])
+            else []
+        ),
         f"  scene      {ply}: {sc['gaussians']:,} Gaussians, SH degree {sc['sh_degree']}, "
         f"{sc['ply_bytes'] / 1e6:.1f} MB (Inria 3DGS layout; opens in SuperSplat), read back identical",
         f"  renders    {p('renders')}/view_0..{n_views - 1}.png: {r['width']}x{r['height']}, {r['backend']} backend, "
@@ -484,10 +532,40 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         bench_views=args.bench_views,
         bench_repeats=args.bench_repeats,
         bench_warmup=args.bench_warmup,
+        sfm_keyframes=args.sfm_keyframes,
     )
     t0 = time.perf_counter()
     summary = run_demo(cfg)
     _print_demo_summary(cfg.workspace, summary, time.perf_counter() - t0)
+    return 0
+
+
+def _cmd_capture(args: argparse.Namespace) -> int:
+    from .capture import CaptureConfig, extract_keyframes
+
+    out = Path(args.workspace) / "capture"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    keyframes = extract_keyframes(args.source, out, CaptureConfig(max_keyframes=args.max_keyframes))
+    print(f"wrote {len(keyframes)} keyframes and keyframes.json to {_show(out)}")
+    return 0
+
+
+def _cmd_sfm(args: argparse.Namespace) -> int:
+    from .sfm import SfMConfig, SfMError, run_sfm
+
+    ws = Path(args.workspace)
+    images = ws / "capture"
+    if not images.is_dir():
+        raise CliError(f"{images} not found; run `m2m capture <video> -w {ws}` first")
+    try:
+        result = run_sfm(images, ws / "sfm", SfMConfig(matching=args.matching, downscale=args.downscale))
+    except SfMError as e:
+        raise CliError(str(e)) from None
+    print(
+        f"SfM: registered {result.registered}/{result.total} keyframes, mean reprojection error "
+        f"{result.mean_reprojection_error:.2f} px, {len(result.points):,} points, {result.seconds:.0f} s "
+        f"-> {_show(ws / 'sfm')}"
+    )
     return 0
 
 
@@ -616,7 +694,25 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--bench-views", type=_int_at_least(1), default=4, help=argparse.SUPPRESS)
     d.add_argument("--bench-repeats", type=_int_at_least(1), default=3, help=argparse.SUPPRESS)
     d.add_argument("--bench-warmup", type=_int_at_least(0), default=2, help=argparse.SUPPRESS)
+    d.add_argument("--sfm-keyframes", type=_int_at_least(0), default=24, help=argparse.SUPPRESS)
     d.set_defaults(func=_cmd_demo)
+
+    # m2m capture / m2m sfm
+    c = sub.add_parser(
+        "capture",
+        help="pick keyframes (sharpness + parallax) from a video or an image folder into <workspace>/capture",
+    )
+    c.add_argument("source", help="video file (mp4/mov/mkv) or folder of images")
+    c.add_argument("-w", "--workspace", required=True, metavar="DIR", help="workspace folder")
+    c.add_argument("--max-keyframes", type=_int_at_least(3), default=60, metavar="N", help="at most N (default 60)")
+    c.set_defaults(func=_cmd_capture)
+    s_ = sub.add_parser("sfm", help="COLMAP structure-from-motion of <workspace>/capture into <workspace>/sfm")
+    s_.add_argument("-w", "--workspace", required=True, metavar="DIR", help="workspace folder")
+    s_.add_argument(
+        "--matching", default="auto", choices=("auto", "sequential", "exhaustive"), help="default auto: exhaustive < 40"
+    )
+    s_.add_argument("--downscale", type=_positive_float, default=1.0, metavar="F", help="match at 1/F resolution")
+    s_.set_defaults(func=_cmd_sfm)
 
     # m2m sample make
     sample = sub.add_parser("sample", help="the bundled sample capture with ground truth")
