@@ -1,0 +1,447 @@
+"""3D Gaussian Splatting training (paper section 3.1, DESIGN.md section 2).
+
+Loss L1 + lambda * (1 - SSIM) over valid pixels, Adam with the per-parameter learning rates of
+3DGS (means scaled by the scene extent and decayed exponentially), SH degree raised every
+``sh_increase_every`` steps, densification / pruning by gsplat's ``DefaultStrategy`` (pure torch,
+so it runs on the CPU too) with its schedule scaled to the iteration count and a cap on the number
+of Gaussians, held-out evaluation, and atomic checkpoints that ``train(..., resume=True)`` resumes.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..atomic import atomic_path
+from .losses import l1, psnr, ssim
+from .model import Gaussians
+from .render import render, resolve_backend
+from .sh import num_sh_bases, rgb_to_sh_dc
+
+__all__ = [
+    "TrainConfig",
+    "View",
+    "init_gaussians_from_points",
+    "scene_extent",
+    "train",
+    "view_loss",
+]
+
+
+def _default_lr() -> dict[str, float]:
+    # 3DGS defaults; "means"/"means_final" are multiplied by the scene extent.
+    return {
+        "means": 1.6e-4,
+        "means_final": 1.6e-6,
+        "quats": 1e-3,
+        "scales": 5e-3,
+        "opacities": 5e-2,
+        "sh0": 2.5e-3,
+        "shN": 2.5e-3 / 20,
+    }
+
+
+@dataclass
+class TrainConfig:
+    """Training hyper-parameters. ``None`` refine settings are derived from ``iterations``
+    (3DGS uses start 500 / stop 15000 / every 100 for 30000 steps)."""
+
+    iterations: int = 7000
+    lambda_dssim: float = 0.2
+    sh_degree: int = 3
+    sh_increase_every: int = 1000
+    lr: dict[str, float] = field(default_factory=_default_lr)
+    densify: bool = True
+    refine_start: int | None = None
+    refine_stop: int | None = None
+    refine_every: int | None = None
+    grow_grad2d: float = 2e-4
+    prune_opa: float = 0.005
+    opacity_reset_every: int = 0  # 0: off (gsplat 1.5.3's own reset never fires either)
+    max_gaussians: int = 1_000_000
+    eval_every: int = 0  # 0: evaluate only before and after training
+    checkpoint_every: int = 1000
+    max_seconds: float | None = None  # stop early (and evaluate) after this much training time
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    backend: str = "auto"
+    seed: int = 0
+
+    def refine_schedule(self) -> tuple[int, int, int]:
+        """(start, stop, every) of densification, scaled to ``iterations`` unless given."""
+        every = self.refine_every or min(100, max(10, self.iterations // 60))
+        start = self.refine_start if self.refine_start is not None else min(500, max(every, self.iterations // 30))
+        stop = self.refine_stop if self.refine_stop is not None else self.iterations // 2
+        return start, stop, every
+
+
+@dataclass
+class View:
+    """One training / evaluation photo: image [H,W,3] float in [0,1], viewmat [4,4] world-to-camera
+    (OpenCV axes), K [3,3] (pixel centres at +0.5), optional mask [H,W] bool of valid pixels."""
+
+    image: torch.Tensor
+    viewmat: torch.Tensor
+    K: torch.Tensor
+    mask: torch.Tensor | None = None
+    name: str = ""
+
+    @property
+    def width(self) -> int:
+        return int(self.image.shape[1])
+
+    @property
+    def height(self) -> int:
+        return int(self.image.shape[0])
+
+
+def scene_extent(views: Sequence[View]) -> float:
+    """3DGS's "cameras extent": 1.1 x the largest distance of a camera centre from their mean."""
+    centres = []
+    for v in views:
+        vm = torch.as_tensor(v.viewmat, dtype=torch.float64).cpu()
+        centres.append(-vm[:3, :3].T @ vm[:3, 3])
+    c = torch.stack(centres)
+    radius = float((c - c.mean(0)).norm(dim=1).max()) if len(centres) > 1 else 0.0
+    return 1.1 * max(radius, 1e-2)
+
+
+def init_gaussians_from_points(
+    points: torch.Tensor | np.ndarray, colors: torch.Tensor | np.ndarray, sh_degree: int = 3
+) -> Gaussians:
+    """Initial Gaussians at ``points`` [M,3] with ``colors`` [M,3] in 0..1: isotropic, scale = mean
+    distance to the 3 nearest neighbours, identity rotation, opacity 0.1, higher SH bands zero."""
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(points, dtype=np.float64)
+    cols = np.asarray(colors, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or cols.shape != pts.shape or len(pts) < 2:
+        raise ValueError(f"need points [M,3] (M >= 2) and colors of the same shape, got {pts.shape} and {cols.shape}")
+    k = min(4, len(pts))
+    d, _ = cKDTree(pts).query(pts, k=k)  # the first neighbour is the point itself
+    dist = np.maximum(d[:, 1:].mean(axis=1), 1e-7)
+    m = len(pts)
+    means = torch.as_tensor(pts, dtype=torch.float32)
+    quats = torch.zeros(m, 4)
+    quats[:, 0] = 1.0
+    log_scales = torch.as_tensor(np.log(dist), dtype=torch.float32)[:, None].repeat(1, 3)
+    logit_op = torch.full((m,), math.log(0.1 / 0.9))
+    sh = torch.zeros(m, num_sh_bases(sh_degree), 3)
+    sh[:, 0] = rgb_to_sh_dc(torch.as_tensor(cols, dtype=torch.float32).clamp(0, 1))
+    return Gaussians(means, quats, log_scales, logit_op, sh)
+
+
+# ---- parameters <-> Gaussians -------------------------------------------------------------------
+# gsplat's strategy wants a flat dict of parameters with "means", "scales", "quats", "opacities";
+# we keep log scales and logit opacities under those names (as gsplat's own trainer does) and
+# split SH into DC and rest because they have different learning rates.
+_PARAM_NAMES = ("means", "quats", "scales", "opacities", "sh0", "shN")
+
+
+def _to_params(g: Gaussians, sh_degree: int, device: torch.device) -> dict[str, torch.nn.Parameter]:
+    g = g.with_sh_degree(sh_degree).to(device, torch.float32)
+    raw = {
+        "means": g.means,
+        "quats": g.quats,
+        "scales": g.log_scales,
+        "opacities": g.logit_opacities,
+        "sh0": g.sh[:, :1],
+        "shN": g.sh[:, 1:],
+    }
+    return {k: torch.nn.Parameter(v.detach().clone().contiguous()) for k, v in raw.items()}
+
+
+def _to_gaussians(params: dict[str, torch.Tensor], degree: int) -> Gaussians:
+    """The model seen by the renderer, with only the first ``degree`` SH bands active."""
+    k = num_sh_bases(degree)
+    sh = params["sh0"] if k == 1 else torch.cat([params["sh0"], params["shN"][:, : k - 1]], dim=1)
+    return Gaussians(params["means"], params["quats"], params["scales"], params["opacities"], sh)
+
+
+def _make_optimizers(
+    params: dict[str, torch.nn.Parameter], lr: dict[str, float], extent: float
+) -> dict[str, torch.optim.Optimizer]:
+    opts = {}
+    for k, p in params.items():
+        rate = lr[k] * (extent if k == "means" else 1.0)
+        # eps 1e-15 as in 3DGS: gradients of far-away Gaussians are tiny and must still move them
+        opts[k] = torch.optim.Adam([{"params": [p], "lr": rate, "name": k}], eps=1e-15)
+    return opts
+
+
+def _means_lr(step: int, config: TrainConfig, extent: float) -> float:
+    t = min(max(step / max(config.iterations, 1), 0.0), 1.0)
+    lr0, lr1 = config.lr["means"] * extent, config.lr["means_final"] * extent
+    return math.exp((1 - t) * math.log(lr0) + t * math.log(lr1))
+
+
+# ---- densification ------------------------------------------------------------------------------
+def _make_strategy(config: TrainConfig):
+    from gsplat.strategy import DefaultStrategy
+
+    @dataclass
+    class CappedStrategy(DefaultStrategy):
+        """DefaultStrategy that never grows past ``max_gaussians``: when more Gaussians qualify
+        than there is room for, only the ones with the largest screen-space gradient grow (each
+        clone or split adds exactly one)."""
+
+        max_gaussians: int = 1_000_000
+
+        def _grow_gs(self, params, optimizers, state, step):
+            room = self.max_gaussians - len(params["means"])
+            if room <= 0:
+                return 0, 0
+            grads = state["grad2d"] / state["count"].clamp_min(1)
+            base = self.grow_grad2d
+            if int((grads > base).sum()) > room:
+                self.grow_grad2d = max(base, float(torch.topk(grads, room + 1).values[-1]))
+            try:
+                return super()._grow_gs(params, optimizers, state, step)
+            finally:
+                self.grow_grad2d = base
+
+    start, stop, every = config.refine_schedule()
+    return CappedStrategy(
+        prune_opa=config.prune_opa,
+        grow_grad2d=config.grow_grad2d,
+        refine_start_iter=start,
+        refine_stop_iter=stop,
+        refine_every=every,
+        # In 1.5.3 this only gates pruning of Gaussians larger than 0.1 x extent (its reset never
+        # fires). 3DGS starts that at step 3000 of 30000; in short runs from sparse points it
+        # deletes the walls and floor before densification has replaced them, so it is off here.
+        reset_every=config.iterations + 1,
+        max_gaussians=config.max_gaussians,
+    )
+
+
+def _strategy_info(info: dict, view: View, n: int) -> dict | None:
+    """Adapt our renderer's ``info`` (mean2d [N,2] or gsplat's [1,N,2], radius [N,2]) to what
+    gsplat's strategy reads after backward: ``means2d.grad`` [1,N,2], ``radii`` [1,N,2]."""
+    m2d = info.get("mean2d")
+    if m2d is None or m2d.grad is None:
+        return None
+    return {
+        "means2d": SimpleNamespace(grad=m2d.grad.reshape(1, n, 2)),
+        "radii": info["radius"].reshape(1, n, 2),
+        "width": view.width,
+        "height": view.height,
+        "n_cameras": 1,
+        "gaussian_ids": None,
+    }
+
+
+# ---- loss and evaluation ------------------------------------------------------------------------
+def view_loss(
+    g: Gaussians, view: View, config: TrainConfig, info: dict | None = None, backend: str | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(loss, rendered rgb [H,W,3]) of ``g`` against ``view``: (1-l) L1 + l (1 - SSIM) over the
+    view's valid pixels (pixels outside the mask affect neither the loss nor its gradient)."""
+    dev = g.means.device
+    bg = torch.tensor(config.background, dtype=torch.float32, device=dev)
+    out = render(g, view.viewmat, view.K, view.width, view.height, bg, backend or config.backend, info)
+    gt = view.image.to(dev)
+    mask = None if view.mask is None else view.mask.to(dev)
+    lam = config.lambda_dssim
+    loss = (1 - lam) * l1(out.rgb, gt, mask)
+    if lam > 0:
+        loss = loss + lam * (1 - ssim(out.rgb, gt, mask=mask))
+    return loss, out.rgb
+
+
+@torch.no_grad()
+def evaluate(g: Gaussians, views: Sequence[View], config: TrainConfig, backend: str | None = None) -> dict[str, Any]:
+    """Mean PSNR / SSIM over ``views`` (valid pixels only) and the per-view values."""
+    per_view = []
+    bg = torch.tensor(config.background, dtype=torch.float32, device=g.means.device)
+    for v in views:
+        rgb = render(g, v.viewmat, v.K, v.width, v.height, bg, backend or config.backend).rgb.clamp(0, 1)
+        gt = v.image.to(rgb.device)
+        mask = None if v.mask is None else v.mask.to(rgb.device)
+        per_view.append({"name": v.name, "psnr": float(psnr(rgb, gt, mask)), "ssim": float(ssim(rgb, gt, mask=mask))})
+    if not per_view:
+        return {"psnr": math.nan, "ssim": math.nan, "views": []}
+    return {
+        "psnr": float(np.mean([p["psnr"] for p in per_view])),
+        "ssim": float(np.mean([p["ssim"] for p in per_view])),
+        "views": per_view,
+    }
+
+
+# ---- checkpoints --------------------------------------------------------------------------------
+def _save_checkpoint(path: Path, params, optimizers, strategy_state, step: int, extra: dict) -> None:
+    blob = {
+        "step": step,
+        "params": {k: v.detach().cpu() for k, v in params.items()},
+        "optimizers": {k: o.state_dict() for k, o in optimizers.items()},
+        "strategy_state": strategy_state,
+        "torch_rng": torch.get_rng_state(),
+        **extra,
+    }
+    with atomic_path(path) as tmp:
+        torch.save(blob, tmp)
+
+
+def _view_order(n: int, seed: int, epoch: int) -> np.ndarray:
+    """Training views visit order for one epoch; a function of (seed, epoch) so that a resumed
+    run sees the same sequence as an uninterrupted one."""
+    return np.random.default_rng([seed, epoch]).permutation(n)
+
+
+# ---- the loop -----------------------------------------------------------------------------------
+def train(
+    views_train: Sequence[View],
+    views_eval: Sequence[View],
+    init: Gaussians,
+    config: TrainConfig,
+    callback: Callable[[int, dict[str, Any]], None] | None = None,
+    progress: bool = True,
+    checkpoint_path: str | Path | None = None,
+    resume: bool = False,
+) -> tuple[Gaussians, dict[str, Any]]:
+    """Train ``init`` on ``views_train``; returns (trained Gaussians, metrics).
+
+    metrics: ``psnr``/``ssim`` (mean over ``views_eval``), ``views`` (per view), ``initial``
+    (the same before training), ``curve`` (list of {step, seconds, psnr, ssim, gaussians}; seconds
+    count training time only), ``iterations``, ``gaussians``, ``seconds``, ``backend``.
+    ``callback(step, {"loss", "gaussians"})`` runs after every step. With ``checkpoint_path`` a
+    checkpoint is written atomically every ``config.checkpoint_every`` steps and at the end;
+    ``resume=True`` continues from it when it exists (Gaussians, Adam moments, strategy state,
+    step, RNG and the curve so far).
+    """
+    if not views_train:
+        raise ValueError("train needs at least one training view")
+    if config.iterations < 0:
+        raise ValueError(f"iterations must be >= 0, got {config.iterations}")
+    backend = resolve_backend(config.backend)
+    device = torch.device("cuda" if backend == "cuda" else "cpu")
+    extent = scene_extent(views_train)
+    ckpt = Path(checkpoint_path) if checkpoint_path is not None else None
+
+    strategy = _make_strategy(config) if config.densify else None
+    params = _to_params(init, config.sh_degree, device)
+    optimizers = _make_optimizers(params, config.lr, extent)
+    strategy_state = strategy.initialize_state(scene_scale=extent) if strategy else None
+    if strategy:
+        strategy.check_sanity(params, optimizers)
+    step, elapsed, curve, initial = 0, 0.0, [], None
+    torch.manual_seed(config.seed)  # gsplat's split samples with torch.randn
+
+    if resume and ckpt is not None and ckpt.exists():
+        blob = torch.load(ckpt, map_location=device, weights_only=False)
+        params = {k: torch.nn.Parameter(v.to(device)) for k, v in blob["params"].items()}
+        optimizers = _make_optimizers(params, config.lr, extent)
+        for k, o in optimizers.items():
+            o.load_state_dict(blob["optimizers"][k])
+        strategy_state = blob["strategy_state"]
+        step, elapsed, curve, initial = blob["step"], blob["elapsed"], blob["curve"], blob["initial"]
+        torch.set_rng_state(blob["torch_rng"])
+
+    def g_now(degree: int | None = None) -> Gaussians:
+        return _to_gaussians(params, config.sh_degree if degree is None else degree)
+
+    def checkpoint(at: int) -> None:
+        if ckpt is not None:
+            extra = {"elapsed": elapsed, "curve": curve, "initial": initial, "config": asdict(config)}
+            _save_checkpoint(ckpt, params, optimizers, strategy_state, at, extra)
+
+    def record(at: int) -> dict[str, Any]:
+        # bands not yet active are still zero, so the full-degree model renders what was trained
+        m = evaluate(g_now().detach(), views_eval, config, backend)
+        curve.append(
+            {
+                "step": at,
+                "seconds": round(elapsed, 3),
+                "psnr": m["psnr"],
+                "ssim": m["ssim"],
+                "gaussians": len(params["means"]),
+            }
+        )
+        return m
+
+    if initial is None:
+        initial = evaluate(g_now(0).detach(), views_eval, config, backend)
+        curve.append(
+            {
+                "step": 0,
+                "seconds": 0.0,
+                "psnr": initial["psnr"],
+                "ssim": initial["ssim"],
+                "gaussians": len(params["means"]),
+            }
+        )
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=config.iterations, initial=step, desc="train", dynamic_ncols=True)
+    n_views = len(views_train)
+    try:
+        while step < config.iterations:
+            if config.max_seconds is not None and elapsed >= config.max_seconds:
+                break
+            t0 = time.perf_counter()
+            view = views_train[int(_view_order(n_views, config.seed, step // n_views)[step % n_views])]
+            optimizers["means"].param_groups[0]["lr"] = _means_lr(step, config, extent)
+            degree = min(step // config.sh_increase_every, config.sh_degree)
+            info: dict = {}
+            loss, _ = view_loss(_to_gaussians(params, degree), view, config, info, backend)
+            m2d = info.get("mean2d")
+            if m2d is not None and m2d.requires_grad and not m2d.is_leaf:
+                m2d.retain_grad()  # the cpu backend does this itself; gsplat's meta does not
+            loss.backward()
+            if strategy is not None:
+                sinfo = _strategy_info(info, view, len(params["means"]))
+                if sinfo is not None:
+                    strategy.step_post_backward(params, optimizers, strategy_state, step, sinfo)
+            for o in optimizers.values():
+                o.step()
+                o.zero_grad(set_to_none=True)
+            if (
+                config.opacity_reset_every
+                and step > 0
+                and step % config.opacity_reset_every == 0
+                and step < config.refine_schedule()[1]
+            ):
+                from gsplat.strategy.ops import reset_opa
+
+                reset_opa(params, optimizers, strategy_state or {}, value=config.prune_opa * 2)
+            step += 1
+            elapsed += time.perf_counter() - t0
+            stats = {"loss": float(loss.detach()), "gaussians": len(params["means"])}
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(loss=f"{stats['loss']:.4f}", n=stats["gaussians"], refresh=False)
+            if callback is not None:
+                callback(step, stats)
+            if config.eval_every and step % config.eval_every == 0 and step < config.iterations:
+                record(step)
+            if config.checkpoint_every and step % config.checkpoint_every == 0 and step < config.iterations:
+                checkpoint(step)
+    finally:
+        if bar is not None:
+            bar.close()
+
+    last = record(step)
+    checkpoint(step)
+    final = g_now().detach()
+    metrics = {
+        "psnr": last["psnr"],
+        "ssim": last["ssim"],
+        "views": last["views"],
+        "initial": {"psnr": initial["psnr"], "ssim": initial["ssim"]},
+        "curve": curve,
+        "iterations": step,
+        "gaussians": len(final),
+        "seconds": elapsed,
+        "backend": backend,
+    }
+    return final.to("cpu"), metrics
