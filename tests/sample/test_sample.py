@@ -168,7 +168,6 @@ def _digest(sample_dir: Path) -> tuple[str, str]:
     return gt_hash, frames.hexdigest()
 
 
-@pytest.mark.slow
 def test_regenerated_short_sample_is_deterministic_and_follows_the_shipped_conventions(tmp_path, gt):
     a, b = tmp_path / "a", tmp_path / "b"
     make_sample(a, SampleConfig.short(seed=0), log=lambda _msg: None)
