@@ -569,6 +569,33 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_calibrate_handeye(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from .atomic import atomic_write
+    from .calib.board import BoardSpec
+    from .calib.handeye import calibrate_from_files
+
+    intrinsics = json.loads(Path(args.intrinsics).read_text())
+    K = intrinsics.get("K") or intrinsics.get("head_camera", {}).get("K")
+    if K is None:
+        raise CliError(f"{args.intrinsics}: no 'K' (3x3) found; pass a camera JSON with the camera's intrinsics")
+    result, out = calibrate_from_files(
+        args.images, args.joints, BoardSpec.load(args.board), np.asarray(K, dtype=np.float64),
+        mount=args.mount, method=args.method, robot=args.robot, link=args.link, refine=not args.no_refine,
+    )  # fmt: skip
+    path = Path(args.workspace) / "calib" / "handeye.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(path, "w", encoding="utf-8") as f:
+        json.dump(out, f, indent=1)
+    print(
+        f"hand-eye ({args.mount}, {args.method}{'' if args.no_refine else ' + reprojection refinement'}): "
+        f"{len(out['per_view'])} views used, {len(out['skipped'])} skipped; residual median "
+        f"{out['residual_deg_median']:.3f} deg / {out['residual_mm_median']:.2f} mm -> {_show(path)}"
+    )
+    return 0
+
+
 def _cmd_sample_make(args: argparse.Namespace) -> int:
     from .sample.make import SampleConfig, make_sample
 
@@ -713,6 +740,23 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s_.add_argument("--downscale", type=_positive_float, default=1.0, metavar="F", help="match at 1/F resolution")
     s_.set_defaults(func=_cmd_sfm)
+
+    # m2m calibrate-handeye
+    h = sub.add_parser(
+        "calibrate-handeye",
+        help="camera mount from images of a ChArUco board + the robot's joint angles (Tsai-Lenz + refinement)",
+    )
+    h.add_argument("--images", required=True, metavar="DIR", help="folder of board images")
+    h.add_argument("--joints", required=True, metavar="JSON", help='{"robot", "link", "views": [{"image", "joints"}]}')
+    h.add_argument("--board", required=True, metavar="JSON", help="board spec (e.g. from `m2m board`)")
+    h.add_argument("--intrinsics", required=True, metavar="JSON", help="a JSON with the camera's 'K' (3x3)")
+    h.add_argument("-w", "--workspace", required=True, metavar="DIR", help="writes <DIR>/calib/handeye.json")
+    h.add_argument("--mount", default="head", choices=("head", "wrist"), help="head: eye-to-hand (default)")
+    h.add_argument("--method", default="tsai", choices=("tsai", "park", "horaud", "andreff", "daniilidis"))
+    h.add_argument("--robot", help="robot MJCF/URDF (default: from the joints file, else Genesis' Panda)")
+    h.add_argument("--link", help="gripper link (default: from the joints file, else 'hand')")
+    h.add_argument("--no-refine", action="store_true", help="skip the reprojection refinement")
+    h.set_defaults(func=_cmd_calibrate_handeye)
 
     # m2m sample make
     sample = sub.add_parser("sample", help="the bundled sample capture with ground truth")

@@ -7,6 +7,7 @@ never half-written):
     head_view.png        the fixed head camera's view of the same scene (no robot)
     handeye/images/*.png the head camera's view of a ChArUco board held by the robot's gripper
     handeye/joints.json  the joint angles of each hand-eye image
+    handeye/board.json   the held board's spec
     gt/*.obj             ground-truth meshes (with .mtl and texture .png) of the board and objects
     board.json           the ChArUco board spec
     ground_truth.json    intrinsics, every frame's pose, board/object poses, T_base_headcam, extent
@@ -107,6 +108,7 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
         board = config.board
         assets = build_assets(seed=config.seed, board=board)
         board.save(tmp / "board.json")
+        config.handeye_board.save(tmp / "handeye" / "board.json")
         ground_truth_assets = [a for a in assets if a.category in ("board", "object", "button")]
         mesh_paths = export_assets(ground_truth_assets, tmp / "gt")
         log(f"assets: {len(assets)} meshes, ground truth for {', '.join(mesh_paths)}")

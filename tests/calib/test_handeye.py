@@ -1,0 +1,127 @@
+"""Hand-eye calibration against exact synthetic data and the rendered sample's ground truth."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from PIL import Image
+
+from mirage2matter.calib.board import BoardSpec
+from mirage2matter.calib.handeye import (
+    METHODS,
+    HandEyeError,
+    calibrate_from_files,
+    calibrate_handeye,
+    detect_board_pose,
+)
+from mirage2matter.calib.kinematics import RobotKinematics
+from mirage2matter.cli import main
+
+SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+
+
+def _pose(rng: np.random.Generator, angle_deg: float, shift: float) -> np.ndarray:
+    axis = rng.normal(size=3)
+    T = np.eye(4)
+    T[:3, :3] = cv2.Rodrigues(axis / np.linalg.norm(axis) * np.radians(angle_deg))[0]
+    T[:3, 3] = rng.normal(size=3) * shift
+    return T
+
+
+def _errors(T: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
+    dR = T[:3, :3].T @ T_true[:3, :3]
+    return float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))), float(
+        1000 * np.linalg.norm(T[:3, 3] - T_true[:3, 3])
+    )
+
+
+@pytest.mark.parametrize("mount", ["head", "wrist"])
+@pytest.mark.parametrize("method", METHODS)
+def test_exact_synthetic_data_is_recovered(mount, method):
+    rng = np.random.default_rng(1)
+    X, Y = _pose(rng, 120, 0.5), _pose(rng, 60, 0.1)  # camera mount, board mount
+    T_links = [_pose(rng, 40, 0.3) @ np.diag([1.0, 1, 1, 1]) for _ in range(12)]
+    for T in T_links:
+        T[:3, 3] += [0.5, 0.0, 0.4]
+    inv = np.linalg.inv
+    if mount == "head":  # camera fixed in the base, board on the link
+        T_cam = [inv(X) @ Tl @ Y for Tl in T_links]
+    else:  # camera on the link, board fixed in the base
+        T_cam = [inv(X) @ inv(Tl) @ Y for Tl in T_links]
+    result = calibrate_handeye(T_links, T_cam, mount, method)
+    deg, mm = _errors(result.T, X)
+    assert deg < 1e-4 and mm < 1e-3
+    assert max(result.residual_mm) < 1e-3
+
+
+def test_degenerate_motions_and_bad_input_are_refused():
+    rng = np.random.default_rng(2)
+    T_links = []
+    for k in range(8):  # all rotations about the same (z) axis
+        T = np.eye(4)
+        T[:3, :3] = cv2.Rodrigues(np.array([0, 0, np.radians(10 * k)]))[0]
+        T[:3, 3] = rng.normal(size=3) * 0.1
+        T_links.append(T)
+    with pytest.raises(HandEyeError, match="single axis"):
+        calibrate_handeye(T_links, T_links, "head")
+    with pytest.raises(HandEyeError, match="pair up"):
+        calibrate_handeye(T_links, T_links[:-1], "head")
+    with pytest.raises(HandEyeError, match="at least 3"):
+        calibrate_handeye(T_links[:2], T_links[:2], "head")
+    with pytest.raises(HandEyeError, match="unknown hand-eye method"):
+        calibrate_handeye(T_links, T_links, "head", method="magic")
+
+
+@pytest.fixture(scope="module")
+def sample():
+    gt = json.loads((SAMPLE / "ground_truth.json").read_text())
+    board = BoardSpec.load(SAMPLE / "handeye" / "board.json")
+    return gt, board, np.asarray(gt["head_camera"]["K"]), np.asarray(gt["head_camera"]["T_base_headcam"])
+
+
+def test_sample_head_camera_within_tolerance(sample):
+    gt, board, K, T_true = sample
+    result, out = calibrate_from_files(SAMPLE / "handeye" / "images", SAMPLE / "handeye" / "joints.json", board, K)
+    deg, mm = _errors(result.T, T_true)
+    assert deg <= 0.1 and mm <= 1.0, (deg, mm)
+    assert not out["skipped"] and len(out["per_view"]) >= 15
+    # the board mount it finds is the one the sample used
+    deg_b, mm_b = _errors(result.T_board, np.asarray(gt["handeye"]["T_hand_board"]))
+    assert deg_b <= 0.1 and mm_b <= 1.0
+
+
+def test_sample_with_noisy_robot_poses(sample):
+    gt, board, K, T_true = sample
+    views = json.loads((SAMPLE / "handeye" / "joints.json").read_text())["views"]
+    kin = RobotKinematics(gt["handeye"].get("robot", "xml/franka_emika_panda/panda.xml"))
+    obs = [detect_board_pose(np.asarray(Image.open(SAMPLE / "handeye" / v["image"]).convert("RGB")), board, K)
+           for v in views]  # fmt: skip
+    rng = np.random.default_rng(0)
+    T_links = []
+    for v in views:  # 0.05 deg / 0.3 mm of end-effector pose noise
+        T = kin.link_pose(v["joints"], "hand")
+        axis = rng.normal(size=3)
+        T[:3, :3] = cv2.Rodrigues(axis / np.linalg.norm(axis) * np.radians(0.05))[0] @ T[:3, :3]
+        shift = rng.normal(size=3)
+        T[:3, 3] += 0.0003 * shift / np.linalg.norm(shift)
+        T_links.append(T)
+    result = calibrate_handeye(T_links, [o.T_cam_board for o in obs], "head", "tsai", observations=obs, K=K)
+    deg, mm = _errors(result.T, T_true)
+    assert deg <= 0.15 and mm <= 1.5, (deg, mm)
+
+
+def test_cli_writes_handeye_json_and_names_the_problem(tmp_path, capsys):
+    args = ["calibrate-handeye", "--images", str(SAMPLE / "handeye" / "images")]
+    args += ["--joints", str(SAMPLE / "handeye" / "joints.json"), "--intrinsics", str(SAMPLE / "ground_truth.json")]
+    assert main([*args, "--board", str(SAMPLE / "handeye" / "board.json"), "-w", str(tmp_path)]) == 0
+    out = json.loads((tmp_path / "calib" / "handeye.json").read_text())
+    assert out["mount"] == "head" and np.asarray(out["T_base_headcam"]).shape == (4, 4)
+    # the table board's spec is not the held board: clear error, nothing written
+    assert main([*args, "--board", str(SAMPLE / "board.json"), "-w", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert "found in only 0 of 18 images" in err and "0000.png" in err
+    assert not (tmp_path / "x" / "calib" / "handeye.json").exists()
