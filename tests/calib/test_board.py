@@ -103,3 +103,25 @@ def test_margin_must_be_whole_pixels():
         BoardSpec().render_image(px_per_square=25, margin_squares=0.5)
     with pytest.raises(ValueError, match="px_per_square must be an integer"):
         BoardSpec().render_image(px_per_square=50.0)
+
+
+def test_printable_board_is_true_scale_and_detectable(tmp_path):
+    import re
+
+    from PIL import Image
+
+    from mirage2matter.calib.board import write_printable
+    from mirage2matter.cli import main
+
+    assert main(["board", "--out", str(tmp_path / "b.pdf"), "--squares", "5x7", "--square", "0.04"]) == 0
+    pdf = (tmp_path / "b.pdf").read_bytes()
+    box = [float(v) for v in re.search(rb"/MediaBox\s*\[\s*([\d.\s]+)\]", pdf).group(1).split()]
+    width_mm, height_mm = (box[2] - box[0]) / 72 * 25.4, (box[3] - box[1]) / 72 * 25.4
+    assert abs(width_mm - 240.0) < 0.5 and abs(height_mm - 320.0) < 0.5  # (5+1) x (7+1) squares of 40 mm
+    spec = BoardSpec.load(tmp_path / "b.json")
+    assert (spec.squares_x, spec.squares_y, spec.square, spec.dictionary) == (5, 7, 0.04, "DICT_5X5_100")
+    png = np.asarray(Image.open(tmp_path / "b.png").convert("L"))
+    corners, ids, _, _ = cv2.aruco.CharucoDetector(spec.cv_board()).detectBoard(png)
+    assert ids is not None and len(ids) == spec.n_corners
+    with pytest.raises(ValueError, match=".pdf"):
+        write_printable(spec, tmp_path / "b.png")

@@ -222,3 +222,30 @@ def board_frame_to_board_image(
     if p.shape[-1] not in (2, 3):
         raise ValueError(f"points must have shape [..., 2] or [..., 3], got {p.shape}")
     return p[..., :2] * (px_per_square / spec.square) + m
+
+
+def write_printable(spec: BoardSpec, pdf_path: str | os.PathLike, dpi: int = 300, margin_squares: float = 0.5) -> dict:
+    """Write the board as a PDF and a PNG at true scale (``dpi``; print at 100%, no "fit to page"),
+    and its spec as JSON beside them (same stem). Returns {"pdf", "png", "json", "size_mm", "px_per_square"}."""
+    from PIL import Image
+
+    from mirage2matter.atomic import atomic_path
+
+    pdf_path = Path(pdf_path)
+    if pdf_path.suffix.lower() != ".pdf":
+        raise ValueError(f"{pdf_path}: the printable board is written as .pdf (a .png and .json go beside it)")
+    # Whole pixels per square at this dpi; the dpi written into the files is adjusted so that the
+    # square prints at exactly its size.
+    px_per_square = max(8, int(round(spec.square / 0.0254 * dpi)))
+    px_per_square += px_per_square % 2  # keeps a half-square margin whole
+    true_dpi = px_per_square / (spec.square / 0.0254)
+    image = Image.fromarray(spec.render_image(px_per_square, margin_squares))
+    png_path, json_path = pdf_path.with_suffix(".png"), pdf_path.with_suffix(".json")
+    with atomic_path(pdf_path) as tmp:
+        image.convert("RGB").save(tmp, format="PDF", resolution=true_dpi)
+    with atomic_path(png_path) as tmp:
+        image.save(tmp, format="PNG", dpi=(true_dpi, true_dpi))
+    spec.save(json_path)
+    w, h = spec.size_with_margin(margin_squares)
+    return {"pdf": pdf_path, "png": png_path, "json": json_path, "size_mm": (w * 1000, h * 1000),
+            "px_per_square": px_per_square}  # fmt: skip
