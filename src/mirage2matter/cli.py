@@ -569,6 +569,73 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_align_scene(args: argparse.Namespace) -> int:
+    import numpy as np
+    import pycolmap
+    from PIL import Image
+
+    from .atomic import atomic_write
+    from .calib.align import align_scene, apply_to_cameras, default_T_base_board
+    from .calib.board import BoardSpec
+    from .sfm import load_sfm_summary
+
+    ws = Path(args.workspace)
+    if not (ws / "sfm" / "sfm.json").is_file():
+        raise CliError(f"{ws / 'sfm'} has no SfM result; run `m2m sfm -w {ws}` first")
+    board = BoardSpec.load(args.board)
+    T_base_board = default_T_base_board(board)
+    if args.board_pose:
+        data = json.loads(Path(args.board_pose).read_text())
+        T_base_board = np.asarray(data.get("T_base_board") or data["board"]["T_base_board"], dtype=np.float64)
+    _, cameras = load_sfm_summary(ws / "sfm")
+    rec = pycolmap.Reconstruction(str(ws / "sfm" / "model"))
+    points = np.array([p.xyz for p in rec.points3D.values()]).reshape(-1, 3)
+    images = [np.asarray(Image.open(ws / "capture" / c.name).convert("RGB")) for c in cameras]
+    result = align_scene(cameras, images, points, board, T_base_board, icp=not args.no_icp)
+    sim = result.sim3_sfm_to_base
+    calib = ws / "calib"
+    calib.mkdir(parents=True, exist_ok=True)
+    with atomic_write(calib / "sim3_sfm_to_base.json", "w", encoding="utf-8") as f:
+        json.dump({**result.to_json(), "T_base_board": T_base_board.tolist(), "board": board.to_json()}, f, indent=1)
+    cameras_base = apply_to_cameras(sim, cameras)
+    with atomic_write(calib / "cameras_base.json", "w", encoding="utf-8") as f:
+        json.dump([c.to_json() for c in cameras_base], f, indent=1)
+    with atomic_write(calib / "points_base.npy", "wb") as f:
+        np.save(f, sim.apply(points).astype(np.float32))
+    overlay = _base_overlay(images, cameras_base, result.triangulation.frames_with_board)
+    with atomic_write(calib / "overlay.png", "wb") as f:
+        Image.fromarray(overlay).save(f, format="PNG")
+    print(
+        f"aligned SfM to the robot base: scale {sim.scale:.5f}, board corners {result.corner_rms_mm:.2f} mm RMS "
+        f"from {len(result.triangulation.ids)} corners in {len(result.triangulation.frames_with_board)} keyframes"
+        f"{'' if result.icp_rmse_mm is None else f', ICP {result.icp_rmse_mm:.1f} mm over {result.icp_points} points'}"
+        f" -> {_show(calib)}/ (sim3_sfm_to_base.json, cameras_base.json, points_base.npy, overlay.png)"
+    )
+    return 0
+
+
+def _base_overlay(images, cameras_base, frames_with_board) -> Any:
+    """The robot base footprint (a 10 cm circle at the origin) and base axes drawn into a keyframe."""
+    import cv2
+    import numpy as np
+
+    k = next(i for i, c in enumerate(cameras_base) if c.name in frames_with_board)
+    cam, image = cameras_base[k], images[k].copy()
+    ring = np.c_[0.1 * np.cos(np.linspace(0, 2 * np.pi, 64)), 0.1 * np.sin(np.linspace(0, 2 * np.pi, 64)), np.zeros(64)]
+    axes = np.array([[0, 0, 0], [0.15, 0, 0], [0, 0.15, 0], [0, 0, 0.15]], float)
+
+    def px(points):
+        uv, depth = cam.project(points)
+        return [tuple(int(round(v)) for v in p - 0.5) for p in uv], depth
+
+    ring_px, _ = px(ring)
+    cv2.polylines(image, [np.asarray(ring_px, np.int32)], True, (255, 0, 255), 2, cv2.LINE_AA)
+    (o, x, y, z), _ = px(axes)
+    for end, colour in ((x, (255, 0, 0)), (y, (0, 255, 0)), (z, (0, 0, 255))):
+        cv2.line(image, o, end, colour, 2, cv2.LINE_AA)
+    return image
+
+
 def _cmd_board(args: argparse.Namespace) -> int:
     from .calib.board import BoardSpec, write_printable
 
@@ -758,6 +825,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s_.add_argument("--downscale", type=_positive_float, default=1.0, metavar="F", help="match at 1/F resolution")
     s_.set_defaults(func=_cmd_sfm)
+
+    # m2m align-scene
+    al = sub.add_parser(
+        "align-scene", help="metric alignment of <workspace>/sfm to the robot base via the ChArUco board"
+    )
+    al.add_argument("-w", "--workspace", required=True, metavar="DIR", help="workspace with capture/ and sfm/")
+    al.add_argument("--board", required=True, metavar="JSON", help="board spec (from `m2m board`)")
+    al.add_argument(
+        "--board-pose",
+        metavar="JSON",
+        help="a JSON with T_base_board (4x4) if the board is not centred on the base with its x along base x",
+    )
+    al.add_argument("--no-icp", action="store_true", help="board corners only, no ICP refinement")
+    al.set_defaults(func=_cmd_align_scene)
 
     # m2m board
     bd = sub.add_parser("board", help="a printable ChArUco board at true scale (PDF + PNG) and its JSON spec")

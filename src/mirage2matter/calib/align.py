@@ -1,0 +1,187 @@
+"""Metric alignment of SfM to the robot base (paper eqs. `icp`, `pose_update`).
+
+The ChArUco board lies where the robot base will stand, at a known pose ``T_base_board``. Its
+corners, detected in the keyframes and triangulated with the SfM cameras, give scale, rotation and
+translation (Umeyama); scaled ICP then refines the fit of the SfM points around the board to the
+simulator's robot-base region (the support surface the base stands on), with the corners kept as
+anchors so the plane cannot slide. Points map as ``x' = s R x + t``; poses as ``R' = R R_wc``,
+``t' = s R t_wc + t``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..geometry.camera import Camera
+from ..geometry.icp import scaled_icp
+from ..geometry.sim3 import Sim3
+from ..geometry.umeyama import umeyama
+from .board import BoardSpec
+
+
+class AlignError(ValueError):
+    """The board could not tie SfM to the robot base; the message says what to do."""
+
+
+def default_T_base_board(spec: BoardSpec) -> np.ndarray:
+    """The board centred on the base origin, printed face up, board x along base x and the printed
+    image's top edge towards base +y (OpenCV's board frame has y down the print and z into it)."""
+    w, h = spec.size
+    T = np.eye(4)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])
+    T[:3, 3] = [-w / 2, h / 2, 0.0]
+    return T
+
+
+def _undistorted_normalized(camera: Camera, uv: np.ndarray) -> np.ndarray:
+    """Pixel coordinates (our +0.5 convention) [M,2] -> normalised image coordinates [M,2]."""
+    import cv2
+
+    K_cv = camera.K.copy()
+    K_cv[:2, 2] -= 0.5
+    d = camera.distortion or {}
+    dist = np.array([d.get("k1", 0.0), d.get("k2", 0.0), d.get("p1", 0.0), d.get("p2", 0.0)])
+    return cv2.undistortPoints((uv - 0.5).reshape(-1, 1, 2), K_cv, dist).reshape(-1, 2)
+
+
+@dataclass
+class BoardTriangulation:
+    ids: np.ndarray  # [M] ChArUco corner ids
+    points: np.ndarray  # [M,3] in the SfM frame
+    n_views: np.ndarray  # [M] images each corner was seen in
+    frames_with_board: list[str] = field(default_factory=list)
+    frames_tried: list[str] = field(default_factory=list)
+    reprojection_px: float = 0.0  # RMS over all observations
+
+
+def triangulate_board_corners(
+    cameras: list[Camera], images: list[np.ndarray], board: BoardSpec, min_views: int = 3
+) -> BoardTriangulation:
+    """Detect the board in each image (uint8 [H,W,3]) and triangulate each corner seen in
+    ``min_views`` or more views (linear DLT on undistorted rays)."""
+    import cv2
+
+    detector = cv2.aruco.CharucoDetector(board.cv_board())
+    obs: dict[int, list[tuple[int, np.ndarray]]] = {}
+    tried, seen = [], []
+    for k, (cam, image) in enumerate(zip(cameras, images, strict=True)):
+        tried.append(cam.name)
+        corners, ids, _, _ = detector.detectBoard(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY))
+        if ids is None or len(ids) < 4:
+            continue
+        seen.append(cam.name)
+        xy = _undistorted_normalized(cam, corners.reshape(-1, 2) + 0.5)
+        for cid, p in zip(ids.ravel(), xy, strict=True):
+            obs.setdefault(int(cid), []).append((k, p))
+    if len(seen) < 3:
+        raise AlignError(
+            f"the board ({board.squares_x}x{board.squares_y}, {board.square * 100:g} cm squares, {board.dictionary}) "
+            f"was detected in {len(seen)} of {len(tried)} keyframes (needs >= 3); tried "
+            f"{', '.join(tried[:6])}{' ...' if len(tried) > 6 else ''}. Check the board spec or film the board closer"
+        )
+    ids, points, n_views, sq_err = [], [], [], []
+    for cid, views in sorted(obs.items()):
+        if len(views) < min_views:
+            continue
+        rows = []
+        for k, (x, y) in views:
+            P = cameras[k].viewmat[:3]  # world -> camera [3,4]
+            rows += [x * P[2] - P[0], y * P[2] - P[1]]
+        X = np.linalg.svd(np.asarray(rows))[2][-1]
+        X = X[:3] / X[3]
+        for k, (x, y) in views:
+            p = cameras[k].viewmat[:3, :3] @ X + cameras[k].viewmat[:3, 3]
+            f = cameras[k].K[0, 0]
+            sq_err.append(f * f * ((p[0] / p[2] - x) ** 2 + (p[1] / p[2] - y) ** 2))
+        ids.append(cid)
+        points.append(X)
+        n_views.append(len(views))
+    if len(ids) < 4:
+        raise AlignError(
+            f"only {len(ids)} board corners were seen in {min_views}+ keyframes; film the board from more views"
+        )
+    return BoardTriangulation(
+        np.asarray(ids), np.asarray(points), np.asarray(n_views), seen, tried, float(np.sqrt(np.mean(sq_err)))
+    )
+
+
+@dataclass
+class AlignResult:
+    sim3_sfm_to_base: Sim3
+    corner_rms_mm: float  # triangulated corners vs their known base positions, after alignment
+    icp_rmse_mm: float | None  # board-region SfM points vs the support surface
+    icp_points: int
+    triangulation: BoardTriangulation
+
+    def to_json(self) -> dict:
+        tri = self.triangulation
+        return {
+            "sim3_sfm_to_base": self.sim3_sfm_to_base.to_json(),
+            "corner_rms_mm": self.corner_rms_mm,
+            "icp_rmse_mm": self.icp_rmse_mm,
+            "icp_points": self.icp_points,
+            "corners_triangulated": len(tri.ids),
+            "corner_reprojection_px": tri.reprojection_px,
+            "frames_with_board": tri.frames_with_board,
+            "frames_tried": len(tri.frames_tried),
+        }
+
+
+def support_region(T_base_board: np.ndarray, board: BoardSpec, extent: float = 0.3, spacing: float = 0.004):
+    """The simulator's robot-base region as points: the plane the board lies on (the base's support
+    surface), a square of side board size + 2 * extent, sampled every ``spacing`` metres. [M,3]"""
+    w, h = board.size
+    half = max(w, h) / 2 + extent
+    g = np.arange(-half, half + 1e-9, spacing)
+    xx, yy = np.meshgrid(g, g)
+    centre_board = np.array([w / 2, h / 2, 0.0])
+    centre = T_base_board[:3, :3] @ centre_board + T_base_board[:3, 3]
+    z = centre[2]
+    return np.c_[xx.ravel() + centre[0], yy.ravel() + centre[1], np.full(xx.size, z)]
+
+
+def align_scene(
+    cameras: list[Camera],
+    images: list[np.ndarray],
+    points_sfm: np.ndarray,
+    board: BoardSpec,
+    T_base_board: np.ndarray | None = None,
+    icp: bool = True,
+) -> AlignResult:
+    """sim3_sfm_to_base from the board (and ICP of the points around it onto the support surface)."""
+    T_base_board = default_T_base_board(board) if T_base_board is None else np.asarray(T_base_board, np.float64)
+    tri = triangulate_board_corners(cameras, images, board)
+    corners_base = board.corner_points_board()[tri.ids] @ T_base_board[:3, :3].T + T_base_board[:3, 3]
+    sim = umeyama(tri.points, corners_base)
+    rms_mm = float(1000 * np.sqrt(np.mean(np.sum((sim.apply(tri.points) - corners_base) ** 2, axis=1))))
+    if rms_mm > 0.1 * board.square * 1000:
+        raise AlignError(
+            f"the triangulated board is not a {board.squares_x}x{board.squares_y} grid of {board.square * 100:g} cm "
+            f"squares (corner residual {rms_mm:.1f} mm after fitting); check the board spec (square size, "
+            "dictionary) against the printed board"
+        )
+    icp_rmse, n_icp = None, 0
+    if icp and len(points_sfm):
+        target = support_region(T_base_board, board)
+        lo, hi = target.min(0) - [0, 0, 0.02], target.max(0) + [0, 0, 0.02]
+        moved = sim.apply(np.asarray(points_sfm, np.float64))
+        near = np.all((moved >= lo) & (moved <= hi), axis=1)
+        n_icp = int(near.sum())
+        if n_icp >= 30:
+            result = scaled_icp(
+                np.asarray(points_sfm)[near], target, init=sim, anchors=(tri.points, corners_base), trim_fraction=0.8
+            )
+            sim, icp_rmse = result.sim3, 1000 * result.rmse
+            rms_mm = float(1000 * np.sqrt(np.mean(np.sum((sim.apply(tri.points) - corners_base) ** 2, axis=1))))
+    return AlignResult(sim, rms_mm, icp_rmse, n_icp, tri)
+
+
+def apply_to_cameras(sim3: Sim3, cameras: list[Camera]) -> list[Camera]:
+    """Cameras in the base frame: eq. `pose_update` (rotation R R_wc, centre s R c + t)."""
+    out = []
+    for cam in cameras:
+        T = sim3.apply_pose(cam.T_world_cam)
+        out.append(Camera(cam.K, T, cam.width, cam.height, cam.name, dict(cam.distortion or {})))
+    return out
