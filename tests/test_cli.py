@@ -274,6 +274,7 @@ def test_demo_small(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     assert set(s["timings_s"]) >= {"build_scene", "write_ply", "read_ply", "render_views", "benchmark", "total"}
     assert "physics" in s["not_implemented"]
     assert s["sample"]["board_detected"] >= s["sample"]["frames_checked"] // 2 and s["reconstruction"] is None
+    assert s["handeye"]["rotation_deg"] < 0.1 and s["handeye"]["translation_mm"] < 1.0
 
     assert len(read_ply(ws / "scene/gaussians.ply")) == 5000
     views = [_png(ws / f"renders/view_{i}.png") for i in range(4)]
@@ -283,7 +284,7 @@ def test_demo_small(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     np.testing.assert_array_equal(sheet[96:, 96:], views[3])
 
     assert "coming in later issues" in captured.out and "demo_summary.json" in captured.out
-    assert "[8/8]" in captured.err
+    assert "[9/9]" in captured.err
 
     # The saved camera lets `m2m render` reproduce view 0 from the saved PLY.
     rerender = tmp_path / "again.png"

@@ -26,7 +26,7 @@ EXIT_ERROR = 2  # bad input, like argparse's own usage errors
 EXIT_INTERRUPTED = 130
 
 # Stages of DESIGN.md section 3 that later issues add; `m2m demo` says so.
-NOT_IMPLEMENTED = ("metric alignment", "scene training", "objects", "physics", "datasets")
+NOT_IMPLEMENTED = ("scene training", "objects", "physics", "datasets")
 
 _CAMERA_FIELDS = '{"width", "height", "K" (3x3, pixels), "T_world_cam" (4x4 camera-to-world, OpenCV axes)}'
 
@@ -340,7 +340,7 @@ def run_demo(cfg: DemoConfig, log: Callable[[str], None] = _info) -> dict[str, A
     except OSError as e:
         raise CliError(f"cannot create workspace folders in {ws} ({_describe(e)}); choose another with -w") from e
     threads = configure_threads()
-    steps = _Steps(10 if cfg.sfm_keyframes else 8, log)
+    steps = _Steps(12 if cfg.sfm_keyframes else 9, log)
     timings: dict[str, float] = {}
 
     # The pipeline starts from a video like a user's: today it reads the bundled sample capture and
@@ -365,6 +365,17 @@ def run_demo(cfg: DemoConfig, log: Callable[[str], None] = _info) -> dict[str, A
             f"{reconstruction['rotation_deg_median']:.3f} deg / {100 * reconstruction['centre_frac_median']:.3f}% "
             f"(median, after a Sim3 fit) into {_show(ws / 'sfm')}"
         )
+        rc = reconstruction
+        timings["align"] = steps.finish(
+            f"metric alignment to the robot base: scale {rc['align_scale']:.5f}, cameras vs ground truth "
+            f"{rc['aligned_rotation_deg_median']:.3f} deg / {rc['aligned_translation_mm_median']:.1f} mm "
+            f"(median) into {_show(ws / 'calib')}"
+        )
+    handeye = _demo_handeye(ws, BUNDLED_SAMPLE)
+    timings["handeye"] = steps.finish(
+        f"hand-eye calibration of the head camera from {handeye['views']} views: "
+        f"{handeye['rotation_deg']:.3f} deg / {handeye['translation_mm']:.2f} mm from the ground truth"
+    )
 
     g = tabletop_scene(cfg.gaussians, cfg.sh_degree, cfg.seed)
     timings["build_scene"] = steps.finish(
@@ -428,6 +439,7 @@ def run_demo(cfg: DemoConfig, log: Callable[[str], None] = _info) -> dict[str, A
         "threads": threads,
         "sample": sample,
         "reconstruction": reconstruction,
+        "handeye": handeye,
         "scene": {
             "ply": ply_rel,
             "gaussians": len(g),
@@ -472,13 +484,61 @@ def _demo_capture_and_sfm(ws: Path, sample: Path, n_keyframes: int) -> dict[str,
     gt = json.loads((sample / "ground_truth.json").read_text())
     reference = {k["file"]: np.asarray(gt["frames"][k["frame_index"]]["T_base_cam"]) for k in keyframes}
     errors = compare_poses(result.poses, reference)
+
+    from PIL import Image
+
+    from .atomic import atomic_write
+    from .calib.align import align_scene, apply_to_cameras
+    from .calib.board import BoardSpec
+
+    board = BoardSpec.from_json(gt["board"]["spec"])
+    images = [np.asarray(Image.open(ws / "capture" / c.name).convert("RGB")) for c in result.cameras]
+    aligned = align_scene(result.cameras, images, result.points, board, np.asarray(gt["board"]["T_base_board"]))
+    cameras_base = apply_to_cameras(aligned.sim3_sfm_to_base, result.cameras)
+    (ws / "calib").mkdir(exist_ok=True)
+    with atomic_write(ws / "calib" / "sim3_sfm_to_base.json", "w", encoding="utf-8") as f:
+        json.dump(aligned.to_json(), f, indent=1)
+    rot, trans = [], []
+    for cam in cameras_base:
+        T_gt = reference[cam.name]
+        dR = cam.T_world_cam[:3, :3].T @ T_gt[:3, :3]
+        rot.append(float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))))
+        trans.append(float(1000 * np.linalg.norm(cam.T_world_cam[:3, 3] - T_gt[:3, 3])))
     return {
+        "align_scale": aligned.sim3_sfm_to_base.scale,
+        "aligned_rotation_deg_median": float(np.median(rot)),
+        "aligned_translation_mm_median": float(np.median(trans)),
         "keyframes": len(keyframes),
         "registered": result.registered,
         "reprojection_px": result.mean_reprojection_error,
         "points": len(result.points),
         "rotation_deg_median": errors["rotation_deg_median"],
         "centre_frac_median": errors["center_frac_median"],
+    }
+
+
+def _demo_handeye(ws: Path, sample: Path) -> dict[str, Any]:
+    """Hand-eye calibration of the sample's head camera, compared with its ground truth."""
+    import numpy as np
+
+    from .atomic import atomic_write
+    from .calib.board import BoardSpec
+    from .calib.handeye import calibrate_from_files
+
+    gt = json.loads((sample / "ground_truth.json").read_text())
+    result, out = calibrate_from_files(
+        sample / "handeye" / "images", sample / "handeye" / "joints.json",
+        BoardSpec.load(sample / "handeye" / "board.json"), np.asarray(gt["head_camera"]["K"]),
+    )  # fmt: skip
+    (ws / "calib").mkdir(parents=True, exist_ok=True)
+    with atomic_write(ws / "calib" / "handeye.json", "w", encoding="utf-8") as f:
+        json.dump(out, f, indent=1)
+    T_gt = np.asarray(gt["head_camera"]["T_base_headcam"])
+    dR = result.T[:3, :3].T @ T_gt[:3, :3]
+    return {
+        "views": len(out["per_view"]),
+        "rotation_deg": float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))),
+        "translation_mm": float(1000 * np.linalg.norm(result.T[:3, 3] - T_gt[:3, 3])),
     }
 
 
@@ -504,6 +564,16 @@ def _print_demo_summary(ws: Path, s: dict[str, Any], elapsed: float) -> None:
             if (rc := s["reconstruction"])
             else []
         ),
+        *(
+            [
+                f"  align      {p('calib/sim3_sfm_to_base.json')}: SfM -> robot base, cameras vs ground truth "
+                f"{rc['aligned_rotation_deg_median']:.3f} deg / {rc['aligned_translation_mm_median']:.1f} mm (median)"
+            ]
+            if rc
+            else []
+        ),
+        f"  hand-eye   {p('calib/handeye.json')}: T_base_headcam from {s['handeye']['views']} views, "
+        f"{s['handeye']['rotation_deg']:.3f} deg / {s['handeye']['translation_mm']:.2f} mm from the ground truth",
         f"  scene      {ply}: {sc['gaussians']:,} Gaussians, SH degree {sc['sh_degree']}, "
         f"{sc['ply_bytes'] / 1e6:.1f} MB (Inria 3DGS layout; opens in SuperSplat), read back identical",
         f"  renders    {p('renders')}/view_0..{n_views - 1}.png: {r['width']}x{r['height']}, {r['backend']} backend, "
