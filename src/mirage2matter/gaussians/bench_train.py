@@ -1,0 +1,236 @@
+"""``m2m bench train``: time-budgeted 3DGS training on a ``transforms.json`` data set (e.g. fox),
+scored on held-out real frames (every 8th), plus a per-stage profile of one training step."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..geometry.camera import load_transforms_json
+from .dataset import build_views, points_for_known_poses
+from .train import TrainConfig, View, init_gaussians_from_points, train, view_loss
+
+__all__ = ["bench_train", "profile_step"]
+
+
+def _sfm_points_cached(cams, image_dir: Path, work_dir: Path, poses: str) -> tuple[np.ndarray, np.ndarray, dict, list]:
+    """SfM once per work dir: (points, colors uint8, info, cameras). For ``poses == "given"`` the
+    points are mapped into the given frame and ``cameras`` are the given ones; for ``"sfm"`` the
+    SfM cameras (with their own distortion) and points are used as they are."""
+    from ..sfm.colmap import SfMConfig, run_sfm
+
+    if poses == "given":
+        cache = work_dir / "points_given.npz"
+        if cache.is_file():
+            z = np.load(cache, allow_pickle=False)
+            return z["points"], z["colors"], json.loads(str(z["info"])), cams
+        pts, cols, info = points_for_known_poses(cams, image_dir, work_dir)
+        np.savez(cache, points=pts, colors=cols, info=json.dumps(info))
+        return pts, cols, info, cams
+    sfm = run_sfm(image_dir, work_dir / "sfm_own", SfMConfig(downscale=0.5))
+    info = {"registered": sfm.registered, "total": sfm.total, "sfm_seconds": sfm.seconds}
+    return sfm.points, sfm.colors, info, sfm.cameras
+
+
+def _estimate_step_seconds(g, views: list[View], config: TrainConfig, n: int = 3) -> float:
+    """Seconds of one training step (render + backward) on the initial Gaussians."""
+    params = {k: v.detach().clone().requires_grad_(True) for k, v in g.tensors().items()}
+    g2 = type(g)(params["means"], params["quats"], params["log_scales"], params["logit_opacities"], params["sh"])
+    times = []
+    for i in range(n + 1):  # the first call compiles / warms the numba kernels
+        t0 = time.perf_counter()
+        loss, _ = view_loss(g2, views[i % len(views)], config)
+        loss.backward()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times[1:]))
+
+
+def bench_train(
+    data_dir: str | os.PathLike[str],
+    minutes: float = 15.0,
+    downscale: int = 4,
+    poses: str = "given",
+    work_dir: str | os.PathLike[str] | None = None,
+    max_gaussians: int = 150_000,
+    densify_fraction: float = 0.55,
+    backend: str = "auto",
+    progress: bool = False,
+    curve_points: int = 12,
+    profile: bool = True,
+) -> dict[str, Any]:
+    """Train on ``data_dir`` (``transforms.json`` + images) for ``minutes`` of training time at
+    1/``downscale`` resolution and score the held-out views (every 8th, sorted by name).
+
+    poses: ``"given"`` (transforms.json poses; initial points from our SfM mapped into that frame)
+    or ``"sfm"`` (our SfM cameras and points, evaluated in the SfM frame).
+    The iteration count is planned from the measured step time (x2.5 for growth); densification
+    runs for the first ``densify_fraction`` of it. Returns psnr_heldout, ssim_heldout, iterations,
+    gaussians, minutes, backend, curve, seconds_per_step, init info and (``profile``) a step profile.
+    """
+    if poses not in ("given", "sfm"):
+        raise ValueError(f"poses must be 'given' or 'sfm', got {poses!r}")
+    data_dir = Path(data_dir)
+    tfile = data_dir / "transforms.json"
+    if not tfile.is_file():
+        raise FileNotFoundError(f"{tfile}: not found; bench train needs a transforms.json data set")
+    cams = load_transforms_json(tfile)
+    image_dir = (data_dir / cams[0].name).parent
+    tmp = None
+    if work_dir is None:
+        tmp = tempfile.TemporaryDirectory(prefix="m2m-bench-train-")
+        work_dir = tmp.name
+    work_dir = Path(work_dir)
+    work_dir.mkdir(parents=True, exist_ok=True)
+
+    t0 = time.perf_counter()
+    points, colors, init_info, cams_used = _sfm_points_cached(cams, image_dir, work_dir, poses)
+    t_points = time.perf_counter() - t0
+    views_train, views_eval = build_views(cams_used, image_dir, downscale)
+    init = init_gaussians_from_points(points, np.asarray(colors, np.float64) / 255.0, sh_degree=3)
+
+    budget = 60.0 * minutes
+    config = TrainConfig(backend=backend, max_gaussians=max_gaussians, checkpoint_every=0)
+    step_s = _estimate_step_seconds(init, views_train, config)
+    iterations = max(100, int(budget / (2.5 * step_s)))
+    every = max(10, min(100, iterations // 60))
+    config = TrainConfig(
+        iterations=iterations,
+        backend=backend,
+        max_gaussians=max_gaussians,
+        max_seconds=budget,
+        refine_start=min(500, iterations // 15),
+        refine_stop=int(densify_fraction * iterations),
+        refine_every=every,
+        sh_increase_every=max(100, iterations // 8),
+        eval_every=max(1, iterations // curve_points),
+        checkpoint_every=0,
+    )
+    g, metrics = train(views_train, views_eval, init, config, progress=progress)
+    out: dict[str, Any] = {
+        "psnr_heldout": metrics["psnr"],
+        "ssim_heldout": metrics["ssim"],
+        "iterations": metrics["iterations"],
+        "gaussians": metrics["gaussians"],
+        "minutes": metrics["seconds"] / 60.0,
+        "backend": metrics["backend"],
+        "poses": poses,
+        "downscale": downscale,
+        "views": {"train": len(views_train), "heldout": len(views_eval)},
+        "image_size": [views_train[0].width, views_train[0].height],
+        "init": {"points": len(points), "seconds": t_points, **init_info},
+        "planned_iterations": iterations,
+        "seconds_per_step": metrics["seconds"] / max(metrics["iterations"], 1),
+        "initial_step_seconds": step_s,
+        "curve": metrics["curve"],
+    }
+    if profile:
+        out["profile"] = profile_step(g, views_train, config)
+    if tmp is not None:
+        tmp.cleanup()
+    return out
+
+
+def profile_step(g, views: list[View], config: TrainConfig, repeats: int = 3) -> dict[str, float]:
+    """Median milliseconds of the stages of one CPU training step on Gaussians ``g``: torch
+    projection (forward), numba rasterization (forward), loss, backward (split into raster
+    backward and the rest: projection + SH backward), gsplat strategy bookkeeping, Adam."""
+    from gsplat.strategy import DefaultStrategy
+
+    from .render import numba_cpu
+    from .render.projection import project
+    from .train import _make_optimizers, _strategy_info, _to_gaussians, _to_params, scene_extent
+
+    extent = scene_extent(views)
+    params = _to_params(g, config.sh_degree, torch.device("cpu"))
+    opts = _make_optimizers(params, config.lr, extent)
+    strategy = DefaultStrategy(refine_start_iter=10**9, refine_stop_iter=0)
+    state = strategy.initialize_state(scene_scale=extent)
+    raster_bwd = {"t": 0.0}
+    orig_bwd = numba_cpu.RasterizeNumba.backward
+
+    def timed_bwd(ctx, *grads):  # why: separates the numba backward from torch's autograd work
+        t = time.perf_counter()
+        r = orig_bwd(ctx, *grads)
+        raster_bwd["t"] += time.perf_counter() - t
+        return r
+
+    rows: dict[str, list[float]] = {}
+    numba_cpu.RasterizeNumba.backward = staticmethod(timed_bwd)
+    try:
+        for i in range(repeats + 1):
+            v = views[i % len(views)]
+            gs = _to_gaussians(params, config.sh_degree)
+            bg = torch.tensor(config.background, dtype=torch.float32)
+            t = [time.perf_counter()]
+            p = project(gs, v.viewmat.double(), v.K.double(), v.width, v.height)
+            f32 = [x.to(torch.float32) for x in (p.mean2d, p.conic, p.opacity, p.color, p.depth)]
+            f32[0].retain_grad()
+            t.append(time.perf_counter())
+            rgb, dsum, T = numba_cpu.RasterizeNumba.apply(*f32, p.radius, v.width, v.height, None)
+            out = numba_cpu._finish(rgb, dsum, T, bg, torch.float32)
+            t.append(time.perf_counter())
+            from .losses import l1, ssim
+
+            lam = config.lambda_dssim
+            loss = (1 - lam) * l1(out.rgb, v.image, v.mask) + lam * (1 - ssim(out.rgb, v.image, mask=v.mask))
+            t.append(time.perf_counter())
+            raster_bwd["t"] = 0.0
+            loss.backward()
+            t.append(time.perf_counter())
+            info = {"mean2d": f32[0], "radius": p.radius}
+            sinfo = _strategy_info(info, v, len(params["means"]))
+            strategy.step_post_backward(params, opts, state, 1, sinfo)
+            t.append(time.perf_counter())
+            for o in opts.values():
+                o.step()
+                o.zero_grad(set_to_none=True)
+            t.append(time.perf_counter())
+            if i == 0:
+                continue  # warm-up
+            d = np.diff(t) * 1000.0
+            row = {
+                "projection_fwd_ms": d[0],
+                "raster_fwd_ms": d[1],
+                "loss_fwd_ms": d[2],
+                "backward_ms": d[3],
+                "raster_bwd_ms": raster_bwd["t"] * 1000.0,
+                "other_bwd_ms": d[3] - raster_bwd["t"] * 1000.0,
+                "strategy_ms": d[4],
+                "optimizer_ms": d[5],
+                "total_ms": float(np.sum(d)),
+            }
+            for k, val in row.items():
+                rows.setdefault(k, []).append(float(val))
+    finally:
+        numba_cpu.RasterizeNumba.backward = orig_bwd
+    res = {k: round(float(np.median(v)), 2) for k, v in rows.items()}
+    res["gaussians"] = len(params["means"])
+    res["threads"] = torch.get_num_threads()
+    return res
+
+
+def main() -> None:  # pragma: no cover - manual runs: python -m mirage2matter.gaussians.bench_train DIR MIN F
+    import sys
+
+    args = sys.argv[1:]
+    res = bench_train(
+        args[0],
+        float(args[1]) if len(args) > 1 else 15.0,
+        int(args[2]) if len(args) > 2 else 4,
+        args[3] if len(args) > 3 else "given",
+        work_dir=args[4] if len(args) > 4 else None,
+        progress=True,
+    )
+    print(json.dumps({k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in res.items()}))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()
