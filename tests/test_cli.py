@@ -319,3 +319,14 @@ def test_entry_points_and_light_import() -> None:
     code = "import sys, mirage2matter.cli; print(sorted(m for m in ('torch', 'numba') if m in sys.modules))"
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and r.stdout.strip() == "[]"
+
+
+@pytest.mark.slow
+def test_bench_train_on_fox_prints_json_last(capsys: pytest.CaptureFixture) -> None:
+    fox = Path(__file__).resolve().parents[2] / "shared" / "data" / "fox"
+    if not (fox / "transforms.json").is_file():
+        pytest.skip(f"real data not present: {fox} (the fox capture lives in ../shared/data)")
+    assert main(["bench", "train", "--data", str(fox), "--minutes", "1", "--downscale", "8"]) == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert set(result) == {"psnr_heldout", "ssim_heldout", "iterations", "gaussians", "minutes", "backend"}
+    assert result["psnr_heldout"] > 18.0 and result["iterations"] > 50

@@ -610,6 +610,20 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_bench_train(args: argparse.Namespace) -> int:
+    from .gaussians.bench_train import bench_train
+
+    configure_threads()
+    result = bench_train(
+        args.data, minutes=args.minutes, downscale=args.downscale, poses=args.poses, work_dir=args.work_dir,
+        max_gaussians=args.max_gaussians, progress=True,
+    )  # fmt: skip
+    keys = ("psnr_heldout", "ssim_heldout", "iterations", "gaussians", "minutes", "backend")
+    _info(json.dumps(result.get("curve", []), separators=(",", ":")))
+    print(json.dumps({k: result[k] for k in keys}))
+    return 0
+
+
 def _cmd_capture(args: argparse.Namespace) -> int:
     from .capture import CaptureConfig, extract_keyframes
 
@@ -844,6 +858,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     b.add_argument("--seed", type=_int_at_least(0), default=0, help="scene and camera seed (default 0)")
     b.set_defaults(func=_cmd_bench_render)
+    bt = bench_sub.add_parser(
+        "train",
+        help="train 3DGS on a transforms.json capture for M minutes; held-out PSNR/SSIM as a JSON line last",
+    )
+    bt.add_argument("--data", required=True, metavar="DIR", help="folder with transforms.json + images (e.g. fox)")
+    bt.add_argument("--minutes", type=_positive_float, default=15.0, metavar="M", help="training time (default 15)")
+    bt.add_argument("--downscale", type=_int_at_least(1), default=4, metavar="F", help="1/F resolution (default 4)")
+    bt.add_argument("--poses", default="given", choices=("given", "sfm"), help="given poses or our own SfM")
+    bt.add_argument("--work-dir", metavar="DIR", help="cache for the SfM used for initial points")
+    bt.add_argument("--max-gaussians", type=_int_at_least(1000), default=150_000, metavar="N")
+    bt.set_defaults(func=_cmd_bench_train)
 
     # m2m demo
     d = sub.add_parser(
