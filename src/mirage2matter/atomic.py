@@ -155,3 +155,19 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     except BaseException:
         _discard(tmp)
         raise
+
+
+def replace_dir(tmp: str | os.PathLike[str], out_dir: str | os.PathLike[str]) -> None:
+    """Move the finished folder ``tmp`` onto ``out_dir``; an existing ``out_dir`` is swapped out
+    first and deleted after, so readers see either the old or the new folder, never a mix."""
+    import secrets
+    import shutil
+
+    tmp, out_dir = Path(tmp), Path(out_dir)
+    old = None
+    if out_dir.exists():
+        old = out_dir.with_name(f".{out_dir.name}.old-{os.getpid()}-{secrets.token_hex(4)}")
+        os.replace(out_dir, old)
+    os.replace(tmp, out_dir)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)

@@ -25,6 +25,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ..atomic import replace_dir
 from ..video import VideoError, read_video_frames
 
 __all__ = [
@@ -219,17 +220,6 @@ def _write_image(path: Path, rgb: np.ndarray, config: CaptureConfig) -> None:
         raise OSError(f"cannot write keyframe {path}")
 
 
-def _replace_dir(tmp: Path, out_dir: Path) -> None:
-    """Move the finished ``tmp`` onto ``out_dir``; an existing ``out_dir`` is swapped out first."""
-    old = None
-    if out_dir.exists():
-        old = out_dir.with_name(f".{out_dir.name}.old-{os.getpid()}-{secrets.token_hex(4)}")
-        os.replace(out_dir, old)
-    os.replace(tmp, out_dir)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
-
-
 def extract_keyframes(
     source: str | os.PathLike[str], out_dir: str | os.PathLike[str], config: CaptureConfig | None = None
 ) -> list[dict[str, Any]]:
@@ -316,7 +306,7 @@ def extract_keyframes(
         with open(tmp / "keyframes.json", "w", encoding="utf-8") as f:
             json.dump(summary, f, indent=1)
             f.write("\n")
-        _replace_dir(tmp, out_dir)
+        replace_dir(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

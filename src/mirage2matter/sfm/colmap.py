@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from ..atomic import replace_dir
 from ..geometry.camera import Camera
 from ..geometry.rotation import rotation_angle
 from ..geometry.umeyama import umeyama
@@ -284,13 +285,7 @@ def run_sfm(
         with open(tmp / "sfm.json", "w", encoding="utf-8") as f:
             json.dump(summary, f, indent=1)
             f.write("\n")
-        old = None
-        if out_dir.exists():
-            old = out_dir.with_name(f".{out_dir.name}.old-{os.getpid()}-{secrets.token_hex(4)}")
-            os.replace(out_dir, old)
-        os.replace(tmp, out_dir)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+        replace_dir(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
