@@ -160,3 +160,22 @@ def test_unwritable_directory_reported_before_writing(tmp_path: Path, monkeypatc
             pass
     assert str(tmp_path) in str(info.value)
     assert _listing(tmp_path) == []
+
+
+def test_atomic_dir_replaces_on_success_and_leaves_nothing_on_failure(tmp_path):
+    from mirage2matter.atomic import atomic_dir
+
+    out = tmp_path / "stage"
+    with atomic_dir(out) as tmp:
+        (tmp / "a.txt").write_text("first")
+        assert not out.exists()  # nothing visible until the stage completes
+    assert (out / "a.txt").read_text() == "first"
+    with pytest.raises(RuntimeError):
+        with atomic_dir(out) as tmp:
+            (tmp / "a.txt").write_text("half")
+            raise RuntimeError("killed mid-stage")
+    assert (out / "a.txt").read_text() == "first"  # the old output survives a failed rerun
+    with atomic_dir(out) as tmp:
+        (tmp / "b.txt").write_text("second")
+    assert sorted(p.name for p in out.iterdir()) == ["b.txt"]  # replaced whole, not merged
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["stage"]  # no temporaries or old copies

@@ -171,3 +171,23 @@ def replace_dir(tmp: str | os.PathLike[str], out_dir: str | os.PathLike[str]) ->
     os.replace(tmp, out_dir)
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
+
+
+@contextmanager
+def atomic_dir(out_dir: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a temporary sibling folder to build ``out_dir`` in. On success it replaces ``out_dir``
+    (see :func:`replace_dir`); on any exception it is deleted, so a stage never leaves a half-built
+    output folder behind."""
+    import secrets
+    import shutil
+
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out_dir.with_name(f".{out_dir.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}")
+    tmp.mkdir()
+    try:
+        yield tmp
+        replace_dir(tmp, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise

@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import json
 import os
-import secrets
-import shutil
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -25,7 +23,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..atomic import replace_dir
+from ..atomic import atomic_dir
 from ..video import VideoError, read_video_frames
 
 __all__ = [
@@ -261,10 +259,7 @@ def extract_keyframes(
 
     # Pass 2: re-read the candidates, drop those without parallax to the previous keyframe, and
     # write the rest into a temporary sibling folder, renamed onto out_dir when complete.
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_dir.with_name(f".{out_dir.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}")
-    tmp.mkdir()
-    try:
+    with atomic_dir(out_dir) as tmp:
         ext = config.image_format
         names: dict[int, str] = {}
         kept: list[int] = []
@@ -306,10 +301,6 @@ def extract_keyframes(
         with open(tmp / "keyframes.json", "w", encoding="utf-8") as f:
             json.dump(summary, f, indent=1)
             f.write("\n")
-        replace_dir(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return records
 
 

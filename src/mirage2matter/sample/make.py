@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_dir
 from ..calib.board import BoardSpec
 from .trajectory import OrbitConfig, orbit_poses
 
@@ -100,11 +101,9 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
     from .assets import board_asset, build_assets, export_assets, ground_truth_entries
     from .render import RenderConfig, SampleRenderer, default_T_base_headcam, sample_handeye_configurations
 
-    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    (tmp / "handeye" / "images").mkdir(parents=True)
     t_start = time.perf_counter()
-    try:
+    with atomic_dir(out) as tmp:  # an existing out is empty (checked above)
+        (tmp / "handeye" / "images").mkdir(parents=True)
         board = config.board
         assets = build_assets(seed=config.seed, board=board)
         board.save(tmp / "board.json")
@@ -207,11 +206,5 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
         _contact_sheet(tmp / "contact_sheet.jpg", tiles)
         for scratch in (".render", ".render_robot"):
             shutil.rmtree(tmp / scratch, ignore_errors=True)
-        if out.exists():
-            out.rmdir()  # empty (checked above)
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     log(f"sample written to {out} in {time.perf_counter() - t_start:.0f} s")
     return ground_truth

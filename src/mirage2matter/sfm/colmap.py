@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import os
-import secrets
 import shutil
 import time
 from dataclasses import asdict, dataclass, field
@@ -23,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..atomic import replace_dir
+from ..atomic import atomic_dir
 from ..geometry.camera import Camera
 from ..geometry.rotation import rotation_angle
 from ..geometry.umeyama import umeyama
@@ -199,96 +198,90 @@ def run_sfm(
             f"{sizes[odd[0]][0]}x{sizes[odd[0]][1]}); SfM assumes one camera, so resize them to one size"
         )
 
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_dir.with_name(f".{out_dir.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}")
-    tmp.mkdir()
     log_level = pycolmap.logging.minloglevel
     if not config.verbose:
         pycolmap.logging.minloglevel = 1  # glog WARNING
     try:
-        t0 = time.perf_counter()
-        db = tmp / "database.db"
-        eo = pycolmap.FeatureExtractionOptions()
-        eo.num_threads = config.num_threads
-        eo.sift.max_num_features = config.max_num_features
-        eo.max_image_size = max(16, round(max(width, height) * config.downscale))
-        pycolmap.extract_features(
-            db,
-            image_dir,
-            image_names=names,
-            camera_mode=pycolmap.CameraMode.SINGLE,
-            reader_options=pycolmap.ImageReaderOptions(camera_model=config.camera_model),
-            extraction_options=eo,
-            device=pycolmap.Device.cpu,
-        )
-        t_features = time.perf_counter()
-
-        matching = config.matching
-        if matching == "auto":
-            matching = "exhaustive" if len(names) < config.exhaustive_below else "sequential"
-        mo = pycolmap.FeatureMatchingOptions()
-        mo.num_threads = config.num_threads
-        if matching == "exhaustive":
-            pycolmap.match_exhaustive(db, matching_options=mo, device=pycolmap.Device.cpu)
-        else:
-            po = pycolmap.SequentialPairingOptions()
-            po.overlap = config.overlap
-            po.loop_detection = config.loop_detection
-            if config.loop_detection:
-                po.vocab_tree_path = str(config.vocab_tree_path)
-            pycolmap.match_sequential(db, matching_options=mo, pairing_options=po, device=pycolmap.Device.cpu)
-        t_matching = time.perf_counter()
-
-        opts = pycolmap.IncrementalPipelineOptions()
-        opts.ba_refine_principal_point = config.refine_principal_point
-        opts.num_threads = config.num_threads
-        opts.random_seed = config.seed
-        models = pycolmap.incremental_mapping(db, image_dir, tmp / "mapper", options=opts)
-        t_mapping = time.perf_counter()
-        if not models:
-            raise SfMError(
-                f"{image_dir}: SfM found no initial image pair ({len(names)} images); capture more parallax "
-                "(move the camera, do not only rotate it) and more texture"
+        with atomic_dir(out_dir) as tmp:
+            t0 = time.perf_counter()
+            db = tmp / "database.db"
+            eo = pycolmap.FeatureExtractionOptions()
+            eo.num_threads = config.num_threads
+            eo.sift.max_num_features = config.max_num_features
+            eo.max_image_size = max(16, round(max(width, height) * config.downscale))
+            pycolmap.extract_features(
+                db,
+                image_dir,
+                image_names=names,
+                camera_mode=pycolmap.CameraMode.SINGLE,
+                reader_options=pycolmap.ImageReaderOptions(camera_model=config.camera_model),
+                extraction_options=eo,
+                device=pycolmap.Device.cpu,
             )
-        rec = max(models.values(), key=lambda r: r.num_reg_images())
-        model_dir = tmp / "model"
-        model_dir.mkdir()
-        rec.write(model_dir)
-        shutil.rmtree(tmp / "mapper", ignore_errors=True)  # all models; the largest is in model/
+            t_features = time.perf_counter()
 
-        result = _result_from_reconstruction(rec, len(names), names, out_dir / "model")
-        result.seconds = t_mapping - t0
-        if result.registered < config.min_registered_fraction * len(names):
-            raise SfMError(
-                f"{image_dir}: SfM registered only {result.registered} of {len(names)} images (need "
-                f"{config.min_registered_fraction:.0%}); capture more parallax / texture (walk around the scene, "
-                "avoid blur and blank surfaces) or use exhaustive matching"
-            )
-        summary = {
-            "image_dir": str(image_dir),
-            "config": asdict(config),
-            "matching_used": matching,
-            "registered": result.registered,
-            "total": result.total,
-            "unregistered": result.unregistered,
-            "models_found": len(models),
-            "num_points": int(result.points.shape[0]),
-            "mean_reprojection_error": result.mean_reprojection_error,
-            "seconds": {
-                "features": t_features - t0,
-                "matching": t_matching - t_features,
-                "mapping": t_mapping - t_matching,
-                "total": t_mapping - t0,
-            },
-            "cameras": [c.to_json() for c in result.cameras],
-        }
-        with open(tmp / "sfm.json", "w", encoding="utf-8") as f:
-            json.dump(summary, f, indent=1)
-            f.write("\n")
-        replace_dir(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+            matching = config.matching
+            if matching == "auto":
+                matching = "exhaustive" if len(names) < config.exhaustive_below else "sequential"
+            mo = pycolmap.FeatureMatchingOptions()
+            mo.num_threads = config.num_threads
+            if matching == "exhaustive":
+                pycolmap.match_exhaustive(db, matching_options=mo, device=pycolmap.Device.cpu)
+            else:
+                po = pycolmap.SequentialPairingOptions()
+                po.overlap = config.overlap
+                po.loop_detection = config.loop_detection
+                if config.loop_detection:
+                    po.vocab_tree_path = str(config.vocab_tree_path)
+                pycolmap.match_sequential(db, matching_options=mo, pairing_options=po, device=pycolmap.Device.cpu)
+            t_matching = time.perf_counter()
+
+            opts = pycolmap.IncrementalPipelineOptions()
+            opts.ba_refine_principal_point = config.refine_principal_point
+            opts.num_threads = config.num_threads
+            opts.random_seed = config.seed
+            models = pycolmap.incremental_mapping(db, image_dir, tmp / "mapper", options=opts)
+            t_mapping = time.perf_counter()
+            if not models:
+                raise SfMError(
+                    f"{image_dir}: SfM found no initial image pair ({len(names)} images); capture more parallax "
+                    "(move the camera, do not only rotate it) and more texture"
+                )
+            rec = max(models.values(), key=lambda r: r.num_reg_images())
+            model_dir = tmp / "model"
+            model_dir.mkdir()
+            rec.write(model_dir)
+            shutil.rmtree(tmp / "mapper", ignore_errors=True)  # all models; the largest is in model/
+
+            result = _result_from_reconstruction(rec, len(names), names, out_dir / "model")
+            result.seconds = t_mapping - t0
+            if result.registered < config.min_registered_fraction * len(names):
+                raise SfMError(
+                    f"{image_dir}: SfM registered only {result.registered} of {len(names)} images (need "
+                    f"{config.min_registered_fraction:.0%}); capture more parallax / texture (walk around the scene, "
+                    "avoid blur and blank surfaces) or use exhaustive matching"
+                )
+            summary = {
+                "image_dir": str(image_dir),
+                "config": asdict(config),
+                "matching_used": matching,
+                "registered": result.registered,
+                "total": result.total,
+                "unregistered": result.unregistered,
+                "models_found": len(models),
+                "num_points": int(result.points.shape[0]),
+                "mean_reprojection_error": result.mean_reprojection_error,
+                "seconds": {
+                    "features": t_features - t0,
+                    "matching": t_matching - t_features,
+                    "mapping": t_mapping - t_matching,
+                    "total": t_mapping - t0,
+                },
+                "cameras": [c.to_json() for c in result.cameras],
+            }
+            with open(tmp / "sfm.json", "w", encoding="utf-8") as f:
+                json.dump(summary, f, indent=1)
+                f.write("\n")
     finally:
         pycolmap.logging.minloglevel = log_level
     return result
