@@ -490,6 +490,7 @@ def _demo_capture_and_sfm(ws: Path, sample: Path, n_keyframes: int) -> dict[str,
     from .atomic import atomic_write
     from .calib.align import align_scene, apply_to_cameras
     from .calib.board import BoardSpec
+    from .geometry.rotation import rotation_angle
 
     board = BoardSpec.from_json(gt["board"]["spec"])
     images = [np.asarray(Image.open(ws / "capture" / c.name).convert("RGB")) for c in result.cameras]
@@ -501,8 +502,7 @@ def _demo_capture_and_sfm(ws: Path, sample: Path, n_keyframes: int) -> dict[str,
     rot, trans = [], []
     for cam in cameras_base:
         T_gt = reference[cam.name]
-        dR = cam.T_world_cam[:3, :3].T @ T_gt[:3, :3]
-        rot.append(float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))))
+        rot.append(float(np.degrees(rotation_angle(cam.T_world_cam[:3, :3].T @ T_gt[:3, :3]))))
         trans.append(float(1000 * np.linalg.norm(cam.T_world_cam[:3, 3] - T_gt[:3, 3])))
     return {
         "align_scale": aligned.sim3_sfm_to_base.scale,
@@ -524,6 +524,7 @@ def _demo_handeye(ws: Path, sample: Path) -> dict[str, Any]:
     from .atomic import atomic_write
     from .calib.board import BoardSpec
     from .calib.handeye import calibrate_from_files
+    from .geometry.rotation import rotation_angle
 
     gt = json.loads((sample / "ground_truth.json").read_text())
     result, out = calibrate_from_files(
@@ -534,10 +535,9 @@ def _demo_handeye(ws: Path, sample: Path) -> dict[str, Any]:
     with atomic_write(ws / "calib" / "handeye.json", "w", encoding="utf-8") as f:
         json.dump(out, f, indent=1)
     T_gt = np.asarray(gt["head_camera"]["T_base_headcam"])
-    dR = result.T[:3, :3].T @ T_gt[:3, :3]
     return {
         "views": len(out["per_view"]),
-        "rotation_deg": float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))),
+        "rotation_deg": float(np.degrees(rotation_angle(result.T[:3, :3].T @ T_gt[:3, :3]))),
         "translation_mm": float(1000 * np.linalg.norm(result.T[:3, 3] - T_gt[:3, 3])),
     }
 

@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..geometry.rotation import rotation_angle
+from ..geometry.sim3 import invert_rigid
 from .board import BoardSpec
 
 METHODS = ("tsai", "park", "horaud", "andreff", "daniilidis")
@@ -64,17 +66,6 @@ def detect_board_pose(image_rgb: np.ndarray, board: BoardSpec, K: np.ndarray, mi
     T[:3, :3], T[:3, 3] = cv2.Rodrigues(rvec)[0], tvec.ravel()
     rms = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img) ** 2, axis=1))))
     return BoardObservation(T, obj, img + 0.5, rms)
-
-
-def _rotation_angle_deg(R: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
-
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    Ti = np.eye(4)
-    Ti[:3, :3] = T[:3, :3].T
-    Ti[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return Ti
 
 
 def check_motion_diversity(T_base_link: list[np.ndarray], min_angle_deg: float = 2.0) -> None:
@@ -162,7 +153,7 @@ def refine_reprojection(
         out = []
         for Tl, obs in zip(T_base_link, observations, strict=True):
             # camera <- board: head: X^-1 Tl Y (board on the link); wrist: X^-1 Tl^-1 Y (board in the base)
-            T_cb = _inv(Xp) @ (Tl if mount == "head" else _inv(Tl)) @ Yp
+            T_cb = invert_rigid(Xp) @ (Tl if mount == "head" else invert_rigid(Tl)) @ Yp
             p = obs.points_board @ T_cb[:3, :3].T + T_cb[:3, 3]
             uv = p @ K.T
             out.append((uv[:, :2] / uv[:, 2:] - obs.uv).ravel())
@@ -195,7 +186,7 @@ def calibrate_handeye(
         raise HandEyeError(f"hand-eye needs at least 3 views with the board detected, got {len(T_base_link)}")
     check_motion_diversity(T_base_link)
     # eye-in-hand takes gripper->base; eye-to-hand the same with the gripper poses inverted
-    motions = T_base_link if mount == "wrist" else [_inv(T) for T in T_base_link]
+    motions = T_base_link if mount == "wrist" else [invert_rigid(T) for T in T_base_link]
     flag = getattr(cv2, f"CALIB_HAND_EYE_{method.upper()}")
     R, t = cv2.calibrateHandEye(
         [T[:3, :3] for T in motions], [T[:3, 3] for T in motions],
@@ -206,7 +197,7 @@ def calibrate_handeye(
     # The other unknown (where the board is) and the per-view disagreement of the loop
     # base -> link -> board vs base -> camera -> board (head) / base -> board vs link -> camera -> board (wrist).
     if mount == "head":
-        T_board = _average_pose([_inv(Tl) @ X @ Tc for Tl, Tc in zip(T_base_link, T_cam_board, strict=True)])
+        T_board = _average_pose([invert_rigid(Tl) @ X @ Tc for Tl, Tc in zip(T_base_link, T_cam_board, strict=True)])
         pairs = [(X @ Tc, Tl @ T_board) for Tl, Tc in zip(T_base_link, T_cam_board, strict=True)]
     else:
         T_board = _average_pose([Tl @ X @ Tc for Tl, Tc in zip(T_base_link, T_cam_board, strict=True)])
@@ -217,7 +208,7 @@ def calibrate_handeye(
             pairs = [(X @ Tc, Tl @ T_board) for Tl, Tc in zip(T_base_link, T_cam_board, strict=True)]
         else:
             pairs = [(Tl @ X @ Tc, T_board) for Tl, Tc in zip(T_base_link, T_cam_board, strict=True)]
-    deg = [_rotation_angle_deg(A[:3, :3].T @ B[:3, :3]) for A, B in pairs]
+    deg = [float(np.degrees(rotation_angle(A[:3, :3].T @ B[:3, :3]))) for A, B in pairs]
     mm = [float(1000 * np.linalg.norm(A[:3, 3] - B[:3, 3])) for A, B in pairs]
     return HandEyeResult(mount, method, X, T_board, deg, mm)
 

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..geometry.camera import look_at_pose
+from ..geometry.sim3 import invert_rigid
 from .model import Gaussians
 from .sh import MAX_SH_DEGREE, rgb_to_sh_dc
 
@@ -657,22 +659,6 @@ def random_gaussians(n: int, sh_degree: int = 3, seed: int = 0, extent: float = 
 
 
 # ---- cameras ---------------------------------------------------------------------------------
-def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """World-to-camera 4x4 (OpenCV axes: x right, y down, z forward) for a camera at ``eye`` with z-up world."""
-    z = target - eye
-    z = z / np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    if np.linalg.norm(x) < 1e-9:
-        raise ValueError("camera looks straight up or down; the look-at is undefined")
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    r_wc = np.stack([x, y, z], axis=1)  # camera axes in world coordinates
-    view = np.eye(4)
-    view[:3, :3] = r_wc.T
-    view[:3, 3] = -r_wc.T @ eye
-    return view
-
-
 def orbit_cameras(
     n_views: int,
     width: int,
@@ -706,5 +692,5 @@ def orbit_cameras(
     cams = []
     for a, z in zip(az, zs, strict=True):
         eye = np.array([tgt[0] + radius * math.cos(a), tgt[1] + radius * math.sin(a), z])
-        cams.append((_look_at(eye, tgt), k.copy()))
+        cams.append((invert_rigid(look_at_pose(eye, tgt)), k.copy()))
     return cams

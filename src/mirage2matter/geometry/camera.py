@@ -24,6 +24,8 @@ from typing import Any
 
 import numpy as np
 
+from .sim3 import invert_rigid
+
 __all__ = [
     "Camera",
     "CameraFormatError",
@@ -155,11 +157,7 @@ class Camera:
     @property
     def viewmat(self) -> np.ndarray:
         """World-to-camera [4, 4]: the rigid inverse [R^T, -R^T t] of ``T_world_cam``."""
-        R, t = self.T_world_cam[:3, :3], self.T_world_cam[:3, 3]
-        out = np.eye(4)
-        out[:3, :3] = R.T
-        out[:3, 3] = -R.T @ t
-        return out
+        return invert_rigid(self.T_world_cam)
 
     @property
     def center(self) -> np.ndarray:

@@ -195,3 +195,12 @@ class Sim3:
         r = np.array2string(self.rotation, precision=6, separator=", ").replace("\n", "")
         t = np.array2string(self.translation, precision=6, separator=", ")
         return f"Sim3(scale={self.scale:.8g}, rotation={r}, translation={t})"
+
+
+def invert_rigid(T: np.ndarray) -> np.ndarray:
+    """Inverse [4,4] of a rigid transform [4,4]: [R^T, -R^T t] (exact, no general matrix inverse)."""
+    T = np.asarray(T, dtype=np.float64)
+    out = np.eye(4)
+    out[:3, :3] = T[:3, :3].T
+    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return out

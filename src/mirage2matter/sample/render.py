@@ -32,6 +32,7 @@ import trimesh
 
 from mirage2matter.geometry.camera import GL_TO_CV, look_at_pose
 from mirage2matter.geometry.rotation import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix, rotation_angle
+from mirage2matter.geometry.sim3 import invert_rigid
 from mirage2matter.sample.types import PlacedAsset
 
 __all__ = [
@@ -143,11 +144,6 @@ def _rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     T[:3, :3] = R
     T[:3, 3] = t
     return T
-
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    R, t = T[:3, :3], T[:3, 3]
-    return _rigid(R.T, -R.T @ t)
 
 
 def _pos_quat(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -502,7 +498,7 @@ class SampleRenderer:
 # ---- hand-eye configurations --------------------------------------------------------------------
 def _project(K: np.ndarray, T_world_cam: np.ndarray, X_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pixels [N,2] and camera depths [N] of world points [N,3]."""
-    V = _inv(T_world_cam)
+    V = invert_rigid(T_world_cam)
     Xc = X_world @ V[:3, :3].T + V[:3, 3]
     uvw = Xc @ K.T
     return uvw[:, :2] / uvw[:, 2:3], Xc[:, 2]
@@ -634,7 +630,7 @@ def sample_handeye_configurations(
     T_base_headcam = np.asarray(T_base_headcam, dtype=np.float64)
     cam_centre = T_base_headcam[:3, 3]
     hand = renderer.robot.get_link("hand")
-    T_board_hand = _inv(renderer.T_hand_board)
+    T_board_hand = invert_rigid(renderer.T_hand_board)
     axes_obj = renderer.board_axes_obj
     # Face centre -> object-frame origin, to place the face centre on the sampled ray.
     face_centre_obj = renderer.board_corners_obj.mean(axis=0)
@@ -670,7 +666,7 @@ def sample_handeye_configurations(
         q = np.asarray(q, dtype=np.float64)
         q[7:] = renderer.finger_q
         renderer.set_joints(q)
-        T_err = _inv(renderer.T_base_link("hand")) @ (T_base_board @ T_board_hand)
+        T_err = invert_rigid(renderer.T_base_link("hand")) @ (T_base_board @ T_board_hand)
         if np.linalg.norm(T_err[:3, 3]) > 2e-3 or rotation_angle(T_err[:3, :3]) > math.radians(1.0):
             continue
         if not check_handeye_configuration(renderer, T_base_headcam, **check_kwargs).ok:
