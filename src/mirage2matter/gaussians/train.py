@@ -394,9 +394,6 @@ def train(
             degree = min(step // config.sh_increase_every, config.sh_degree)
             info: dict = {}
             loss, _ = view_loss(_to_gaussians(params, degree), view, config, info, backend)
-            m2d = info.get("mean2d")
-            if m2d is not None and m2d.requires_grad and not m2d.is_leaf:
-                m2d.retain_grad()  # the cpu backend does this itself; gsplat's meta does not
             loss.backward()
             if strategy is not None:
                 sinfo = _strategy_info(info, view, len(params["means"]))

@@ -59,7 +59,12 @@ def render_gsplat(
         rasterize_mode="classic",
     )
     if info is not None:
-        info.update(mean2d=meta["means2d"], radius=meta["radii"][0], meta=meta)
+        # Same contract as the cpu backend: screen-space means with their gradient retained (here
+        # gsplat's [1,N,2] layout; the rendering read that tensor, so only it receives .grad).
+        mean2d = meta["means2d"]
+        if mean2d.requires_grad:
+            mean2d.retain_grad()
+        info.update(mean2d=mean2d, radius=meta["radii"][0], meta=meta)
     out_dev = g.means.device
     return RenderOutput(
         renders[0, ..., :3].to(out_dev, dtype),
