@@ -4,7 +4,6 @@ scored on held-out real frames (every 8th), plus a per-stage profile of one trai
 from __future__ import annotations
 
 import json
-import math
 import os
 import tempfile
 import time
@@ -139,13 +138,13 @@ def bench_train(
 
 
 def profile_step(g, views: list[View], config: TrainConfig, repeats: int = 3) -> dict[str, float]:
-    """Median milliseconds of the stages of one CPU training step on Gaussians ``g``: torch
-    projection (forward), numba rasterization (forward), loss, backward (split into raster
-    backward and the rest: projection + SH backward), gsplat strategy bookkeeping, Adam."""
+    """Median milliseconds of the stages of one CPU training step on Gaussians ``g``, measured on the
+    real code path (``view_loss`` with the cpu backend) by timing its parts in place: torch
+    projection, numba raster forward, the rest of the loss, raster backward, the rest of autograd
+    (projection + SH + SSIM backward), gsplat strategy bookkeeping, Adam."""
     from gsplat.strategy import DefaultStrategy
 
     from .render import numba_cpu
-    from .render.projection import project
     from .train import _make_optimizers, _strategy_info, _to_gaussians, _to_params, scene_extent
 
     extent = scene_extent(views)
@@ -153,84 +152,60 @@ def profile_step(g, views: list[View], config: TrainConfig, repeats: int = 3) ->
     opts = _make_optimizers(params, config.lr, extent)
     strategy = DefaultStrategy(refine_start_iter=10**9, refine_stop_iter=0)
     state = strategy.initialize_state(scene_scale=extent)
-    raster_bwd = {"t": 0.0}
-    orig_bwd = numba_cpu.RasterizeNumba.backward
+    spent = {"project": 0.0, "raster_fwd": 0.0, "raster_bwd": 0.0}
 
-    def timed_bwd(ctx, *grads):  # why: separates the numba backward from torch's autograd work
-        t = time.perf_counter()
-        r = orig_bwd(ctx, *grads)
-        raster_bwd["t"] += time.perf_counter() - t
-        return r
+    def timed(fn, key):
+        def wrapper(*args, **kwargs):
+            t = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                spent[key] += time.perf_counter() - t
 
+        return wrapper
+
+    originals = (numba_cpu.project, numba_cpu.RasterizeNumba.forward, numba_cpu.RasterizeNumba.backward)
+    numba_cpu.project = timed(originals[0], "project")
+    numba_cpu.RasterizeNumba.forward = staticmethod(timed(originals[1], "raster_fwd"))
+    numba_cpu.RasterizeNumba.backward = staticmethod(timed(originals[2], "raster_bwd"))
     rows: dict[str, list[float]] = {}
-    numba_cpu.RasterizeNumba.backward = staticmethod(timed_bwd)
     try:
         for i in range(repeats + 1):
             v = views[i % len(views)]
-            gs = _to_gaussians(params, config.sh_degree)
-            bg = torch.tensor(config.background, dtype=torch.float32)
-            t = [time.perf_counter()]
-            p = project(gs, v.viewmat.double(), v.K.double(), v.width, v.height)
-            f32 = [x.to(torch.float32) for x in (p.mean2d, p.conic, p.opacity, p.color, p.depth)]
-            f32[0].retain_grad()
-            t.append(time.perf_counter())
-            rgb, dsum, T = numba_cpu.RasterizeNumba.apply(*f32, p.radius, v.width, v.height, None)
-            out = numba_cpu._finish(rgb, dsum, T, bg, torch.float32)
-            t.append(time.perf_counter())
-            from .losses import l1, ssim
-
-            lam = config.lambda_dssim
-            loss = (1 - lam) * l1(out.rgb, v.image, v.mask) + lam * (1 - ssim(out.rgb, v.image, mask=v.mask))
-            t.append(time.perf_counter())
-            raster_bwd["t"] = 0.0
+            spent.update(project=0.0, raster_fwd=0.0, raster_bwd=0.0)
+            info: dict = {}
+            t0 = time.perf_counter()
+            loss, _ = view_loss(_to_gaussians(params, config.sh_degree), v, config, info, backend="cpu")
+            t1 = time.perf_counter()
             loss.backward()
-            t.append(time.perf_counter())
-            info = {"mean2d": f32[0], "radius": p.radius}
-            sinfo = _strategy_info(info, v, len(params["means"]))
-            strategy.step_post_backward(params, opts, state, 1, sinfo)
-            t.append(time.perf_counter())
+            t2 = time.perf_counter()
+            strategy.step_post_backward(params, opts, state, 1, _strategy_info(info, v, len(params["means"])))
+            t3 = time.perf_counter()
             for o in opts.values():
                 o.step()
                 o.zero_grad(set_to_none=True)
-            t.append(time.perf_counter())
+            t4 = time.perf_counter()
             if i == 0:
                 continue  # warm-up
-            d = np.diff(t) * 1000.0
+            ms = {k: 1000.0 * val for k, val in spent.items()}
             row = {
-                "projection_fwd_ms": d[0],
-                "raster_fwd_ms": d[1],
-                "loss_fwd_ms": d[2],
-                "backward_ms": d[3],
-                "raster_bwd_ms": raster_bwd["t"] * 1000.0,
-                "other_bwd_ms": d[3] - raster_bwd["t"] * 1000.0,
-                "strategy_ms": d[4],
-                "optimizer_ms": d[5],
-                "total_ms": float(np.sum(d)),
+                "projection_fwd_ms": ms["project"],
+                "raster_fwd_ms": ms["raster_fwd"],
+                "loss_fwd_ms": 1000.0 * (t1 - t0) - ms["project"] - ms["raster_fwd"],
+                "backward_ms": 1000.0 * (t2 - t1),
+                "raster_bwd_ms": ms["raster_bwd"],
+                "other_bwd_ms": 1000.0 * (t2 - t1) - ms["raster_bwd"],
+                "strategy_ms": 1000.0 * (t3 - t2),
+                "optimizer_ms": 1000.0 * (t4 - t3),
+                "total_ms": 1000.0 * (t4 - t0),
             }
             for k, val in row.items():
                 rows.setdefault(k, []).append(float(val))
     finally:
-        numba_cpu.RasterizeNumba.backward = orig_bwd
+        numba_cpu.project = originals[0]
+        numba_cpu.RasterizeNumba.forward = staticmethod(originals[1])
+        numba_cpu.RasterizeNumba.backward = staticmethod(originals[2])
     res = {k: round(float(np.median(v)), 2) for k, v in rows.items()}
     res["gaussians"] = len(params["means"])
     res["threads"] = torch.get_num_threads()
     return res
-
-
-def main() -> None:  # pragma: no cover - manual runs: python -m mirage2matter.gaussians.bench_train DIR MIN F
-    import sys
-
-    args = sys.argv[1:]
-    res = bench_train(
-        args[0],
-        float(args[1]) if len(args) > 1 else 15.0,
-        int(args[2]) if len(args) > 2 else 4,
-        args[3] if len(args) > 3 else "given",
-        work_dir=args[4] if len(args) > 4 else None,
-        progress=True,
-    )
-    print(json.dumps({k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in res.items()}))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    main()
