@@ -39,11 +39,7 @@ def _undistorted_normalized(camera: Camera, uv: np.ndarray) -> np.ndarray:
     """Pixel coordinates (our +0.5 convention) [M,2] -> normalised image coordinates [M,2]."""
     import cv2
 
-    K_cv = camera.K.copy()
-    K_cv[:2, 2] -= 0.5
-    d = camera.distortion or {}
-    dist = np.array([d.get("k1", 0.0), d.get("k2", 0.0), d.get("p1", 0.0), d.get("p2", 0.0)])
-    return cv2.undistortPoints((uv - 0.5).reshape(-1, 1, 2), K_cv, dist).reshape(-1, 2)
+    return cv2.undistortPoints((uv - 0.5).reshape(-1, 1, 2), camera.K_opencv, camera.opencv_distortion()).reshape(-1, 2)
 
 
 @dataclass

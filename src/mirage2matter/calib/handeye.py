@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..geometry.camera import opencv_K
 from ..geometry.rotation import rotation_angle
 from ..geometry.sim3 import invert_rigid
 from .board import BoardSpec
@@ -55,8 +56,7 @@ def detect_board_pose(image_rgb: np.ndarray, board: BoardSpec, K: np.ndarray, mi
         return None
     obj = board.corner_points_board()[ids.ravel()].astype(np.float64)
     img = corners.reshape(-1, 2).astype(np.float64)
-    K_cv = np.asarray(K, dtype=np.float64).copy()
-    K_cv[:2, 2] -= 0.5  # OpenCV puts pixel centres at integers
+    K_cv = opencv_K(K)
     ok, rvec, tvec = cv2.solvePnP(obj, img, K_cv, None, flags=cv2.SOLVEPNP_IPPE)
     if not ok:
         return None

@@ -85,15 +85,6 @@ def downscale_camera(camera: Camera, downscale: int) -> Camera:
     return Camera(K, camera.T_world_cam.copy(), w, h, camera.name, dict(camera.distortion))
 
 
-def _opencv_distortion(distortion: dict[str, float]) -> np.ndarray | None:
-    """OpenCV's (k1, k2, p1, p2, k3) from our named coefficients; None when all are zero."""
-    d = {k: float(v) for k, v in distortion.items()}
-    if abs(d.get("k4", 0.0)) > 0:
-        raise DatasetError("fisheye distortion (k4) is not supported; undistort the images beforehand")
-    coeffs = np.array([d.get("k1", 0.0), d.get("k2", 0.0), d.get("p1", 0.0), d.get("p2", 0.0), d.get("k3", 0.0)])
-    return None if not np.any(coeffs) else coeffs
-
-
 def undistort_image(image: np.ndarray, camera: Camera, erode_px: int = 2) -> tuple[np.ndarray, np.ndarray]:
     """Undistort ``image`` [H,W,C] (float) taken by ``camera`` to the pinhole camera with the same K.
 
@@ -106,13 +97,13 @@ def undistort_image(image: np.ndarray, camera: Camera, erode_px: int = 2) -> tup
     h, w = image.shape[:2]
     if (w, h) != (camera.width, camera.height):
         raise DatasetError(f"{camera.name}: image is {w}x{h} but its camera says {camera.width}x{camera.height}")
-    coeffs = _opencv_distortion(camera.distortion)
+    try:
+        coeffs = camera.opencv_distortion()
+    except ValueError as e:
+        raise DatasetError(str(e)) from None
     if coeffs is None:
         return np.ascontiguousarray(image, dtype=np.float32), np.ones((h, w), bool)
-    # OpenCV puts pixel centres at integers, we at +0.5.
-    K_cv = camera.K.copy()
-    K_cv[0, 2] -= 0.5
-    K_cv[1, 2] -= 0.5
+    K_cv = camera.K_opencv
     map_x, map_y = cv2.initUndistortRectifyMap(K_cv, coeffs, None, K_cv, (w, h), cv2.CV_32FC1)
     out = cv2.remap(image.astype(np.float32), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     ones = np.ones((h, w), np.float32)

@@ -160,6 +160,22 @@ class Camera:
         return invert_rigid(self.T_world_cam)
 
     @property
+    def K_opencv(self) -> np.ndarray:
+        """K for OpenCV calls (see :func:`opencv_K`)."""
+        return opencv_K(self.K)
+
+    def opencv_distortion(self) -> np.ndarray | None:
+        """OpenCV's (k1, k2, p1, p2, k3) from the named coefficients; None when all are zero.
+        Fisheye coefficients (k4) have no place in this model: CameraFormatError."""
+        d = {k: float(v) for k, v in (self.distortion or {}).items()}
+        if abs(d.get("k4", 0.0)) > 0:
+            raise CameraFormatError(
+                f"{self.name or 'camera'}: fisheye distortion (k4) is not supported; undistort the images beforehand"
+            )
+        coeffs = np.array([d.get("k1", 0.0), d.get("k2", 0.0), d.get("p1", 0.0), d.get("p2", 0.0), d.get("k3", 0.0)])
+        return coeffs if np.any(coeffs) else None
+
+    @property
     def center(self) -> np.ndarray:
         """Camera centre in world coordinates [3]."""
         return self.T_world_cam[:3, 3].copy()
@@ -233,6 +249,15 @@ class Camera:
 
 def _is_number(v: Any) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def opencv_K(K: np.ndarray) -> np.ndarray:
+    """K [3,3] with OpenCV's pixel-centre convention: OpenCV puts pixel centres at integers, we
+    (like gsplat and COLMAP) at +0.5, so cx and cy move by -0.5. Forgetting it drifts results by
+    half a pixel."""
+    K_cv = np.asarray(K, dtype=np.float64).copy()
+    K_cv[:2, 2] -= 0.5
+    return K_cv
 
 
 def look_at_pose(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
