@@ -40,9 +40,9 @@ def _gt() -> dict:
     return json.loads((SAMPLE / "ground_truth.json").read_text())
 
 
-def _reconstruct(tmp: Path, n_keyframes: int):
+def _reconstruct(tmp: Path, n_keyframes: int, num_threads: int = -1):
     keyframes = extract_keyframes(SAMPLE / "scene.mp4", tmp / "capture", CaptureConfig(max_keyframes=n_keyframes))
-    result = run_sfm(tmp / "capture", tmp / "sfm", SfMConfig())
+    result = run_sfm(tmp / "capture", tmp / "sfm", SfMConfig(num_threads=num_threads))
     images = [np.asarray(Image.open(tmp / "capture" / c.name).convert("RGB")) for c in result.cameras]
     return keyframes, result, images
 
@@ -60,7 +60,8 @@ def _errors_vs_truth(keyframes, cameras_base, gt) -> tuple[float, float, float]:
 
 @pytest.fixture(scope="module")
 def small_reconstruction(tmp_path_factory):
-    return _reconstruct(tmp_path_factory.mktemp("align16"), 16)
+    # one thread: multi-threaded pycolmap mapping differs run to run; this way the test is repeatable
+    return _reconstruct(tmp_path_factory.mktemp("align16"), 16, num_threads=1)
 
 
 def test_sample_aligns_to_the_base(small_reconstruction):
