@@ -1,0 +1,111 @@
+"""The Gaussian world at a physics state: static scene + each movable part's Gaussians at its pose.
+
+Each movable part (an object, a button cap) holds its Gaussians in its own object frame; at a
+physics pose ``T_base_obj`` (rigid) they are ``apply_sim3(local, Sim3(scale, R, t))``, the object's
+placement scale with the pose's rotation and translation, SH bands rotated too (world/config.py).
+
+The world's tensors are concatenated once; moving a part overwrites its rows in place, so a frame
+costs the parts' transforms and the render, not a copy of the whole scene.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..gaussians.model import Gaussians
+from ..gaussians.transform import apply_sim3
+from ..geometry.sim3 import Sim3
+
+
+@dataclass
+class MovablePart:
+    """name: the key of its pose in the simulator's object poses; local: Gaussians in its object frame;
+    scale: its placement scale (object frame -> base)."""
+
+    name: str
+    local: Gaussians
+    scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class SplatRenderOptions:
+    """Speed / quality knobs of the per-frame splat renders.
+
+    sh_degree    highest SH band rendered (view-dependent colour costs per Gaussian per view)
+    min_opacity  static-scene Gaussians fainter than this are dropped (they barely show)
+    backend      gaussians.render backend ("auto": CUDA if available, else the numba CPU rasterizer)
+    """
+
+    sh_degree: int = 3
+    min_opacity: float = 0.0
+    backend: str = "auto"
+
+
+class SplatWorld:
+    """Static scene + movable parts, posed and rendered per frame."""
+
+    def __init__(self, static: Gaussians | None, parts: list[MovablePart], options: SplatRenderOptions | None = None):
+        self.options = options or SplatRenderOptions()
+        degree = self.options.sh_degree
+        chunks: list[Gaussians] = []
+        if static is not None and len(static):
+            static = static.detach()
+            if self.options.min_opacity > 0:
+                static = static.select(static.opacities >= self.options.min_opacity)
+            chunks.append(static.with_sh_degree(min(degree, static.sh_degree)))
+        self.parts = [MovablePart(p.name, p.local.detach().with_sh_degree(min(degree, p.local.sh_degree)), p.scale)
+                      for p in parts]  # fmt: skip
+        names = [p.name for p in self.parts]
+        if len(set(names)) != len(names):
+            raise ValueError(f"movable part names must be unique, got {names}")
+        self._slices: dict[str, slice] = {}
+        start = sum(len(c) for c in chunks)
+        for p in self.parts:
+            self._slices[p.name] = slice(start, start + len(p.local))
+            start += len(p.local)
+            chunks.append(p.local)
+        if not chunks:
+            raise ValueError("the splat world is empty: no scene Gaussians and no parts")
+        self.gaussians = Gaussians.concat(chunks).map(lambda t: t.to(torch.float32).contiguous().clone())
+        self.poses: dict[str, np.ndarray] = {}
+
+    def __len__(self) -> int:
+        return len(self.gaussians)
+
+    def set_poses(self, poses: dict[str, np.ndarray]) -> None:
+        """Move each named part to its physics pose ``T_base_obj`` [4,4] (parts not named stay put)."""
+        for p in self.parts:
+            T = poses.get(p.name)
+            if T is None:
+                continue
+            T = np.asarray(T, np.float64)
+            if p.name in self.poses and np.array_equal(self.poses[p.name], T):
+                continue  # unchanged: keep the rows as they are
+            moved = apply_sim3(p.local, Sim3(p.scale, T[:3, :3], T[:3, 3]))
+            sl = self._slices[p.name]
+            g = self.gaussians
+            with torch.no_grad():
+                g.means[sl] = moved.means
+                g.quats[sl] = moved.quats
+                g.log_scales[sl] = moved.log_scales
+                g.sh[sl, : moved.sh.shape[1]] = moved.sh
+            self.poses[p.name] = T.copy()
+
+    def render(self, viewmat: np.ndarray, K: np.ndarray, width: int, height: int, background=(0.0, 0.0, 0.0)):
+        """(rgb float32 [H,W,3] in [0,1], alpha [H,W], depth [H,W] camera-z m) as numpy."""
+        from ..gaussians.render import render
+
+        out = render(
+            self.gaussians,
+            torch.as_tensor(viewmat, dtype=torch.float32),
+            torch.as_tensor(K, dtype=torch.float32),
+            int(width),
+            int(height),
+            background=torch.as_tensor(background, dtype=torch.float32),
+            backend=self.options.backend,
+        )
+        as_np = lambda t: t.detach().to("cpu", torch.float32).numpy()
+        return np.clip(as_np(out.rgb), 0.0, 1.0), as_np(out.alpha), as_np(out.depth)
