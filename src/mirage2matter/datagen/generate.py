@@ -1,0 +1,219 @@
+"""Generating a dataset: attempts in workers -> staging -> one LeRobot dataset + summary + preview.
+
+``generate_dataset`` is the whole procedure for any episode source; ``generate`` (datagen/__init__)
+binds it to a workspace's simulated world. Output (DESIGN.md section 3):
+
+    <out>/              a LeRobot dataset (v3.0 or v2.1)
+    <out>/summary.json  requested / written / failed episodes, failure reasons, rates, timings
+    <out>/preview.mp4, <out>/contact_sheet.png
+    <out>/meta/m2m_episodes.jsonl   per episode: attempt, seed, randomisation record
+
+The dataset folder appears complete or not at all; a killed run resumes (export/staging.py).
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from ..export.lerobot import FORMATS
+from ..export.spec import DatasetSpec
+from ..export.staging import StagedEpisode, Staging, consolidate, staging_dir_for
+from .preview import write_preview
+from .runner import RunStats, SourceFactory, run_attempts
+
+
+class GenerateError(RuntimeError):
+    """Generation cannot start or finish; the message says what to change."""
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """How many episodes, how they are run and written (not what an episode is: that is the source's).
+
+    episodes      successful episodes wanted
+    seed          run seed; attempt k uses attempt_seed(seed, k), so same seed -> same episodes
+    max_attempts  give up after this many attempts (default 3 * episodes + 5)
+    workers       parallel workers (processes, or Ray actors with ray_address)
+    ray_address   None: local processes; "local": a private Ray instance; "auto" / "host:port": a cluster
+    format        "lerobot-v3.0" or "lerobot-v2.1"
+    preview       episodes shown in preview.mp4 / contact_sheet.png (0: none)
+    """
+
+    episodes: int
+    seed: int = 0
+    max_attempts: int | None = None
+    workers: int = 1
+    ray_address: str | None = None
+    format: str = "lerobot-v3.0"
+    preview: int = 4
+
+    def check(self) -> None:
+        if isinstance(self.episodes, bool) or not isinstance(self.episodes, int) or self.episodes < 1:
+            raise GenerateError(f"--episodes must be a positive integer, got {self.episodes!r}")
+        if self.workers < 1:
+            raise GenerateError(f"--workers must be >= 1, got {self.workers}")
+        if self.format not in FORMATS:
+            raise GenerateError(f"--format {self.format!r} is not one of {', '.join(FORMATS)}")
+        if self.max_attempts is not None and self.max_attempts < self.episodes:
+            raise GenerateError(f"max_attempts {self.max_attempts} is below --episodes {self.episodes}")
+
+    @property
+    def attempts_limit(self) -> int:
+        return self.max_attempts if self.max_attempts is not None else 3 * self.episodes + 5
+
+
+def check_output(out_dir: Path, fingerprint: dict[str, Any]) -> dict[str, Any] | None:
+    """None if ``out_dir`` may be (re)written; the existing summary if it already holds exactly this
+    dataset (a rerun of a finished run is a no-op); GenerateError if it holds anything else."""
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise GenerateError(f"{out_dir} exists and is not a folder; choose another dataset folder")
+    if not out_dir.exists() or not any(out_dir.iterdir()):
+        return None
+    summary = out_dir / "summary.json"
+    if summary.is_file() and not staging_dir_for(out_dir).exists():
+        try:
+            old = json.loads(summary.read_text(encoding="utf-8"))
+        except ValueError:
+            old = {}
+        if old.get("fingerprint") == json.loads(json.dumps(fingerprint)):
+            return old
+    what = "another dataset" if (out_dir / "meta" / "info.json").is_file() else "other files"
+    raise GenerateError(f"{out_dir} already holds {what}; choose another dataset folder (--out) or delete it first")
+
+
+def _median(xs: list[float]) -> float | None:
+    return statistics.median(xs) if xs else None
+
+
+def summarize(run: RunStats, cfg: RunConfig, fingerprint: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
+    results = run.results
+    tried = sorted(results)  # a prefix 0..K-1 of attempts (runner.py)
+    failures = [results[a] for a in tried if not results[a].get("success")]
+    written = [results[a] for a in run.selected]
+    frames = sum(int(r["length"]) for r in written)
+    # Timings of this call's attempts only (those read back from staging were timed by an earlier run).
+    mine = [r for r in results.values() if "t_start" in r]
+    stage_totals: dict[str, float] = {}
+    for r in mine:
+        for k, v in r.get("timings", {}).items():
+            stage_totals[k] = stage_totals.get(k, 0.0) + float(v)
+    mine_frames = sum(int(r.get("length", 0)) for r in mine if r.get("success"))
+    mine_ok = sum(1 for r in mine if r.get("success"))
+    busy = sum(r["t_end"] - r["t_start"] for r in mine)
+    summary = {
+        "requested": cfg.episodes,
+        "episodes": len(run.selected),
+        "attempts": len(tried),
+        "failed": len(failures),
+        "success_rate": len(run.selected) / len(tried) if tried else 0.0,
+        "failure_reasons": dict(Counter(r.get("reason") or "unknown" for r in failures)),
+        "frames": frames,
+        "format": cfg.format,
+        "seed": cfg.seed,
+        "workers": run.workers,
+        "backend": run.backend,
+        "startup_s": round(run.startup_s, 3),
+        "wall_s": round(run.wall_s, 3),
+        "attempts_this_run": run.new_attempts,
+        # Throughput of this call, workers warm (startup excluded), over the attempts it ran.
+        "demos_per_min": round(60.0 * mine_ok / run.wall_s, 3) if run.wall_s > 0 and mine_ok else None,
+        "ms_per_frame": round(1000.0 * busy / mine_frames, 2) if mine_frames else None,
+        "seconds_per_attempt_median": _median([r["t_end"] - r["t_start"] for r in mine]),
+        "stage_seconds_total": {k: round(v, 3) for k, v in sorted(stage_totals.items())},
+        "attempt_selection": {"selected": run.selected, "failed": [r["attempt"] for r in failures]},
+        "fingerprint": fingerprint,
+        **extra,
+    }
+    if len(run.selected) < cfg.episodes:
+        summary["shortfall"] = (f"only {len(run.selected)} of {cfg.episodes} episodes succeeded in "
+                                f"{len(tried)} attempts (the limit)")  # fmt: skip
+    return summary
+
+
+def generate_dataset(
+    out_dir: Path,
+    factory: SourceFactory,
+    spec: DatasetSpec,
+    cfg: RunConfig,
+    fingerprint: dict[str, Any],
+    extra_summary: dict[str, Any] | None = None,
+    log: Callable[[str], None] = print,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Generate ``cfg.episodes`` episodes from ``factory``'s source into ``out_dir``; returns summary.json.
+
+    ``fingerprint`` names what is generated (task, world, render settings, seed, count, format): a
+    rerun with the same fingerprint resumes a killed run or, if it finished, returns its summary.
+    """
+    cfg.check()
+    out_dir = Path(out_dir)
+    fingerprint = {**fingerprint, "episodes": cfg.episodes, "seed": cfg.seed, "format": cfg.format,
+                   "max_attempts": cfg.attempts_limit}  # fmt: skip
+    existing = check_output(out_dir, fingerprint)
+    if existing is not None:
+        log(f"{out_dir} already holds this dataset ({existing.get('episodes')} episodes); nothing to do")
+        return existing
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    t0 = time.time()
+    with Staging.open(out_dir, spec, fingerprint) as staging:
+        resumed = staging.committed()
+        if resumed:
+            ok = sum(1 for r in resumed.values() if r.get("success"))
+            log(f"resuming: {len(resumed)} attempts ({ok} successful) already committed in {staging.root}")
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=cfg.episodes, desc="episodes", unit="ep", dynamic_ncols=True,
+                       initial=min(cfg.episodes, sum(1 for r in resumed.values() if r.get("success"))))  # fmt: skip
+
+        fails = [0]
+
+        def on_result(r: dict[str, Any]) -> None:
+            if bar is None:
+                return
+            if r.get("success"):
+                bar.update(1)
+            else:
+                fails[0] += 1
+            bar.set_postfix(failed=fails[0])
+
+        try:
+            run = run_attempts(factory, staging, cfg.episodes, cfg.seed, cfg.attempts_limit, cfg.workers,
+                               cfg.ray_address, on_result)  # fmt: skip
+        finally:
+            if bar is not None:
+                bar.close()
+        if not run.selected:
+            reasons = Counter(r.get("reason") or "unknown" for r in run.results.values())
+            raise GenerateError(f"no episode succeeded in {len(run.results)} attempts (reasons: {dict(reasons)}); "
+                                f"nothing was written. The attempts are kept in {staging.root}")  # fmt: skip
+        summary = summarize(run, cfg, fingerprint, extra_summary or {})
+
+        def finish(tmp: Path, episodes: list[StagedEpisode]) -> None:
+            lines = []
+            for e, ep in enumerate(episodes):
+                r = ep.result
+                lines.append({"episode_index": e, "attempt": r["attempt"], "seed": r["seed"], "task": r["task"],
+                              "length": r["length"], "record": r.get("record", {})})  # fmt: skip
+            (tmp / "meta" / "m2m_episodes.jsonl").write_text("".join(json.dumps(x) + "\n" for x in lines))
+            if cfg.preview:
+                write_preview(tmp, episodes, spec, cfg.preview)
+            summary["total_s"] = round(time.time() - t0, 3)
+            (tmp / "summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
+
+        consolidate(staging, out_dir, run.selected, cfg.format, finish)
+    return summary
+
+
+def config_dict(obj: Any) -> dict[str, Any]:
+    """A dataclass as a JSON-ready dict (tuples -> lists) for fingerprints."""
+    return json.loads(json.dumps(asdict(obj), default=str))

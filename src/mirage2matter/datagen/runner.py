@@ -1,0 +1,352 @@
+"""Running episode attempts: in-process, in local worker processes, or on Ray.
+
+An *episode source* is whatever turns (attempt index, seed) into an :class:`Attempt`; a worker
+builds one source once (for the simulator: the Genesis twin and the splat world) and then runs
+many attempts with it. Sources are made by a picklable zero-argument *factory* so the same code
+runs in a worker process or a Ray actor.
+
+Every attempt is committed to the staging area by the worker that ran it (export/staging.py), so
+the parent only keeps counts. Which attempts run is fixed by the seeds alone: attempt k uses
+``attempt_seed(seed, k)``, attempts are handed out in order, and a new one starts only while the
+successes so far plus the attempts in flight are fewer than wanted. The attempts that run are then
+always the shortest prefix 0..K-1 holding the wanted number of successes, whatever the runner,
+the worker count or the timing, and a resumed run continues the same prefix.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from ..export.spec import DatasetSpec, EpisodeData
+from ..export.staging import commit_attempt
+
+
+class RunnerError(RuntimeError):
+    """A worker failed (crashed, raised, or Ray could not be reached); the message says which and why."""
+
+
+@dataclass
+class Attempt:
+    """What one attempt produced: an episode (success) or a reason (failure), with the record of
+    its randomisation and where its time went (seconds per stage)."""
+
+    success: bool
+    reason: str = ""
+    episode: EpisodeData | None = None
+    record: dict[str, Any] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+class EpisodeSource(Protocol):
+    spec: DatasetSpec
+
+    def run(self, attempt: int, seed: int) -> Attempt: ...
+
+
+SourceFactory = Callable[[], EpisodeSource]
+
+
+def attempt_seed(seed: int, attempt: int) -> int:
+    """The seed of attempt ``attempt`` of a run seeded ``seed`` (independent streams per attempt)."""
+    return int(np.random.SeedSequence([int(seed), int(attempt)]).generate_state(1, np.uint32)[0])
+
+
+def _run_and_commit(source: EpisodeSource, staging_root: Path, attempt: int, seed: int) -> dict[str, Any]:
+    t0 = time.time()
+    out = source.run(attempt, seed)
+    t1 = time.time()
+    result = {"seed": seed, "success": out.success, "reason": out.reason, "record": out.record,
+              "timings": dict(out.timings)}  # fmt: skip
+    committed = commit_attempt(staging_root, source.spec, attempt, result, out.episode if out.success else None)
+    committed["timings"]["commit"] = time.time() - t1
+    committed.update(t_start=t0, t_end=time.time(), worker=os.getpid())
+    return committed
+
+
+# ---- backends: start (blocks until every worker has built its source), submit, next_result -------------
+class _Inline:
+    name = "inline"
+
+    def __init__(self, factory: SourceFactory, staging_root: Path):
+        self.factory, self.root = factory, staging_root
+        self.pending: list[tuple[int, int]] = []
+
+    def start(self) -> None:
+        self.source = self.factory()
+
+    def submit(self, attempt: int, seed: int) -> None:
+        self.pending.append((attempt, seed))
+
+    def next_result(self) -> dict[str, Any]:
+        attempt, seed = self.pending.pop(0)
+        return _run_and_commit(self.source, self.root, attempt, seed)
+
+    def close(self) -> None:
+        pass
+
+
+def _die_with_parent() -> None:
+    """Linux: SIGKILL this worker when its parent dies (a killed generator must not leave workers
+    behind that would keep committing attempts next to the rerun)."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+def _worker_main(factory, staging_root, threads, tasks, results, parent) -> None:  # runs in a worker process
+    _die_with_parent()
+    if os.getppid() != parent:  # the parent died before prctl took effect
+        os._exit(1)
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    try:
+        from .. import configure_threads
+
+        configure_threads(threads)
+        source = factory()
+        results.put(("ready", os.getpid(), None))
+    except BaseException:
+        results.put(("error", os.getpid(), traceback.format_exc()))
+        return
+    while True:
+        item = tasks.get()
+        if item is None:
+            return
+        try:
+            results.put(("result", os.getpid(), _run_and_commit(source, staging_root, *item)))
+        except BaseException:
+            results.put(("error", os.getpid(), traceback.format_exc()))
+            return
+
+
+class _Processes:
+    """W spawned worker processes (spawn: Genesis and numba do not survive fork) fed by a queue."""
+
+    name = "process"
+
+    def __init__(self, factory: SourceFactory, staging_root: Path, workers: int):
+        import multiprocessing as mp
+
+        self.ctx = mp.get_context("spawn")
+        self.factory, self.root, self.n = factory, staging_root, workers
+        self.tasks = self.ctx.Queue()
+        self.results = self.ctx.Queue()
+        self.procs: list = []
+
+    def start(self) -> None:
+        threads = max(1, (os.cpu_count() or 1) // self.n)
+        for _ in range(self.n):
+            args = (self.factory, self.root, threads, self.tasks, self.results, os.getpid())
+            p = self.ctx.Process(target=_worker_main, args=args, daemon=True)
+            p.start()
+            self.procs.append(p)
+        ready = 0
+        while ready < self.n:
+            kind, pid, payload = self._get()
+            if kind == "ready":
+                ready += 1
+            else:
+                raise RunnerError(f"worker {pid} failed while starting:\n{payload}")
+
+    def _get(self):
+        while True:
+            try:
+                return self.results.get(timeout=1.0)
+            except queue.Empty:
+                dead = [p for p in self.procs if not p.is_alive()]
+                if dead:
+                    raise RunnerError(f"worker process {dead[0].pid} died (exit code {dead[0].exitcode}) "
+                                      "without reporting an error; out of memory?") from None  # fmt: skip
+
+    def submit(self, attempt: int, seed: int) -> None:
+        self.tasks.put((attempt, seed))
+
+    def next_result(self) -> dict[str, Any]:
+        kind, pid, payload = self._get()
+        if kind != "result":
+            raise RunnerError(f"worker {pid} failed:\n{payload}")
+        return payload
+
+    def close(self) -> None:
+        for _ in self.procs:
+            self.tasks.put(None)
+        for p in self.procs:
+            p.join(timeout=10)
+            if p.is_alive():
+                p.kill()
+
+
+class _Ray:
+    """One Ray actor per worker; each builds its source once in its constructor."""
+
+    name = "ray"
+
+    def __init__(self, factory: SourceFactory, staging_root: Path, workers: int, address: str):
+        self.factory, self.root, self.n, self.address = factory, staging_root, workers, address
+        self.futures: dict = {}
+        self.idle: list = []
+
+    def start(self) -> None:
+        self.ray = connect_ray(self.address, self.n)
+
+        @self.ray.remote(num_cpus=1)
+        class Worker:
+            def __init__(self, factory, root):
+                os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+                from mirage2matter import configure_threads
+
+                configure_threads(1)
+                self.source = factory()
+                self.root = root
+
+            def ready(self) -> int:
+                return os.getpid()
+
+            def run(self, attempt, seed):
+                return _run_and_commit(self.source, self.root, attempt, seed)
+
+        self.actors = [Worker.remote(self.factory, self.root) for _ in range(self.n)]
+        try:
+            self.ray.get([a.ready.remote() for a in self.actors])
+        except Exception as e:
+            raise RunnerError(f"a Ray worker failed while starting: {e}") from None
+        self.idle = list(self.actors)
+
+    def submit(self, attempt: int, seed: int) -> None:
+        actor = self.idle.pop()
+        self.futures[actor.run.remote(attempt, seed)] = actor
+
+    def next_result(self) -> dict[str, Any]:
+        done, _ = self.ray.wait(list(self.futures), num_returns=1)
+        actor = self.futures.pop(done[0])
+        self.idle.append(actor)
+        try:
+            return self.ray.get(done[0])
+        except Exception as e:
+            raise RunnerError(f"a Ray worker failed: {e}") from None
+
+    def close(self) -> None:
+        for a in getattr(self, "actors", []):
+            self.ray.kill(a)
+
+
+def connect_ray(address: str, workers: int = 1):
+    """``local``: start a private Ray instance on this machine; ``auto`` or ``host:port``: join that
+    cluster. A cluster that does not answer raises RunnerError (after at most ~10 s)."""
+    try:
+        import ray
+    except ImportError:
+        raise RunnerError("--ray-address needs the `ray` package (pip install ray)") from None
+    if ray.is_initialized():
+        return ray
+    kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "ignore_reinit_error": True}
+    if address == "local":
+        kwargs["num_cpus"] = max(workers, 1)
+    else:
+        if address != "auto" and not _answers(address):
+            raise RunnerError(f"no Ray cluster answers at {address}; start one with `ray start --head` "
+                              "or use --ray-address local for a private instance")  # fmt: skip
+        kwargs["address"] = address
+    # Workers must import this package the way the driver does.
+    src = str(Path(__file__).resolve().parents[2])
+    kwargs["runtime_env"] = {"env_vars": {"PYTHONPATH": os.pathsep.join([src, os.environ.get("PYTHONPATH", "")])}}
+    try:
+        ray.init(**kwargs)
+    except (ConnectionError, RuntimeError, ValueError) as e:
+        raise RunnerError(f"cannot reach a Ray cluster at {address!r}: {e}") from None
+    return ray
+
+
+def _answers(address: str, timeout: float = 5.0) -> bool:
+    import socket
+
+    host, _, port = address.rpartition(":")
+    if address.startswith("ray://"):
+        host, _, port = address[len("ray://") :].rpartition(":")
+    try:
+        with socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout):
+            return True
+    except (OSError, ValueError):
+        return False
+
+
+# ---- the attempt loop ---------------------------------------------------------------------------------
+@dataclass
+class RunStats:
+    backend: str
+    workers: int
+    startup_s: float  # building the sources (twins), before the first attempt
+    wall_s: float  # from all workers ready to the last result
+    results: dict[int, dict[str, Any]]  # every committed attempt (this run's and earlier ones')
+    selected: list[int]  # the attempts that become episodes, in order
+    new_attempts: int  # attempts run by this call
+
+
+def run_attempts(
+    factory: SourceFactory,
+    staging,
+    episodes: int,
+    seed: int,
+    max_attempts: int,
+    workers: int = 1,
+    ray_address: str | None = None,
+    progress: Callable[[dict[str, Any]], None] | None = None,
+) -> RunStats:
+    """Run attempts until ``episodes`` successes (or ``max_attempts`` attempts) are committed in
+    ``staging``; attempts already committed there (a killed earlier run) are not run again."""
+    done = staging.committed()
+    if ray_address:
+        backend: Any = _Ray(factory, staging.root, workers, ray_address)
+    elif workers > 1:
+        backend = _Processes(factory, staging.root, workers)
+    else:
+        backend = _Inline(factory, staging.root)
+
+    def successes() -> int:
+        return sum(1 for r in done.values() if r.get("success"))
+
+    t0 = time.time()
+    in_flight: set[int] = set()
+    new = 0
+    started = False
+    try:
+        nxt = 0
+        while True:
+            while len(in_flight) < max(workers, 1) and nxt < max_attempts and successes() + len(in_flight) < episodes:
+                if nxt in done:
+                    nxt += 1
+                    continue
+                if not started:
+                    backend.start()
+                    started = True
+                    t_ready = time.time()
+                backend.submit(nxt, attempt_seed(seed, nxt))
+                in_flight.add(nxt)
+                nxt += 1
+            if not in_flight:
+                break
+            r = backend.next_result()
+            in_flight.discard(r["attempt"])
+            done[r["attempt"]] = r
+            new += 1
+            if progress is not None:
+                progress(r)
+    finally:
+        backend.close()
+    t_end = time.time()
+    if not started:
+        t_ready = t_end
+    ok = sorted(a for a, r in done.items() if r.get("success"))[:episodes]
+    return RunStats(backend.name, max(workers, 1), t_ready - t0, t_end - t_ready, done, ok, new)

@@ -1,0 +1,50 @@
+"""TEST DOUBLE: a fake episode source for the runner / writer tests (no simulator, no rendering).
+
+Episodes are smooth synthetic pictures and random state/action arrays drawn from the attempt seed,
+so the same seed gives the same bytes; attempts whose seed is divisible by 4 "fail". ``delay``
+slows every attempt down (for the kill test)."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from mirage2matter.datagen import Attempt
+from mirage2matter.export import DatasetSpec, EpisodeData
+
+SPEC = DatasetSpec(cameras={"head": (32, 48), "wrist": (32, 32)})
+
+
+class FakeSource:
+    def __init__(self, delay: float = 0.0, task: str = "grasp banana"):
+        self.spec = SPEC
+        self.delay = delay
+        self.task = task
+
+    def run(self, attempt: int, seed: int) -> Attempt:
+        time.sleep(self.delay)
+        rng = np.random.default_rng(seed)
+        if seed % 4 == 0:
+            return Attempt(False, "fake failure", record={"seed_mod4": 0})
+        t = int(rng.integers(4, 10))
+        images = {}
+        for cam, (h, w) in SPEC.cameras.items():
+            yy, xx = np.mgrid[0:h, 0:w]
+            base = rng.uniform(20, 200, 3)
+            frames = [np.clip(base + 30 * np.stack([xx / w, yy / h, np.full_like(xx, i / t, float)], -1), 0, 255)
+                      for i in range(t)]  # fmt: skip
+            images[cam] = np.stack(frames).astype(np.uint8)
+        state = rng.normal(size=(t, 9)).astype(np.float32)
+        action = rng.normal(size=(t, 8)).astype(np.float32)
+        record = {"object_xy": rng.uniform(-1, 1, 2).tolist()}
+        return Attempt(True, "", EpisodeData(self.task, images, state, action), record, {"fake": 0.001})
+
+
+@dataclass(frozen=True)
+class FakeFactory:
+    delay: float = 0.0
+
+    def __call__(self) -> FakeSource:
+        return FakeSource(self.delay)
