@@ -73,6 +73,9 @@ class TrainConfig:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     backend: str = "auto"
     seed: int = 0
+    # weight of the mean rendered alpha outside a view's ``alpha_mask`` (object training: no
+    # background may be carried by the Gaussians); 0 leaves scene training unchanged
+    lambda_alpha: float = 0.0
 
     def refine_schedule(self) -> tuple[int, int, int]:
         """(start, stop, every) of densification, scaled to ``iterations`` unless given."""
@@ -85,13 +88,20 @@ class TrainConfig:
 @dataclass
 class View:
     """One training / evaluation photo: image [H,W,3] float in [0,1], viewmat [4,4] world-to-camera
-    (OpenCV axes), K [3,3] (pixel centres at +0.5), optional mask [H,W] bool of valid pixels."""
+    (OpenCV axes), K [3,3] (pixel centres at +0.5), optional mask [H,W] bool of valid pixels.
+
+    Optional, for object training: ``background`` [H,W,3] is composited behind the render instead
+    of ``TrainConfig.background`` (e.g. the table seen from other views), and ``alpha_mask`` [H,W]
+    bool marks where rendered alpha may be non-zero (``TrainConfig.lambda_alpha`` penalises it
+    elsewhere)."""
 
     image: torch.Tensor
     viewmat: torch.Tensor
     K: torch.Tensor
     mask: torch.Tensor | None = None
     name: str = ""
+    background: torch.Tensor | None = None
+    alpha_mask: torch.Tensor | None = None
 
     @property
     def width(self) -> int:
@@ -245,24 +255,39 @@ def view_loss(
     """(loss, rendered rgb [H,W,3]) of ``g`` against ``view``: (1-l) L1 + l (1 - SSIM) over the
     view's valid pixels (pixels outside the mask affect neither the loss nor its gradient)."""
     dev = g.means.device
-    bg = torch.tensor(config.background, dtype=torch.float32, device=dev)
-    out = render(g, view.viewmat, view.K, view.width, view.height, bg, backend or config.backend, info)
+    out, rgb = _render_view(g, view, config, info, backend)
     gt = view.image.to(dev)
     mask = None if view.mask is None else view.mask.to(dev)
     lam = config.lambda_dssim
-    loss = (1 - lam) * l1(out.rgb, gt, mask)
+    loss = (1 - lam) * l1(rgb, gt, mask)
     if lam > 0:
-        loss = loss + lam * (1 - ssim(out.rgb, gt, mask=mask))
-    return loss, out.rgb
+        loss = loss + lam * (1 - ssim(rgb, gt, mask=mask))
+    if config.lambda_alpha > 0 and view.alpha_mask is not None:
+        outside = ~view.alpha_mask.to(dev)
+        if bool(outside.any()):
+            loss = loss + config.lambda_alpha * out.alpha[outside].mean()
+    return loss, rgb
+
+
+def _render_view(g: Gaussians, view: View, config: TrainConfig, info: dict | None = None, backend: str | None = None):
+    """(render output, rgb [H,W,3]) with the view's own background image when it has one."""
+    dev = g.means.device
+    bg = torch.tensor(config.background, dtype=torch.float32, device=dev)
+    if view.background is not None:
+        bg = torch.zeros(3, device=dev)
+    out = render(g, view.viewmat, view.K, view.width, view.height, bg, backend or config.backend, info)
+    rgb = out.rgb
+    if view.background is not None:
+        rgb = rgb + (1 - out.alpha)[..., None] * view.background.to(dev)
+    return out, rgb
 
 
 @torch.no_grad()
 def evaluate(g: Gaussians, views: Sequence[View], config: TrainConfig, backend: str | None = None) -> dict[str, Any]:
     """Mean PSNR / SSIM over ``views`` (valid pixels only) and the per-view values."""
     per_view = []
-    bg = torch.tensor(config.background, dtype=torch.float32, device=g.means.device)
     for v in views:
-        rgb = render(g, v.viewmat, v.K, v.width, v.height, bg, backend or config.backend).rgb.clamp(0, 1)
+        rgb = _render_view(g, v, config, None, backend)[1].clamp(0, 1)
         gt = v.image.to(rgb.device)
         mask = None if v.mask is None else v.mask.to(rgb.device)
         per_view.append({"name": v.name, "psnr": float(psnr(rgb, gt, mask)), "ssim": float(ssim(rgb, gt, mask=mask))})
