@@ -1,0 +1,271 @@
+"""Motion planning on a :class:`~mirage2matter.sim.twin.Twin`: inverse kinematics (Genesis' damped least
+squares, position + orientation), joint-space paths (the straight segment when it is collision-free, else
+OMPL 2.0.1 RRTConnect with the twin's collision checks as the validity checker, then shortcutting), and
+time parameterisation (minimum-jerk segments within joint velocity and acceleration limits).
+
+Collision checks set the robot's joints without stepping physics and ask Genesis for colliding geometry
+pairs (~0.2-2 ms each); callers save and restore the robot state around planning (``Twin.set_robot_state``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterable
+
+import numpy as np
+
+from ..geometry.rotation import matrix_to_quat, rotation_angle
+from .twin import ARM_DOFS, Twin
+
+__all__ = [
+    "PlanningError",
+    "cartesian_path",
+    "collision_free",
+    "ik",
+    "plan",
+    "segment_free",
+    "time_parameterize",
+]
+
+# Panda joint speed limits (rad/s); trajectories use a fraction of them.
+PANDA_VMAX = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
+PANDA_AMAX = np.array([15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0])
+# Distance (m) from the Panda shoulder (z = 0.333) beyond which no pose is reachable: link lengths + hand.
+PANDA_REACH = 0.316 + 0.384 + 0.088 + 0.107 + 0.11
+
+
+class PlanningError(RuntimeError):
+    """No path or no IK solution; the message says which target and why."""
+
+
+def _allowed(pairs: Iterable[tuple[str, str]], allow: Iterable[str]) -> bool:
+    allow = set(allow)
+    for a, b in pairs:
+        other = b if a.startswith("robot:") else a
+        if other.startswith("robot:"):
+            return False  # self-collision
+        if other not in allow:
+            return False
+    return True
+
+
+def collision_free(twin: Twin, q: np.ndarray, allow: Iterable[str] = ()) -> bool:
+    """Whether the robot at ``q`` [9] touches nothing but the bodies named in ``allow``."""
+    return _allowed(twin.colliding_pairs(q), allow)
+
+
+def segment_free(
+    twin: Twin, q0: np.ndarray, q1: np.ndarray, fingers: np.ndarray, allow: Iterable[str] = (), step: float = 0.04
+) -> bool:
+    """Whether the straight joint segment q0 -> q1 (arm [7]) is collision-free, checked every ``step`` rad."""
+    n = max(1, math.ceil(float(np.abs(q1 - q0).max()) / step))
+    allow = tuple(allow)
+    for s in np.linspace(0.0, 1.0, n + 1)[1:]:
+        if not collision_free(twin, np.concatenate([q0 + s * (q1 - q0), fingers]), allow):
+            return False
+    return True
+
+
+def ik(
+    twin: Twin,
+    T_base_ee: np.ndarray,
+    q_init: np.ndarray,
+    *,
+    pos_tol: float = 0.002,
+    rot_tol_deg: float = 1.0,
+    attempts: int = 3,
+    check_collision: bool = True,
+    allow: Iterable[str] = (),
+    seed: int = 0,
+) -> np.ndarray:
+    """Arm joints [7] putting the end-effector link at ``T_base_ee`` [4,4] (position + orientation), near
+    ``q_init`` [9]. Raises :class:`PlanningError` (in well under a second) when the pose is out of reach, or
+    every solution found collides."""
+    T_base_ee = np.asarray(T_base_ee, dtype=np.float64)
+    pos = T_base_ee[:3, 3]
+    shoulder = np.array([0.0, 0.0, 0.333])
+    if np.linalg.norm(pos - shoulder) > PANDA_REACH:
+        raise PlanningError(
+            f"target {np.round(pos, 3).tolist()} is {np.linalg.norm(pos - shoulder):.2f} m from the robot's shoulder, "
+            f"beyond its reach ({PANDA_REACH:.2f} m); move the object closer to the robot"
+        )
+    with twin.restoring():
+        return _ik(twin, pos, matrix_to_quat(np.ascontiguousarray(T_base_ee[:3, :3])), q_init, pos_tol, rot_tol_deg,
+                   attempts, check_collision, allow, seed)  # fmt: skip
+
+
+def _ik(twin, pos, quat, q_init, pos_tol, rot_tol_deg, attempts, check_collision, allow, seed) -> np.ndarray:
+    q_init = np.asarray(q_init, dtype=np.float64)
+    best = (math.inf, math.inf)
+    collided = False
+    for k in range(attempts):
+        q, err = twin.robot.inverse_kinematics(
+            link=twin.ee_link, pos=pos, quat=quat, init_qpos=q_init, max_samples=8 if k == 0 else 20,
+            max_solver_iters=30, seed=seed + k, return_error=True,
+        )  # fmt: skip
+        q = np.asarray(q, dtype=np.float64)
+        err = np.asarray(err, dtype=np.float64).reshape(-1)
+        pe, re = float(np.linalg.norm(err[:3])), math.degrees(float(np.linalg.norm(err[3:])))
+        if pe > pos_tol or re > rot_tol_deg:
+            best = min(best, (pe, re))
+            continue
+        q_full = np.concatenate([q[:ARM_DOFS], q_init[ARM_DOFS:]])
+        if check_collision and not collision_free(twin, q_full, allow):
+            collided = True
+            continue
+        return q[:ARM_DOFS]
+    if collided:
+        raise PlanningError(f"every IK solution for the pose at {np.round(pos, 3).tolist()} collides")
+    raise PlanningError(
+        f"target pose at {np.round(pos, 3).tolist()} is unreachable for the robot (best IK error "
+        f"{1000 * best[0]:.1f} mm / {best[1]:.1f} deg)"
+    )
+
+
+def _shortcut(twin: Twin, path: list[np.ndarray], fingers: np.ndarray, allow: tuple, rng: np.random.Generator):
+    """Random shortcutting: join two waypoints directly when the segment between them is free."""
+    for _ in range(30):
+        if len(path) <= 2:
+            break
+        i, j = sorted(rng.choice(len(path), size=2, replace=False))
+        if j - i < 2:
+            continue
+        if segment_free(twin, path[i], path[j], fingers, allow):
+            path = path[: i + 1] + path[j:]
+    return path
+
+
+def plan(
+    twin: Twin,
+    q_start: np.ndarray,
+    q_goal: np.ndarray,
+    timeout: float = 3.0,
+    *,
+    allow: Iterable[str] = (),
+    seed: int = 0,
+) -> np.ndarray:
+    """Collision-free joint path [K,7] from ``q_start`` [9] (fingers held at its values) to ``q_goal`` [7 or 9].
+
+    The straight segment when it is free; else RRTConnect (OMPL) within ``timeout`` seconds, simplified and
+    shortcut. Restores the robot's state afterwards. Raises :class:`PlanningError` when start or goal collide,
+    or no path is found in time.
+    """
+    q_start = np.asarray(q_start, dtype=np.float64)
+    fingers = q_start[ARM_DOFS:]
+    a, b = q_start[:ARM_DOFS].copy(), np.asarray(q_goal, dtype=np.float64)[:ARM_DOFS].copy()
+    allow = tuple(allow)
+    with twin.restoring():
+        return _plan(twin, a, b, fingers, timeout, allow, seed)
+
+
+def _plan(twin: Twin, a: np.ndarray, b: np.ndarray, fingers: np.ndarray, timeout: float, allow: tuple, seed: int):
+    from ompl import base as ob
+    from ompl import geometric as og
+    from ompl import util as ou
+
+    if not collision_free(twin, np.concatenate([a, fingers]), allow):
+        raise PlanningError(f"the start configuration collides: {twin.colliding_pairs(np.concatenate([a, fingers]))}")
+    if not collision_free(twin, np.concatenate([b, fingers]), allow):
+        raise PlanningError(f"the goal configuration collides: {twin.colliding_pairs(np.concatenate([b, fingers]))}")
+    if segment_free(twin, a, b, fingers, allow):
+        return np.stack([a, b])
+    ou.setLogLevel(ou.LogLevel.LOG_WARN)
+    lo, hi = twin.joint_limits
+    space = ob.RealVectorStateSpace(ARM_DOFS)
+    bounds = ob.RealVectorBounds(ARM_DOFS)
+    for i in range(ARM_DOFS):
+        bounds.setLow(i, float(lo[i]))
+        bounds.setHigh(i, float(hi[i]))
+    space.setBounds(bounds)
+    ss = og.SimpleSetup(space)
+
+    def valid(state) -> bool:
+        q = np.array([state[i] for i in range(ARM_DOFS)])
+        return collision_free(twin, np.concatenate([q, fingers]), allow)
+
+    ss.setStateValidityChecker(valid)
+    si = ss.getSpaceInformation()
+    si.setStateValidityCheckingResolution(0.01)  # fraction of the space's extent (~0.2 rad here)
+    start, goal = space.allocState(), space.allocState()
+    for i in range(ARM_DOFS):
+        start[i], goal[i] = float(a[i]), float(b[i])
+    ss.setStartAndGoalStates(start, goal)
+    ss.setPlanner(og.RRTConnect(si))
+    t0 = time.perf_counter()
+    solved = ss.solve(float(timeout))
+    if not ss.haveExactSolutionPath():
+        raise PlanningError(
+            f"RRTConnect found no collision-free path in {time.perf_counter() - t0:.1f} s ({solved}); the goal "
+            "may be enclosed by obstacles"
+        )
+    ss.simplifySolution(0.5)
+    p = ss.getSolutionPath()
+    path = [np.array([p.getState(k)[i] for i in range(ARM_DOFS)]) for k in range(p.getStateCount())]
+    path = _shortcut(twin, path, fingers, allow, np.random.default_rng(seed))
+    return np.stack(path)
+
+
+def cartesian_path(
+    twin: Twin, T_start: np.ndarray, T_goal: np.ndarray, q_init: np.ndarray, step: float = 0.01, **ik_kwargs
+) -> np.ndarray:
+    """Joint waypoints [K,7] moving the end-effector along the straight line T_start -> T_goal (orientation
+    slerped), every ``step`` metres; each IK seeded with the previous solution. Raises PlanningError."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    T_start, T_goal = np.asarray(T_start, dtype=np.float64), np.asarray(T_goal, dtype=np.float64)
+    dist = float(np.linalg.norm(T_goal[:3, 3] - T_start[:3, 3]))
+    ang = float(rotation_angle(T_start[:3, :3].T @ T_goal[:3, :3]))
+    n = max(1, math.ceil(max(dist / step, ang / math.radians(5.0))))
+    slerp = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([T_start[:3, :3], T_goal[:3, :3]])))
+    q = np.asarray(q_init, dtype=np.float64).copy()
+    out = []
+    with twin.restoring():
+        for s in np.linspace(0.0, 1.0, n + 1)[1:]:
+            T = np.eye(4)
+            T[:3, :3] = slerp([s]).as_matrix()[0]
+            T[:3, 3] = T_start[:3, 3] + s * (T_goal[:3, 3] - T_start[:3, 3])
+            q[:ARM_DOFS] = ik(twin, T, q, attempts=1, **ik_kwargs)
+            out.append(q[:ARM_DOFS].copy())
+    jumps = np.abs(np.diff(np.stack([np.asarray(q_init)[:ARM_DOFS], *out]), axis=0)).max()
+    if jumps > 0.5:
+        raise PlanningError(f"the straight-line motion needs a joint jump of {jumps:.2f} rad (near a singularity)")
+    return np.stack([np.asarray(q_init, dtype=np.float64)[:ARM_DOFS], *out])
+
+
+def _min_jerk(s: np.ndarray) -> np.ndarray:
+    return 10 * s**3 - 15 * s**4 + 6 * s**5
+
+
+def time_parameterize(
+    path: np.ndarray, dt: float, speed: float = 0.5, *, duration: float | None = None, through: bool = False
+) -> np.ndarray:
+    """Joint targets [T,7] every ``dt`` seconds along ``path`` [K,7].
+
+    Default: a minimum-jerk segment per path segment (rest at each waypoint), each as short as
+    ``speed`` x the Panda's joint velocity and acceleration limits allow. ``through``: one minimum-jerk profile
+    over the whole polyline's arc length (for dense Cartesian paths), lasting ``duration`` seconds if given.
+    """
+    path = np.asarray(path, dtype=np.float64)
+    vmax, amax = speed * PANDA_VMAX, speed * PANDA_AMAX
+
+    def seg_time(d: np.ndarray) -> float:
+        d = np.abs(d)
+        return float(max(np.max(1.875 * d / vmax), np.max(np.sqrt(5.77 * d / amax)), dt))
+
+    if len(path) < 2:
+        return path[:1].copy()
+    if through:
+        seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
+        arc = np.concatenate([[0.0], np.cumsum(seg)])
+        T = duration if duration is not None else seg_time(np.abs(np.diff(path, axis=0)).sum(axis=0))
+        n = max(1, math.ceil(T / dt))
+        s = _min_jerk(np.linspace(0.0, 1.0, n + 1)[1:]) * arc[-1]
+        return np.stack([np.interp(s, arc, path[:, j]) for j in range(path.shape[1])], axis=1)
+    out = []
+    for q0, q1 in zip(path[:-1], path[1:], strict=True):
+        T = seg_time(q1 - q0) if duration is None else duration / (len(path) - 1)
+        n = max(1, math.ceil(T / dt))
+        s = _min_jerk(np.linspace(0.0, 1.0, n + 1)[1:])
+        out.append(q0 + s[:, None] * (q1 - q0))
+    return np.concatenate(out)

@@ -1,0 +1,478 @@
+"""The Genesis twin of a world: robot at the origin, the table as the ground plane, objects as rigid bodies
+with convex collision parts at their placements, press buttons as a fixed base plus a sprung prismatic cap,
+and cameras at their calibrated mounts (head fixed in the base, wrist on the hand link).
+
+Object bodies are generated URDFs (one link: the textured mesh as visual, the convex parts as collision,
+inertia from the watertight mesh) in the object frame scaled by the placement's scale, so a body's pose is
+the rigid part of the object's current Sim3 (see ``world.config``). Genesis keeps its compiled kernels in
+``~/.cache/quadrants`` and ``~/.cache/genesis``: the first build on a machine takes ~110 s, later ones ~15 s.
+
+Genesis camera conventions (OpenGL axes, vertical fov, centred principal point) are converted at the border
+as in ``sample.render``.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+import trimesh
+
+from ..geometry.camera import GL_TO_CV
+from ..geometry.rotation import matrix_to_quat, quat_to_matrix
+from ..world.config import ArticulatedConfig, ObjectConfig, PartConfig, WorldConfig
+from ..world.validate import load_collision_parts, load_mesh, validate_world
+
+__all__ = ["ARM_DOFS", "FINGER_DOFS", "GRIPPER_OPEN", "Twin", "TwinOptions", "ensure_genesis"]
+
+ARM_DOFS = 7
+FINGER_DOFS = 2
+GRIPPER_OPEN = 0.04  # Panda finger joint (m per finger) fully open
+# Panda PD gains and force limits (Genesis' Franka examples); the fingers are force-controlled when grasping.
+_KP = np.array([4500, 4500, 3500, 3500, 2000, 2000, 2000, 100, 100], dtype=np.float64)
+_KV = np.array([450, 450, 350, 350, 200, 200, 200, 10, 10], dtype=np.float64)
+_FORCE = np.array([87, 87, 87, 87, 12, 12, 12, 100, 100], dtype=np.float64)
+
+
+def ensure_genesis(backend: str = "cpu") -> object:
+    """Import Genesis and initialise it once per process (``gs.init`` may only run once)."""
+    import genesis as gs
+
+    if not gs._initialized:
+        gs.init(backend=getattr(gs, backend), logging_level="warning")
+    return gs
+
+
+@dataclass
+class TwinOptions:
+    """How to build the twin.
+
+    backend        "cpu" (default) or "gpu"
+    dt             physics step (s); substeps per step
+    render         add the world's cameras (needed by :meth:`Twin.render_robot`; costs build time)
+    camera_sizes   {camera name: (width, height)} of the Genesis cameras (default: the world's sizes)
+    workdir        where generated URDFs go (default: a temporary folder)
+    settle_s       physics time to let objects settle after a reset
+    """
+
+    backend: str = "cpu"
+    dt: float = 0.01
+    substeps: int = 1
+    render: bool = True
+    camera_sizes: dict[str, tuple[int, int]] = field(default_factory=dict)
+    workdir: Path | None = None
+    settle_s: float = 0.1
+
+
+def _rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T
+
+
+def _pose_of(pos, quat) -> np.ndarray:
+    q = np.asarray(quat, dtype=np.float64).reshape(4)
+    return _rigid(quat_to_matrix(q / np.linalg.norm(q)), np.asarray(pos, dtype=np.float64).reshape(3))
+
+
+def _inertial_xml(mesh: trimesh.Trimesh, mass: float, scale: float) -> str:
+    """URDF <inertial> of a watertight mesh (object frame) scaled by ``scale`` with total ``mass``."""
+    m = mesh.copy()
+    m.apply_scale(scale)
+    if m.is_volume and m.volume > 0:
+        m.density = mass / m.volume
+        com, inertia = m.center_mass, m.moment_inertia
+    else:  # not watertight: a box of its bounds
+        ext = m.extents
+        com = m.bounds.mean(axis=0)
+        inertia = np.diag([ext[1] ** 2 + ext[2] ** 2, ext[0] ** 2 + ext[2] ** 2, ext[0] ** 2 + ext[1] ** 2]) * mass / 12
+    ixx, iyy, izz = (max(float(inertia[i, i]), 1e-8) for i in range(3))
+    ixy, ixz, iyz = float(inertia[0, 1]), float(inertia[0, 2]), float(inertia[1, 2])
+    return (
+        f'<inertial><origin xyz="{com[0]:.6g} {com[1]:.6g} {com[2]:.6g}"/><mass value="{mass:.6g}"/>'
+        f'<inertia ixx="{ixx:.6g}" iyy="{iyy:.6g}" izz="{izz:.6g}" ixy="{ixy:.6g}" ixz="{ixz:.6g}" iyz="{iyz:.6g}"/>'
+        "</inertial>"
+    )
+
+
+def _geoms_xml(part: PartConfig, scale: float, origin: np.ndarray | None = None) -> str:
+    """URDF visual (textured mesh) + one collision per convex part, the part collision files written beside."""
+    s = f"{scale:.9g} {scale:.9g} {scale:.9g}"
+    o = ""
+    if origin is not None:
+        rpy = _rpy(origin[:3, :3])
+        t = origin[:3, 3]
+        o = f'<origin xyz="{t[0]:.9g} {t[1]:.9g} {t[2]:.9g}" rpy="{rpy[0]:.9g} {rpy[1]:.9g} {rpy[2]:.9g}"/>'
+    xml = f'<visual>{o}<geometry><mesh filename={quoteattr(str(part.mesh))} scale="{s}"/></geometry></visual>'
+    files = sorted(part.collision.glob("*.obj")) if part.collision is not None else [part.mesh]
+    for f in files:
+        xml += f'<collision>{o}<geometry><mesh filename={quoteattr(str(f))} scale="{s}"/></geometry></collision>'
+    return xml
+
+
+def _rpy(R: np.ndarray) -> np.ndarray:
+    """URDF roll-pitch-yaw (R = Rz(y) Ry(p) Rx(r))."""
+    pitch = math.asin(-max(-1.0, min(1.0, R[2, 0])))
+    if abs(math.cos(pitch)) > 1e-9:
+        roll = math.atan2(R[2, 1], R[2, 2])
+        yaw = math.atan2(R[1, 0], R[0, 0])
+    else:
+        roll, yaw = math.atan2(-R[1, 2], R[1, 1]), 0.0
+    return np.array([roll, pitch, yaw])
+
+
+def _object_mass(o: ObjectConfig, mesh: trimesh.Trimesh) -> float:
+    if o.mass is not None:
+        return float(o.mass)
+    vol = mesh.volume * o.placement.scale**3 if mesh.is_volume else float(np.prod(mesh.extents)) * 0.5
+    return float(o.density) * vol
+
+
+def object_urdf(o: ObjectConfig) -> str:
+    """A one-link URDF of a free object in its (scaled) object frame."""
+    mesh = load_mesh(o.part.mesh)
+    s = o.placement.scale
+    body = _inertial_xml(mesh, _object_mass(o, mesh), s) + _geoms_xml(o.part, s)
+    return f'<robot name="{o.name}"><link name="{o.name}">{body}</link></robot>'
+
+
+def button_urdf(a: ArticulatedConfig) -> str:
+    """A fixed base link and a cap link on a prismatic joint along the press axis (q >= 0 pressed, up to
+    ``travel``); the spring is set after the build (URDF has none)."""
+    s = a.placement.scale
+    base_mesh, cap_mesh = load_mesh(a.base.mesh), load_mesh(a.cap.mesh)
+    T = np.asarray(a.T_base_cap, dtype=np.float64).copy()
+    T[:3, 3] *= s
+    rpy = _rpy(T[:3, :3])
+    axis_cap = T[:3, :3].T @ (np.asarray(a.axis, dtype=np.float64) / np.linalg.norm(a.axis))  # in the cap frame
+    base_mass = max(0.1, float(base_mesh.volume * s**3 * 600.0) if base_mesh.is_volume else 0.2)
+    travel = a.travel * s
+    return (
+        f'<robot name="{a.name}">'
+        f'<link name="{a.name}_base">{_inertial_xml(base_mesh, base_mass, s)}{_geoms_xml(a.base, s)}</link>'
+        f'<link name="{a.name}_cap">{_inertial_xml(cap_mesh, a.cap_mass, s)}{_geoms_xml(a.cap, s)}</link>'
+        f'<joint name="{a.name}_press" type="prismatic"><parent link="{a.name}_base"/><child link="{a.name}_cap"/>'
+        f'<origin xyz="{T[0, 3]:.9g} {T[1, 3]:.9g} {T[2, 3]:.9g}" rpy="{rpy[0]:.9g} {rpy[1]:.9g} {rpy[2]:.9g}"/>'
+        f'<axis xyz="{axis_cap[0]:.9g} {axis_cap[1]:.9g} {axis_cap[2]:.9g}"/>'
+        f'<limit lower="0" upper="{travel:.9g}" effort="100" velocity="1"/><dynamics damping="2.0"/></joint>'
+        "</robot>"
+    )
+
+
+@dataclass
+class _Body:
+    name: str
+    entity: object
+    kind: str  # "object" or "press_button"
+    cfg: ObjectConfig | ArticulatedConfig
+    footprint_radius: float  # xy radius of the placed collision parts around their xy centre
+    centre_obj: np.ndarray  # [3] xy centre of the collision parts (body frame), z of the body origin
+
+
+class Twin:
+    """A built Genesis scene of a world. Use :meth:`build`; close with :meth:`close` (or a ``with`` block)."""
+
+    def __init__(self) -> None:  # use Twin.build
+        self.cfg: WorldConfig
+        self.options: TwinOptions
+        self.scene = None
+        self.robot = None
+        self.bodies: dict[str, _Body] = {}
+        self.cameras: dict[str, object] = {}
+        self.reset_info: dict = {}
+
+    # ---- construction ----------------------------------------------------------------------------
+    @classmethod
+    def build(cls, cfg: WorldConfig, options: TwinOptions | None = None) -> Twin:
+        """Validate ``cfg`` (clear errors before Genesis starts), then build the Genesis scene."""
+        validate_world(cfg)
+        self = cls()
+        self.cfg, self.options = cfg, options or TwinOptions()
+        opt = self.options
+        gs = ensure_genesis(opt.backend)
+        workdir = Path(opt.workdir) if opt.workdir else Path(tempfile.mkdtemp(prefix="m2m_twin_"))
+        workdir.mkdir(parents=True, exist_ok=True)
+        self._workdir = workdir
+
+        vis = gs.options.VisOptions(
+            ambient_light=tuple(cfg.ambient),
+            lights=[
+                {"type": "directional", "dir": tuple(li.dir), "color": tuple(li.color), "intensity": li.intensity}
+                for li in cfg.lights
+            ]
+            or [{"type": "directional", "dir": (-0.5, -0.5, -1.0), "color": (1, 1, 1), "intensity": 3.0}],
+            shadow=False,
+            segmentation_level="entity",
+        )
+        self.scene = gs.Scene(
+            show_viewer=False,
+            sim_options=gs.options.SimOptions(dt=opt.dt, substeps=opt.substeps),
+            rigid_options=gs.options.RigidOptions(enable_self_collision=True),
+            renderer=gs.renderers.Rasterizer(),
+            vis_options=vis,
+        )
+        self.plane = self.scene.add_entity(gs.morphs.Plane(pos=(0.0, 0.0, cfg.table_z)))
+        robot_file = cfg.robot.file
+        if robot_file.lower().endswith(".urdf"):
+            morph = gs.morphs.URDF(file=robot_file, fixed=True)
+        else:
+            morph = gs.morphs.MJCF(file=robot_file)
+        self.robot = self.scene.add_entity(morph)
+
+        for o in cfg.objects:
+            path = workdir / f"{o.name}.urdf"
+            path.write_text(object_urdf(o))
+            T = o.placement.matrix
+            R = T[:3, :3] / o.placement.scale
+            ent = self.scene.add_entity(
+                gs.morphs.URDF(
+                    file=str(path), pos=tuple(T[:3, 3]), quat=tuple(matrix_to_quat(R)), fixed=False, align=False,
+                    convexify=True, decompose_object_error_threshold=float("inf"),
+                ),
+                material=gs.materials.Rigid(friction=o.friction),
+            )  # fmt: skip
+            self.bodies[o.name] = _Body(o.name, ent, "object", o, *self._footprint(o))
+        for a in cfg.articulated:
+            path = workdir / f"{a.name}.urdf"
+            path.write_text(button_urdf(a))
+            T = a.placement.matrix
+            R = T[:3, :3] / a.placement.scale
+            ent = self.scene.add_entity(
+                gs.morphs.URDF(
+                    file=str(path), pos=tuple(T[:3, 3]), quat=tuple(matrix_to_quat(R)), fixed=True,
+                    merge_fixed_links=False, convexify=True, decompose_robot_error_threshold=float("inf"),
+                ),
+                material=gs.materials.Rigid(friction=a.friction),
+            )  # fmt: skip
+            self.bodies[a.name] = _Body(a.name, ent, a.kind, a, *self._footprint(a))
+
+        if opt.render:
+            for name, cam in cfg.cameras.items():
+                w, h = opt.camera_sizes.get(name, (cam.width, cam.height))
+                fy = cam.K[1, 1] * h / cam.height
+                fov = math.degrees(2.0 * math.atan(0.5 * h / fy))
+                self.cameras[name] = self.scene.add_camera(
+                    res=(int(w), int(h)), pos=(1.0, 0.0, 1.0), lookat=(0.0, 0.0, 0.0), fov=fov, near=0.01, far=20.0,
+                    GUI=False,
+                )  # fmt: skip
+        self.scene.build()
+
+        robot = self.robot
+        if robot.n_dofs < ARM_DOFS + FINGER_DOFS:
+            raise ValueError(f"{robot_file}: the robot has {robot.n_dofs} dofs; expected a 7-dof arm + 2 fingers")
+        self.ee_link = robot.get_link(cfg.robot.ee_link)
+        self.arm_dofs = np.arange(ARM_DOFS)
+        self.finger_dofs = np.arange(ARM_DOFS, ARM_DOFS + FINGER_DOFS)
+        robot.set_dofs_kp(_KP[: robot.n_dofs])
+        robot.set_dofs_kv(_KV[: robot.n_dofs])
+        robot.set_dofs_force_range(-_FORCE[: robot.n_dofs], _FORCE[: robot.n_dofs])
+        lo, hi = robot.get_dofs_limit()
+        self.joint_limits = (np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64))
+        for b in self.bodies.values():
+            if b.kind == "press_button":
+                b.entity.set_dofs_stiffness(np.array([b.cfg.stiffness]))
+        self._geom_owner = self._geom_owners()
+        self.home = np.concatenate([np.asarray(cfg.robot.home, dtype=np.float64), [GRIPPER_OPEN] * 2])
+        self._initial = {name: self._body_pose(b) for name, b in self.bodies.items()}
+        self.reset(seed=0, randomize=False)
+        return self
+
+    def _footprint(self, item: ObjectConfig | ArticulatedConfig) -> tuple[float, np.ndarray]:
+        parts = []
+        pieces = [(item.part, np.eye(4))] if isinstance(item, ObjectConfig) else [(item.base, np.eye(4))]
+        for part, T in pieces:
+            for m in load_collision_parts(part):
+                parts.append(m.vertices @ T[:3, :3].T + T[:3, 3])
+        V = np.concatenate(parts) * item.placement.scale
+        lo, hi = V.min(axis=0), V.max(axis=0)
+        c = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, 0.0])
+        r = float(np.linalg.norm(V[:, :2] - c[:2], axis=1).max())
+        return r, c
+
+    def _geom_owners(self) -> np.ndarray:
+        """Per global geom index: a label (entity name; robot links as 'robot:<link>'; the plane 'table')."""
+        owners = np.empty(self.scene.rigid_solver.n_geoms, dtype=object)
+        for g in self.plane.geoms:
+            owners[g.idx] = "table"
+        for g in self.robot.geoms:
+            owners[g.idx] = f"robot:{g.link.name}"
+        for b in self.bodies.values():
+            for g in b.entity.geoms:
+                owners[g.idx] = b.name if not g.link.name.endswith("_cap") else f"{b.name}:cap"
+        return owners
+
+    def close(self) -> None:
+        """Free the Genesis scene."""
+        if self.scene is not None:
+            self.scene.destroy()
+            self.scene = None
+
+    def __enter__(self) -> Twin:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ---- state -----------------------------------------------------------------------------------
+    @property
+    def dt(self) -> float:
+        return self.options.dt
+
+    def robot_state(self) -> np.ndarray:
+        """[9] joint positions: 7 arm joints (rad) then 2 finger joints (m)."""
+        return np.asarray(self.robot.get_qpos(), dtype=np.float64)[: ARM_DOFS + FINGER_DOFS].copy()
+
+    def set_robot_state(self, q: np.ndarray) -> None:
+        """Teleport the robot to ``q`` [9] (zero velocity) and hold it there."""
+        q = np.asarray(q, dtype=np.float64)
+        self.robot.set_qpos(q, zero_velocity=True)
+        self.robot.control_dofs_position(q)
+
+    def _body_pose(self, b: _Body) -> np.ndarray:
+        return _pose_of(b.entity.get_pos(), b.entity.get_quat())
+
+    def object_poses(self) -> dict[str, np.ndarray]:
+        """{name: T_base_obj [4,4] float64} of every body (physics poses); a press button adds
+        ``"<name>/cap"`` (the cap's object frame). Gaussians at a pose: see ``world.config``."""
+        out = {}
+        for name, b in self.bodies.items():
+            out[name] = self._body_pose(b)
+            if b.kind == "press_button":
+                cap = b.entity.links[1]
+                out[f"{name}/cap"] = _pose_of(cap.get_pos(), cap.get_quat())
+        return out
+
+    def button_travel(self, name: str) -> float:
+        """How far (m, along the press axis) the button's cap is pressed in."""
+        b = self.bodies[name]
+        if b.kind != "press_button":
+            raise ValueError(f"{name!r} is not a press button")
+        return float(np.asarray(b.entity.get_qpos()).reshape(-1)[0])
+
+    def T_base_link(self, link: str | None = None) -> np.ndarray:
+        """[4,4] pose of a robot link (default: the end-effector link)."""
+        lk = self.ee_link if link is None else self.robot.get_link(link)
+        return _pose_of(lk.get_pos(), lk.get_quat())
+
+    # ---- reset -----------------------------------------------------------------------------------
+    def sample_poses(self, rng: np.random.Generator, max_tries: int = 500) -> dict[str, np.ndarray]:
+        """Random start poses in the configured region (yaw about z, footprints apart by ``min_gap``)."""
+        r = self.cfg.randomize
+        names = [n for n, b in self.bodies.items() if b.kind == "object" or r.articulated]
+        for _ in range(max_tries):
+            placed: list[tuple[np.ndarray, float]] = []
+            poses = {}
+            ok = True
+            for name in names:
+                b = self.bodies[name]
+                T0 = self._initial[name]
+                x, y = rng.uniform(*r.x), rng.uniform(*r.y)
+                yaw = math.radians(rng.uniform(*r.yaw_deg)) if b.kind == "object" else 0.0
+                c = np.array([x, y])
+                if any(np.linalg.norm(c - pc) < b.footprint_radius + pr + r.min_gap for pc, pr in placed):
+                    ok = False
+                    break
+                Rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1.0]])
+                R = Rz @ T0[:3, :3]
+                centre_world = R @ b.centre_obj  # body-frame centre rotated into the base frame
+                t = np.array([x - centre_world[0], y - centre_world[1], T0[2, 3]])
+                poses[name] = _rigid(R, t)
+                placed.append((c, b.footprint_radius))
+            if ok:
+                return poses
+        raise RuntimeError(f"no non-overlapping placement of {names} in the randomize region after {max_tries} tries")
+
+    def reset(self, seed: int = 0, randomize: bool = True) -> dict[str, np.ndarray]:
+        """Robot home, gripper open, button released; objects at the world's placements, or (``randomize``)
+        at random poses drawn from ``seed``. Lets the objects settle; returns and records the start poses."""
+        poses = self.sample_poses(np.random.default_rng(seed)) if randomize else dict(self._initial)
+        self.scene.reset()
+        self.set_robot_state(self.home)
+        for name, b in self.bodies.items():
+            T = poses.get(name, self._initial[name])
+            if b.kind == "object":
+                b.entity.set_pos(T[:3, 3], zero_velocity=True)
+                b.entity.set_quat(matrix_to_quat(T[:3, :3]), zero_velocity=True)
+            else:
+                b.entity.set_pos(T[:3, 3])
+                b.entity.set_quat(matrix_to_quat(T[:3, :3]))
+                b.entity.set_qpos(np.zeros(1))
+        for _ in range(max(0, round(self.options.settle_s / self.dt))):
+            self.scene.step()
+        self.reset_info = {"seed": int(seed), "randomized": bool(randomize), "poses": self.object_poses()}
+        return self.reset_info["poses"]
+
+    # ---- physics ---------------------------------------------------------------------------------
+    def step(self, q_target: np.ndarray, finger: float | None = None, finger_force: float | None = None) -> None:
+        """One physics step with the arm's PD target ``q_target`` [7]; fingers to position ``finger`` (m per
+        finger), or squeezed with ``finger_force`` (N per finger, closing) when given."""
+        robot = self.robot
+        if finger_force is not None:
+            robot.control_dofs_position(np.asarray(q_target, dtype=np.float64), self.arm_dofs)
+            robot.control_dofs_force(np.full(FINGER_DOFS, -abs(float(finger_force))), self.finger_dofs)
+        else:
+            q = np.concatenate([np.asarray(q_target, dtype=np.float64), [finger, finger]])
+            robot.control_dofs_position(q)
+        self.scene.step()
+
+    # ---- collision queries (planning) ------------------------------------------------------------
+    @contextmanager
+    def restoring(self) -> Iterator[None]:
+        """Restore the robot's joint positions and velocities on exit (around kinematic queries)."""
+        q = self.robot.get_qpos()
+        v = self.robot.get_dofs_velocity()
+        try:
+            yield
+        finally:
+            self.robot.set_qpos(q, zero_velocity=False)
+            self.robot.set_dofs_velocity(v)
+
+    def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
+        """Set the robot to ``q`` [9] (no physics) and list the colliding geometry owners (robot vs anything).
+
+        Leaves the robot at ``q``: wrap queries in :meth:`restoring`.
+        """
+        self.robot.set_qpos(np.asarray(q, dtype=np.float64), zero_velocity=True)
+        pairs = self.robot.detect_collision()
+        return [(self._geom_owner[i], self._geom_owner[j]) for i, j in np.asarray(pairs).reshape(-1, 2)]
+
+    # ---- cameras ---------------------------------------------------------------------------------
+    def camera(self, name: str) -> tuple[np.ndarray, np.ndarray, int, int]:
+        """(T_base_cam [4,4] OpenCV axes, K [3,3], width, height) of camera ``name`` in the current state."""
+        if name not in self.cfg.cameras:
+            raise KeyError(f"no camera {name!r}; cameras: {sorted(self.cfg.cameras)}")
+        c = self.cfg.cameras[name]
+        T_mount = np.eye(4) if c.mount == "base" else self.T_base_link(c.mount)
+        return T_mount @ c.T_mount_cam, np.asarray(c.K, dtype=np.float64).copy(), int(c.width), int(c.height)
+
+    def render_robot(self, name: str, width: int | None = None, height: int | None = None) -> dict[str, np.ndarray]:
+        """Genesis render from camera ``name``: {"rgb" uint8 [H,W,3], "depth" float32 [H,W] (planar, metres,
+        inf where nothing), "robot_mask" bool [H,W]} at the size the twin's camera was built with."""
+        if name not in self.cameras:
+            raise KeyError(f"no rendering camera {name!r}; build the twin with TwinOptions(render=True)")
+        cam = self.cameras[name]
+        w, h = cam.res
+        if (width is not None and width != w) or (height is not None and height != h):
+            raise ValueError(
+                f"camera {name!r} renders {w}x{h}; build the twin with TwinOptions(camera_sizes={{{name!r}: "
+                f"({width}, {height})}}) for another size"
+            )
+        T_base_cam, *_ = self.camera(name)
+        cam.set_pose(transform=T_base_cam @ GL_TO_CV)
+        rgb, depth, seg, _ = cam.render(rgb=True, depth=True, segmentation=True, force_render=True)
+        depth = np.array(depth, dtype=np.float32, copy=True)
+        depth[depth >= 10.0] = np.inf
+        seg = np.asarray(seg)
+        robot_ids = [k for k, v in self.scene.segmentation_idx_dict.items() if v == self.robot.idx]
+        return {
+            "rgb": np.array(rgb, dtype=np.uint8, copy=True),
+            "depth": depth,
+            "robot_mask": np.isin(seg, robot_ids),
+        }

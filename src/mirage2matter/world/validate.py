@@ -1,0 +1,162 @@
+"""Checks on a :class:`WorldConfig` that must pass before anything is composed or simulated.
+
+Every failure is a :class:`WorldConfigError` naming the field and what to do: an unknown robot file, an
+object without a mesh, a missing file, duplicate names, a camera mounted on a link the robot lacks, objects
+that overlap (or sink into the table) at their start placements.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from .config import _NAME_RE, ArticulatedConfig, ObjectConfig, PartConfig, WorldConfig, WorldConfigError
+
+__all__ = ["check_overlaps", "load_collision_parts", "placed_parts", "validate_world"]
+
+# Penetration (m) beyond which two start placements count as overlapping; contact is fine.
+OVERLAP_TOL = 0.002
+
+
+def _robot_links(file: str) -> list[str] | None:
+    """Body names of the robot model (MuJoCo loads MJCF and URDF in well under a second); None if unknown."""
+    from ..calib.kinematics import resolve_robot_path
+
+    try:
+        path = resolve_robot_path(file)
+    except FileNotFoundError as e:
+        raise WorldConfigError(f"robot.file: {e}") from None
+    if path.suffix.lower() not in (".xml", ".urdf", ".mjcf"):
+        raise WorldConfigError(f"robot.file: {path} is neither MJCF (.xml) nor URDF (.urdf)")
+    try:
+        import mujoco
+
+        model = mujoco.MjModel.from_xml_path(str(path))
+    except Exception as e:  # noqa: BLE001 - any parse failure is the same user error
+        raise WorldConfigError(f"robot.file: {path} cannot be loaded as a robot model ({e})") from None
+    return [model.body(i).name for i in range(model.nbody)]
+
+
+def _check_part(p: PartConfig, where: str, need_gaussians: bool) -> None:
+    if p.mesh is None:
+        raise WorldConfigError(
+            f"{where}: no mesh; every simulated object needs a watertight mesh (`mesh: path/to/mesh.obj`, e.g. "
+            "from `m2m objects`)"
+        )
+    if not p.mesh.is_file():
+        raise WorldConfigError(f"{where}.mesh: {p.mesh} not found")
+    if p.collision is not None and (not p.collision.is_dir() or not any(p.collision.glob("*.obj"))):
+        raise WorldConfigError(f"{where}.collision: {p.collision} is not a folder of convex *.obj parts")
+    if need_gaussians and (p.gaussians is None or not p.gaussians.is_file()):
+        raise WorldConfigError(f"{where}.gaussians: {p.gaussians} not found")
+
+
+def load_mesh(path: Path) -> trimesh.Trimesh:
+    """A mesh file as one Trimesh (scenes are merged)."""
+    mesh = trimesh.load(str(path), force="mesh", process=False)
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise WorldConfigError(f"{path}: no triangles in this mesh file")
+    return mesh
+
+
+def load_collision_parts(p: PartConfig) -> list[trimesh.Trimesh]:
+    """Convex parts (object frame): the collision folder's *.obj, else the convex hull of the mesh."""
+    if p.collision is not None:
+        return [load_mesh(f).convex_hull for f in sorted(p.collision.glob("*.obj"))]
+    return [load_mesh(p.mesh).convex_hull]
+
+
+def placed_parts(item: ObjectConfig | ArticulatedConfig) -> list[trimesh.Trimesh]:
+    """Convex collision parts of an object (or a button's base and cap) in the base frame at its placement."""
+    if isinstance(item, ObjectConfig):
+        pieces = [(item.part, np.eye(4))]
+    else:
+        pieces = [(item.base, np.eye(4)), (item.cap, item.T_base_cap)]
+    out = []
+    M = item.placement.matrix
+    for part, T in pieces:
+        for m in load_collision_parts(part):
+            m = m.copy()
+            m.apply_transform(M @ T)
+            out.append(m)
+    return out
+
+
+def _penetration(a: list[trimesh.Trimesh], b: list[trimesh.Trimesh]) -> float:
+    """Largest depth (m) of a vertex of one convex set inside a convex part of the other (0 if apart).
+
+    Vertex-in-hull catches the overlaps that matter for start placements (one object resting in another);
+    two hulls crossing edge-on without any vertex inside each other are not caught.
+    """
+    depth = 0.0
+    for pa in a:
+        for pb in b:
+            if np.any(pa.bounds[0] > pb.bounds[1]) or np.any(pb.bounds[0] > pa.bounds[1]):
+                continue
+            for x, h in ((pa, pb), (pb, pa)):
+                normals, origins = h.face_normals, h.triangles[:, 0]
+                # signed distance of each vertex of x to each face plane of h; inside h = all negative
+                s = np.einsum("vfk,fk->vf", x.vertices[:, None, :] - origins[None], normals)
+                inside = -s.max(axis=1)
+                depth = max(depth, float(inside.max()))
+    return depth
+
+
+def check_overlaps(cfg: WorldConfig, tol: float = OVERLAP_TOL) -> None:
+    """Raise if two items' collision parts interpenetrate by more than ``tol`` or one sinks into the table."""
+    items = [*cfg.objects, *cfg.articulated]
+    parts = {it.name: placed_parts(it) for it in items}
+    for name, ps in parts.items():
+        low = min(float(p.bounds[0, 2]) for p in ps)
+        if low < cfg.table_z - tol:
+            raise WorldConfigError(
+                f"{name}: its placement puts it {1000 * (cfg.table_z - low):.1f} mm below the table (z = "
+                f"{cfg.table_z}); raise its placement's translation z"
+            )
+    names = list(parts)
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            d = _penetration(parts[names[i]], parts[names[j]])
+            if d > tol:
+                raise WorldConfigError(
+                    f"objects {names[i]!r} and {names[j]!r} overlap by {1000 * d:.1f} mm at their start placements; "
+                    "move one of them (`m2m world move`)"
+                )
+
+
+def validate_world(cfg: WorldConfig, need_gaussians: bool = False, overlaps: bool = True) -> None:
+    """Raise :class:`WorldConfigError` on the first problem; see the module docstring."""
+    links = _robot_links(cfg.robot.file)
+    if cfg.robot.ee_link not in links:
+        raise WorldConfigError(f"robot.ee_link: {cfg.robot.ee_link!r} is not a link of {cfg.robot.file} ({links})")
+    for name, cam in cfg.cameras.items():
+        if cam.mount != "base" and cam.mount not in links:
+            raise WorldConfigError(f"cameras.{name}.mount: {cam.mount!r} is neither 'base' nor a robot link {links}")
+        if cam.width < 1 or cam.height < 1:
+            raise WorldConfigError(f"cameras.{name}: width and height must be positive")
+    seen = set()
+    for name in cfg.names:
+        if not _NAME_RE.match(name):
+            raise WorldConfigError(f"name {name!r}: use letters, digits, '_' or '-', starting with a letter")
+        if name in seen or name == "robot":
+            raise WorldConfigError(f"name {name!r} is used twice (or is reserved); names must be unique")
+        seen.add(name)
+    if cfg.scene_gaussians is not None and need_gaussians and not cfg.scene_gaussians.is_file():
+        raise WorldConfigError(f"scene.gaussians: {cfg.scene_gaussians} not found")
+    for o in cfg.objects:
+        _check_part(o.part, f"objects.{o.name}", need_gaussians)
+        if o.mass is None and o.density is None:
+            raise WorldConfigError(f"objects.{o.name}: give a mass (kg) or a density (kg/m^3)")
+    for a in cfg.articulated:
+        _check_part(a.base, f"articulated.{a.name}.base", need_gaussians)
+        _check_part(a.cap, f"articulated.{a.name}.cap", need_gaussians)
+        axis = np.asarray(a.axis, dtype=np.float64)
+        if np.linalg.norm(axis) < 1e-9:
+            raise WorldConfigError(f"articulated.{a.name}.axis: must be a non-zero direction")
+    r = cfg.randomize
+    if r.x[0] > r.x[1] or r.y[0] > r.y[1] or r.yaw_deg[0] > r.yaw_deg[1]:
+        raise WorldConfigError("randomize: each range must be [low, high] with low <= high")
+    if overlaps:
+        check_overlaps(cfg)
