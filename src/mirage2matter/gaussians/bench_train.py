@@ -7,6 +7,7 @@ import json
 import os
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -14,42 +15,35 @@ import numpy as np
 import torch
 
 from ..geometry.camera import load_transforms_json
-from .dataset import build_views, points_for_known_poses
+from .budget import budgeted_config, estimate_step_seconds
+from .dataset import build_views
 from .train import TrainConfig, View, init_gaussians_from_points, train, view_loss
 
 __all__ = ["bench_train", "profile_step"]
 
 
 def _sfm_points_cached(cams, image_dir: Path, work_dir: Path, poses: str) -> tuple[np.ndarray, np.ndarray, dict, list]:
-    """SfM once per work dir: (points, colors uint8, info, cameras). For ``poses == "given"`` the
-    points are mapped into the given frame and ``cameras`` are the given ones; for ``"sfm"`` the
-    SfM cameras (with their own distortion) and points are used as they are."""
+    """Points once per work dir: (points, colors uint8, info, cameras). For ``poses == "given"`` the
+    points are triangulated with the given poses (no SfM) and ``cameras`` are the given ones; for
+    ``"sfm"`` our SfM's cameras (with their own distortion) and points are used as they are."""
     from ..sfm.colmap import SfMConfig, run_sfm
+    from ..sfm.known_poses import triangulate_known_poses
 
     if poses == "given":
         cache = work_dir / "points_given.npz"
         if cache.is_file():
             z = np.load(cache, allow_pickle=False)
             return z["points"], z["colors"], json.loads(str(z["info"])), cams
-        pts, cols, info = points_for_known_poses(cams, image_dir, work_dir)
-        np.savez(cache, points=pts, colors=cols, info=json.dumps(info))
-        return pts, cols, info, cams
+        # the images sit in one folder (image_dir); triangulate under their basenames there
+        named = [replace(c, name=Path(c.name).name) for c in cams]
+        tri = triangulate_known_poses(named, image_dir, work_dir / "sfm_known", SfMConfig(downscale=0.5))
+        info = {"registered": tri.registered, "total": tri.total, "sfm_seconds": tri.seconds,
+                "mean_reprojection_error": tri.mean_reprojection_error}  # fmt: skip
+        np.savez(cache, points=tri.points, colors=tri.colors, info=json.dumps(info))
+        return tri.points, tri.colors, info, cams
     sfm = run_sfm(image_dir, work_dir / "sfm_own", SfMConfig(downscale=0.5))
     info = {"registered": sfm.registered, "total": sfm.total, "sfm_seconds": sfm.seconds}
     return sfm.points, sfm.colors, info, sfm.cameras
-
-
-def _estimate_step_seconds(g, views: list[View], config: TrainConfig, n: int = 3) -> float:
-    """Seconds of one training step (render + backward) on the initial Gaussians."""
-    params = {k: v.detach().clone().requires_grad_(True) for k, v in g.tensors().items()}
-    g2 = type(g)(params["means"], params["quats"], params["log_scales"], params["logit_opacities"], params["sh"])
-    times = []
-    for i in range(n + 1):  # the first call compiles / warms the numba kernels
-        t0 = time.perf_counter()
-        loss, _ = view_loss(g2, views[i % len(views)], config)
-        loss.backward()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times[1:]))
 
 
 def bench_train(
@@ -95,23 +89,10 @@ def bench_train(
     views_train, views_eval = build_views(cams_used, image_dir, downscale)
     init = init_gaussians_from_points(points, np.asarray(colors, np.float64) / 255.0, sh_degree=3)
 
-    budget = 60.0 * minutes
     config = TrainConfig(backend=backend, max_gaussians=max_gaussians, checkpoint_every=0)
-    step_s = _estimate_step_seconds(init, views_train, config)
-    iterations = max(100, int(budget / (2.5 * step_s)))
-    every = max(10, min(100, iterations // 60))
-    config = TrainConfig(
-        iterations=iterations,
-        backend=backend,
-        max_gaussians=max_gaussians,
-        max_seconds=budget,
-        refine_start=min(500, iterations // 15),
-        refine_stop=int(densify_fraction * iterations),
-        refine_every=every,
-        sh_increase_every=max(100, iterations // 8),
-        eval_every=max(1, iterations // curve_points),
-        checkpoint_every=0,
-    )
+    step_s = estimate_step_seconds(init, views_train, config)
+    config = budgeted_config(step_s, minutes, config, densify_fraction=densify_fraction, curve_points=curve_points)
+    iterations = config.iterations
     g, metrics = train(views_train, views_eval, init, config, progress=progress)
     out: dict[str, Any] = {
         "psnr_heldout": metrics["psnr"],

@@ -1,0 +1,78 @@
+"""Importing poses made elsewhere: transforms.json (triangulated with the given poses) and COLMAP models."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mirage2matter.geometry.camera import load_transforms_json
+from mirage2matter.sample.transforms import write_sample_transforms
+from mirage2matter.sfm import SfMConfig, SfMError, load_sfm_summary
+from mirage2matter.sfm.importers import import_colmap_model, import_transforms
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLE = ROOT / "samples" / "tabletop"
+needs_sample = pytest.mark.skipif(not (SAMPLE / "scene.mp4").is_file(), reason="samples/tabletop not built")
+
+
+@pytest.fixture(scope="module")
+def sample_transforms(tmp_path_factory):
+    if not (SAMPLE / "scene.mp4").is_file():
+        pytest.skip("samples/tabletop not built")
+    return write_sample_transforms(SAMPLE, tmp_path_factory.mktemp("tf") / "data")
+
+
+@needs_sample
+def test_transforms_import_keeps_the_given_frame_and_triangulates_real_geometry(sample_transforms, tmp_path):
+    ws = tmp_path / "ws"
+    result = import_transforms(sample_transforms, ws / "capture", ws / "sfm", SfMConfig(num_threads=2))
+    given = {c.name: c for c in load_transforms_json(sample_transforms)}
+    assert result.registered == result.total == len(given) == 12
+    # poses and intrinsics are the given ones (OpenCV axes, same world frame), not re-estimated
+    _, cams = load_sfm_summary(ws / "sfm")
+    for c in cams:
+        assert np.allclose(c.T_world_cam, given[c.name].T_world_cam, atol=1e-9)
+        assert np.allclose(c.K, given[c.name].K)
+        assert (ws / "capture" / c.name).is_file()
+    # the points are where the scene is: a large share on the table top / board (z = 0, metres)
+    assert len(result.points) > 200
+    assert result.mean_reprojection_error < 1.0
+    on_table = np.abs(result.points[:, 2]) < 0.005
+    assert on_table.mean() > 0.2, f"only {on_table.mean():.0%} of the points lie on the table plane"
+
+    # the imported model is itself importable as a COLMAP model, with the same cameras
+    ws2 = tmp_path / "ws2"
+    again = import_colmap_model(ws / "sfm" / "model", ws / "capture", ws2 / "capture", ws2 / "sfm")
+    assert again.registered == 12 and len(again.points) == len(result.points)
+    for c in again.cameras:
+        assert np.allclose(c.T_world_cam, given[c.name].T_world_cam, atol=1e-6)
+        assert np.allclose(c.K, given[c.name].K, atol=1e-9)
+
+
+def test_import_bad_inputs_name_the_problem_and_write_nothing(tmp_path):
+    tf = tmp_path / "data" / "transforms.json"
+    tf.parent.mkdir()
+    frame = {"transform_matrix": np.eye(4).tolist()}
+    tf.write_text(json.dumps({"fl_x": 100, "w": 64, "h": 48, "frames": [
+        {"file_path": "images/a.png", **frame}, {"file_path": "images/b.png", **frame}]}))  # fmt: skip
+    ws = tmp_path / "ws"
+    with pytest.raises(SfMError, match=r"2 of 2 images not found.*images/a.png"):
+        import_transforms(tf, ws / "capture", ws / "sfm")
+    assert not ws.exists()
+    with pytest.raises(SfMError, match="transforms.json not found"):
+        import_transforms(tmp_path / "nope" / "transforms.json", ws / "capture", ws / "sfm")
+    (tmp_path / "model").mkdir()
+    with pytest.raises(SfMError, match="not a COLMAP sparse model"):
+        import_colmap_model(tmp_path / "model", tmp_path, ws / "capture", ws / "sfm")
+    assert not ws.exists()
+
+
+def test_sample_transforms_helper_round_trips_poses(tmp_path):
+    if not (SAMPLE / "scene.mp4").is_file():
+        pytest.skip("samples/tabletop not built")
+    path = write_sample_transforms(SAMPLE, tmp_path / "data", every=240)
+    gt = json.loads((SAMPLE / "ground_truth.json").read_text())
+    cams = load_transforms_json(path)
+    assert [c.name for c in cams] == ["images/0000.png", "images/0240.png", "images/0480.png"]
+    assert np.allclose(cams[1].T_world_cam, gt["frames"][240]["T_base_cam"], atol=1e-9)
