@@ -636,19 +636,53 @@ def _cmd_capture(args: argparse.Namespace) -> int:
 
 def _cmd_sfm(args: argparse.Namespace) -> int:
     from .sfm import SfMConfig, SfMError, run_sfm
+    from .sfm.importers import import_colmap_model, import_transforms
 
     ws = Path(args.workspace)
-    images = ws / "capture"
-    if not images.is_dir():
-        raise CliError(f"{images} not found; run `m2m capture <video> -w {ws}` first")
+    config = SfMConfig(matching=args.matching, downscale=1.0 / args.downscale)
     try:
-        result = run_sfm(images, ws / "sfm", SfMConfig(matching=args.matching, downscale=args.downscale))
+        if args.from_transforms:
+            result = import_transforms(args.from_transforms, ws / "capture", ws / "sfm", config)
+            how = f"imported {result.total} posed images from {args.from_transforms}; triangulated with those poses"
+        elif args.from_colmap:
+            if not args.images:
+                raise CliError("--from-colmap needs --images DIR (the folder the model's image names are relative to)")
+            result = import_colmap_model(args.from_colmap, args.images, ws / "capture", ws / "sfm")
+            how = f"imported the COLMAP model {args.from_colmap}"
+        else:
+            images = ws / "capture"
+            if not images.is_dir():
+                raise CliError(f"{images} not found; run `m2m capture <video> -w {ws}` first")
+            result = run_sfm(images, ws / "sfm", config)
+            how = f"registered {result.registered}/{result.total} keyframes"
     except SfMError as e:
         raise CliError(str(e)) from None
     print(
-        f"SfM: registered {result.registered}/{result.total} keyframes, mean reprojection error "
-        f"{result.mean_reprojection_error:.2f} px, {len(result.points):,} points, {result.seconds:.0f} s "
-        f"-> {_show(ws / 'sfm')}"
+        f"SfM: {how}, mean reprojection error {result.mean_reprojection_error:.2f} px, {len(result.points):,} points, "
+        f"{result.seconds:.0f} s -> {_show(ws / 'sfm')}"
+    )
+    return 0
+
+
+def _cmd_train_scene(args: argparse.Namespace) -> int:
+    from .scene import SceneConfig, train_scene
+    from .workspace import WorkspaceError
+
+    configure_threads()
+    config = SceneConfig(
+        minutes=args.minutes, iterations=args.iterations, downscale=args.downscale, max_gaussians=args.max_gaussians,
+        backend=_resolve_backend(args.backend),
+    )  # fmt: skip
+    try:
+        config.validate()
+        m = train_scene(args.workspace, config, force=args.force, log=_info)
+    except (WorkspaceError, ValueError) as e:
+        raise CliError(str(e)) from None
+    scene = Path(args.workspace) / "scene"
+    print(
+        f"scene: held-out PSNR {m['psnr_heldout']:.2f} dB, SSIM {m['ssim_heldout']:.3f} over {m['views']['heldout']} "
+        f"keyframes; {m['iterations']} iterations, {m['gaussians']:,} Gaussians, {m['train_minutes']:.1f} min "
+        f"({m['frame']} frame) -> {_show(scene / 'gaussians.ply')}, metrics.json, heldout.png"
     )
     return 0
 
@@ -919,7 +953,28 @@ def build_parser() -> argparse.ArgumentParser:
         "--matching", default="auto", choices=("auto", "sequential", "exhaustive"), help="default auto: exhaustive < 40"
     )
     s_.add_argument("--downscale", type=_positive_float, default=1.0, metavar="F", help="match at 1/F resolution")
+    src = s_.add_mutually_exclusive_group()
+    src.add_argument(
+        "--from-transforms", metavar="JSON",
+        help="import poses from an instant-ngp / nerfstudio transforms.json (copies its images into capture/, "
+        "triangulates points with the given poses; keeps its world frame)",
+    )  # fmt: skip
+    src.add_argument("--from-colmap", metavar="MODEL_DIR", help="import a COLMAP sparse model (needs --images)")
+    s_.add_argument("--images", metavar="DIR", help="with --from-colmap: the folder holding the model's images")
     s_.set_defaults(func=_cmd_sfm)
+
+    # m2m train-scene
+    ts = sub.add_parser(
+        "train-scene", help="scene 3D Gaussian Splatting from <workspace>'s posed keyframes -> <workspace>/scene"
+    )
+    ts.add_argument("-w", "--workspace", required=True, metavar="DIR", help="workspace with capture/ and sfm/")
+    ts.add_argument("--minutes", type=_positive_float, default=10.0, metavar="M", help="training budget (default 10)")
+    ts.add_argument("--iterations", type=_int_at_least(0), default=0, metavar="N", help="fixed iterations instead")
+    ts.add_argument("--downscale", type=_int_at_least(1), default=2, metavar="F", help="train at 1/F (default 2)")
+    ts.add_argument("--max-gaussians", type=_int_at_least(1000), default=200_000, metavar="N")
+    ts.add_argument("--backend", default="auto", choices=("auto", "cpu", "cuda"))
+    ts.add_argument("--force", action="store_true", help="retrain even if an identical run finished")
+    ts.set_defaults(func=_cmd_train_scene)
 
     # m2m align-scene
     al = sub.add_parser(
