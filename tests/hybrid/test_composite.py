@@ -125,3 +125,33 @@ def test_color_jitter() -> None:
     assert ColorJitter.sample(np.random.default_rng(5)) == ColorJitter.sample(np.random.default_rng(5))
     j2 = ColorJitter(brightness=0.1)
     np.testing.assert_allclose(j2.apply(np.full((2, 2, 3), 0.5, np.float32)), 0.6, atol=1e-6)
+
+
+def test_static_camera_cache_matches_the_full_render() -> None:
+    scene = _blob((0.5, 0.0, -0.05), (0.3, 0.3, 0.3), n=1500, radius=0.12, seed=4)
+    a, b = _blob((0, 0, 0.02), (0.9, 0.1, 0.1), seed=5), _blob((0, 0, 0.02), (0.1, 0.1, 0.9), seed=6)
+    world = SplatWorld(scene, [MovablePart("a", a), MovablePart("b", b)], SplatRenderOptions(backend="cpu"))
+    rest = {"a": np.eye(4), "b": np.eye(4)}
+    rest["a"][:3, 3] = (0.45, -0.08, 0.0)
+    rest["b"][:3, 3] = (0.55, 0.08, 0.0)
+    view = _camera((0.0, 0.0, 0.5))
+    world.reset_cache()
+    world.set_poses(rest)
+    got = world.render_static_camera("head", view, K, W, H)
+    full = world.render(view, K, W, H)
+    for x, y in zip(got, full, strict=True):
+        np.testing.assert_array_equal(x, y)  # nothing moved: the cached background is the frame
+    lifted = dict(rest, a=rest["a"].copy())
+    lifted["a"][:3, 3] += (0.0, -0.05, 0.12)  # "a" picked up and carried
+    world.set_poses(lifted)
+    got = world.render_static_camera("head", view, K, W, H)
+    full = world.render(view, K, W, H)
+    mse = np.mean((got[0] - full[0]) ** 2)
+    assert 10 * np.log10(1.0 / mse) > 30
+    # No ghost where "a" used to be: its old footprint looks like the full render there too.
+    old = SplatWorld(None, [MovablePart("a", a)], SplatRenderOptions(backend="cpu"))
+    old.set_poses(rest)
+    footprint = old.render(view, K, W, H)[1] > 0.5
+    assert footprint.sum() > 10
+    assert np.abs(got[0][footprint] - full[0][footprint]).mean() < 0.02
+    assert world._moving == {"a"}

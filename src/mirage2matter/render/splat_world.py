@@ -96,10 +96,66 @@ class SplatWorld:
 
     def render(self, viewmat: np.ndarray, K: np.ndarray, width: int, height: int, background=(0.0, 0.0, 0.0)):
         """(rgb float32 [H,W,3] in [0,1], alpha [H,W], depth [H,W] camera-z m) as numpy."""
+        return self._render(self.gaussians, viewmat, K, width, height, background)
+
+    # ---- static cameras: render what does not move once ----------------------------------------------------
+    def reset_cache(self) -> None:
+        """Forget the cached backgrounds (call when an episode starts: the parts' rest poses change)."""
+        self._cache: dict[str, dict] = {}
+        self._rest: dict[str, np.ndarray] = {}
+        self._moving: set[str] = set()
+
+    def render_static_camera(self, name: str, viewmat, K, width: int, height: int, background=(0.0, 0.0, 0.0)):
+        """Like :meth:`render` for a camera that stays put during the episode (the head camera).
+
+        The scene and every part that has not moved since the first call (after :meth:`reset_cache`)
+        are rendered once as a background; each frame renders only the parts that have moved and
+        composites them over it by depth. A part counts as moving from its first displacement on (the
+        background is then redrawn once without it). An approximation of the joint render at the
+        moving parts' outlines (two layers instead of one sorted blend); exact elsewhere.
+        """
+        if not hasattr(self, "_cache"):
+            self.reset_cache()
+        for p in self.parts:
+            pose = self.poses.get(p.name)
+            if pose is None or p.name in self._moving:
+                continue
+            rest = self._rest.setdefault(p.name, pose)
+            if np.abs(pose - rest).max() > 1e-6:
+                self._moving.add(p.name)
+        key = (np.asarray(viewmat, np.float64).tobytes(), np.asarray(K, np.float64).tobytes(), width, height,
+               tuple(background), frozenset(self._moving))  # fmt: skip
+        entry = self._cache.get(name)
+        if entry is None or entry["key"] != key:
+            keep = torch.ones(len(self.gaussians), dtype=torch.bool)
+            for n in self._moving:
+                keep[self._slices[n]] = False
+            entry = {
+                "key": key,
+                "layer": self._render(self.gaussians.select(keep), viewmat, K, width, height, background),
+            }
+            self._cache[name] = entry
+        bg_rgb, bg_alpha, bg_depth = entry["layer"]
+        if not self._moving:
+            return bg_rgb, bg_alpha, bg_depth
+        rows = torch.zeros(len(self.gaussians), dtype=torch.bool)
+        for n in self._moving:
+            rows[self._slices[n]] = True
+        fg_rgb, fg_alpha, fg_depth = self._render(
+            self.gaussians.select(rows), viewmat, K, width, height, (0.0, 0.0, 0.0)
+        )
+        front = (fg_alpha > 0) & ((fg_depth < bg_depth) | (bg_alpha < 0.5))
+        a = fg_alpha[..., None]
+        rgb = np.where(front[..., None], fg_rgb + (1.0 - a) * bg_rgb, bg_rgb)
+        alpha = np.where(front, fg_alpha + (1.0 - fg_alpha) * bg_alpha, bg_alpha)
+        depth = np.where(front & (fg_alpha >= 0.5), fg_depth, bg_depth)
+        return np.clip(rgb, 0.0, 1.0), alpha, depth
+
+    def _render(self, gaussians: Gaussians, viewmat, K, width, height, background):
         from ..gaussians.render import render
 
         out = render(
-            self.gaussians,
+            gaussians,
             torch.as_tensor(viewmat, dtype=torch.float32),
             torch.as_tensor(K, dtype=torch.float32),
             int(width),
