@@ -624,6 +624,65 @@ def _cmd_bench_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _generate_config(args: argparse.Namespace):
+    from .datagen.workspace import GenerateConfig
+
+    return GenerateConfig(
+        task=args.task, episodes=args.episodes, workers=args.workers, ray_address=args.ray_address,
+        format=getattr(args, "format", "lerobot-v3.0"), seed=args.seed, out=getattr(args, "out", None),
+        size=(args.size, args.size), fps=args.fps,
+    )  # fmt: skip
+
+
+def _datagen_errors():
+    from .datagen import GenerateError, RunnerError
+    from .export import StagingError
+
+    return (GenerateError, RunnerError, StagingError)
+
+
+def _cmd_generate(args: argparse.Namespace) -> int:
+    from .datagen.workspace import generate
+
+    if not args.task:
+        raise CliError('--task is required, e.g. --task "grasp banana"')
+    try:
+        s = generate(args.workspace, _generate_config(args), log=_info)
+    except _datagen_errors() as e:
+        raise CliError(str(e)) from None
+    rate = f"{s.get('demos_per_min')} demos/min with {s['workers']} {s['backend']} worker(s)"
+    done = f"{s['episodes']} episodes ({s['failed']} failed attempts, success {s['success_rate']:.0%})"
+    _info(f"{done} in {s['dataset']}; {rate}")
+    print(json.dumps({k: s.get(k) for k in ("dataset", "episodes", "failed", "success_rate", "demos_per_min")}))
+    return 0
+
+
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from .export import validate
+
+    problems = validate(args.dataset)
+    for p in problems:
+        _info(f"  - {p}")
+    if problems:
+        raise CliError(f"{args.dataset}: {len(problems)} problem(s) found (listed above)")
+    info = json.loads((Path(args.dataset) / "meta" / "info.json").read_text(encoding="utf-8"))
+    _info(f"{args.dataset}: valid LeRobot {info['codebase_version']} dataset, {info['total_episodes']} episodes, "
+          f"{info['total_frames']} frames")  # fmt: skip
+    return 0
+
+
+def _cmd_bench_datagen(args: argparse.Namespace) -> int:
+    from .datagen.workspace import BENCH_KEYS, bench_datagen
+
+    try:
+        result = bench_datagen(args.workspace, _generate_config(args), runs=args.runs, log=_info)
+    except _datagen_errors() as e:
+        raise CliError(str(e)) from None
+    _info(json.dumps(result))
+    print(json.dumps({k: result[k] for k in BENCH_KEYS}))
+    return 0
+
+
 def _cmd_capture(args: argparse.Namespace) -> int:
     from .capture import CaptureConfig, extract_keyframes
 
@@ -809,6 +868,17 @@ def _cmd_sample_make(args: argparse.Namespace) -> int:
 
 
 # ---- the parser ---------------------------------------------------------------------------------------------
+def _generation_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-w", "--workspace", required=True, type=Path, help="workspace folder (with world/world.yaml)")
+    p.add_argument("--task", help='instruction, e.g. "grasp banana", "press button", "push croissant --direction 0,1"')
+    p.add_argument("--episodes", type=_int_at_least(1), required=True, metavar="N", help="successful episodes wanted")
+    p.add_argument("--workers", type=_int_at_least(1), default=1, metavar="W", help="parallel workers (default 1)")
+    p.add_argument("--ray-address", metavar="ADDR", help="run the workers on Ray: auto, host:port, or local")
+    p.add_argument("--seed", type=_int_at_least(0), default=0, help="run seed (default 0): same seed, same episodes")
+    p.add_argument("--size", type=_int_at_least(2), default=224, metavar="S", help="square frame side (default 224)")
+    p.add_argument("--fps", type=_int_at_least(1), default=10, help="control and video rate (default 10 Hz)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     fmt = argparse.RawDescriptionHelpFormatter
     parser = argparse.ArgumentParser(
@@ -903,6 +973,17 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("--work-dir", metavar="DIR", help="cache for the SfM used for initial points")
     bt.add_argument("--max-gaussians", type=_int_at_least(1000), default=150_000, metavar="N")
     bt.set_defaults(func=_cmd_bench_train)
+    bd_ = bench_sub.add_parser(
+        "datagen",
+        help="demonstrations per minute on a workspace's world; JSON line last",
+        description=(
+            "Generate N episodes R times into throw-away folders; the last stdout line is JSON with demos_per_min "
+            "(workers warm), success_rate, episodes, frames, workers, backend, ms_per_frame (medians over runs)."
+        ),
+    )
+    _generation_args(bd_)
+    bd_.add_argument("--runs", type=_int_at_least(1), default=1, metavar="R", help="repetitions (default 1)")
+    bd_.set_defaults(func=_cmd_bench_datagen, task="grasp banana")
 
     # m2m demo
     d = sub.add_parser(
@@ -1016,6 +1097,25 @@ def build_parser() -> argparse.ArgumentParser:
     h.add_argument("--link", help="gripper link (default: from the joints file, else 'hand')")
     h.add_argument("--no-refine", action="store_true", help="skip the reprojection refinement")
     h.set_defaults(func=_cmd_calibrate_handeye)
+
+    # m2m generate / validate
+    g = sub.add_parser(
+        "generate",
+        help="demonstrations of a task in the workspace's world -> a LeRobot dataset in <ws>/datasets/<task>",
+        description=(
+            "Run the task in the Genesis twin of <ws>/world/world.yaml with randomised start poses, render head and "
+            "wrist hybrid frames (splats + robot), and write the successful episodes as a LeRobot dataset with "
+            "summary.json, preview.mp4 and contact_sheet.png. A killed run resumes when rerun with the same options."
+        ),
+    )
+    _generation_args(g)
+    g.add_argument("--format", default="lerobot-v3.0", choices=("lerobot-v3.0", "lerobot-v2.1"),
+                   help="dataset format (v2.1 for openpi; default v3.0)")  # fmt: skip
+    g.add_argument("--out", type=Path, metavar="DIR", help="dataset folder (default <ws>/datasets/<task>)")
+    g.set_defaults(func=_cmd_generate)
+    v = sub.add_parser("validate", help="check a LeRobot v3.0 / v2.1 dataset with an independent reader")
+    v.add_argument("dataset", help="dataset folder")
+    v.set_defaults(func=_cmd_validate)
 
     # m2m sample make
     sample = sub.add_parser("sample", help="the bundled sample capture with ground truth")
