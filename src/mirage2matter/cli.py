@@ -699,6 +699,10 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
 
     ws = Path(args.workspace)
     config = SfMConfig(matching=args.matching, downscale=1.0 / args.downscale)
+    if args.intrinsics:
+        from .sfm.known_poses import with_fixed_intrinsics
+
+        config = with_fixed_intrinsics(config, _load_intrinsics(Path(args.intrinsics)))
     try:
         if args.from_transforms:
             result = import_transforms(args.from_transforms, ws / "capture", ws / "sfm", config)
@@ -721,6 +725,24 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
         f"{result.seconds:.0f} s -> {_show(ws / 'sfm')}"
     )
     return 0
+
+
+def _load_intrinsics(path: Path):
+    """A Camera (pose unused) from a camera JSON, or from a JSON holding one under "camera" (e.g. a
+    sample's ground_truth.json): K, width, height and optional distortion."""
+    import numpy as np
+
+    from .geometry.camera import Camera, CameraFormatError
+
+    data = _peek_json(path)
+    data = data.get("camera", data) if isinstance(data, dict) else data
+    if not isinstance(data, dict) or "K" not in data or "width" not in data or "height" not in data:
+        raise CliError(f"{path}: need a JSON with K (3x3), width and height (or such an object under 'camera')")
+    try:
+        return Camera.from_json({"T_world_cam": np.eye(4).tolist(), **data, "distortion": data.get("distortion") or {}},
+                                source=str(path))  # fmt: skip
+    except CameraFormatError as e:
+        raise CliError(str(e)) from None
 
 
 def _cmd_train_scene(args: argparse.Namespace) -> int:
@@ -768,7 +790,15 @@ def _cmd_align_scene(args: argparse.Namespace) -> int:
     rec = pycolmap.Reconstruction(str(ws / "sfm" / "model"))
     points = np.array([p.xyz for p in rec.points3D.values()]).reshape(-1, 3)
     images = [np.asarray(Image.open(ws / "capture" / c.name).convert("RGB")) for c in cameras]
-    result = align_scene(cameras, images, points, board, T_base_board, icp=not args.no_icp)
+    footprint = None
+    if args.robot.lower() != "none":
+        from .calib.kinematics import RobotKinematics
+
+        try:
+            footprint = RobotKinematics(args.robot).base_footprint()
+        except (FileNotFoundError, ValueError) as e:
+            raise CliError(f"--robot {args.robot}: {e}") from None
+    result = align_scene(cameras, images, points, board, T_base_board, icp=not args.no_icp, footprint_xy=footprint)
     sim = result.sim3_sfm_to_base
     calib = ws / "calib"
     calib.mkdir(parents=True, exist_ok=True)
@@ -779,7 +809,7 @@ def _cmd_align_scene(args: argparse.Namespace) -> int:
         json.dump([c.to_json() for c in cameras_base], f, indent=1)
     with atomic_write(calib / "points_base.npy", "wb") as f:
         np.save(f, sim.apply(points).astype(np.float32))
-    overlay = _base_overlay(images, cameras_base, result.triangulation.frames_with_board)
+    overlay = _base_overlay(images, cameras_base, result.triangulation.frames_with_board, footprint)
     with atomic_write(calib / "overlay.png", "wb") as f:
         Image.fromarray(overlay).save(f, format="PNG")
     print(
@@ -791,22 +821,26 @@ def _cmd_align_scene(args: argparse.Namespace) -> int:
     return 0
 
 
-def _base_overlay(images, cameras_base, frames_with_board) -> Any:
-    """The robot base footprint (a 10 cm circle at the origin) and base axes drawn into a keyframe."""
+def _base_overlay(images, cameras_base, frames_with_board, footprint_xy=None) -> Any:
+    """The robot base footprint (from the robot model, else a 10 cm circle at the origin) and the
+    base axes (x red, y green, z blue, 15 cm) drawn into a keyframe that sees the board."""
     import cv2
     import numpy as np
 
     k = next(i for i, c in enumerate(cameras_base) if c.name in frames_with_board)
     cam, image = cameras_base[k], images[k].copy()
-    ring = np.c_[0.1 * np.cos(np.linspace(0, 2 * np.pi, 64)), 0.1 * np.sin(np.linspace(0, 2 * np.pi, 64)), np.zeros(64)]
+    if footprint_xy is None:
+        t = np.linspace(0, 2 * np.pi, 64)
+        footprint_xy = 0.1 * np.c_[np.cos(t), np.sin(t)]
+    outline = np.c_[footprint_xy, np.zeros(len(footprint_xy))]
     axes = np.array([[0, 0, 0], [0.15, 0, 0], [0, 0.15, 0], [0, 0, 0.15]], float)
 
     def px(points):
         uv, depth = cam.project(points)
         return [tuple(int(round(v)) for v in p - 0.5) for p in uv], depth
 
-    ring_px, _ = px(ring)
-    cv2.polylines(image, [np.asarray(ring_px, np.int32)], True, (255, 0, 255), 2, cv2.LINE_AA)
+    outline_px, _ = px(outline)
+    cv2.polylines(image, [np.asarray(outline_px, np.int32)], True, (255, 0, 255), 2, cv2.LINE_AA)
     (o, x, y, z), _ = px(axes)
     for end, colour in ((x, (255, 0, 0)), (y, (0, 255, 0)), (z, (0, 0, 255))):
         cv2.line(image, o, end, colour, 2, cv2.LINE_AA)
@@ -1042,6 +1076,11 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     src.add_argument("--from-colmap", metavar="MODEL_DIR", help="import a COLMAP sparse model (needs --images)")
     s_.add_argument("--images", metavar="DIR", help="with --from-colmap: the folder holding the model's images")
+    s_.add_argument(
+        "--intrinsics", metavar="JSON",
+        help="known camera intrinsics (K, width, height, distortion), held fixed; more accurate poses than "
+        "self-calibration when the camera is calibrated",
+    )  # fmt: skip
     s_.set_defaults(func=_cmd_sfm)
 
     # m2m train-scene
@@ -1069,6 +1108,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="a JSON with T_base_board (4x4) if the board is not centred on the base with its x along base x",
     )
     al.add_argument("--no-icp", action="store_true", help="board corners only, no ICP refinement")
+    al.add_argument(
+        "--robot", default="xml/franka_emika_panda/panda.xml", metavar="URDF|MJCF",
+        help="robot model whose base footprint bounds the ICP support region and is drawn in the overlay "
+        "(default: Genesis' Franka Panda; 'none' for a 10 cm circle)",
+    )  # fmt: skip
     al.set_defaults(func=_cmd_align_scene)
 
     # m2m board

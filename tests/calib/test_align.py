@@ -17,6 +17,7 @@ from mirage2matter.geometry.rotation import axis_angle_to_matrix
 from mirage2matter.geometry.sim3 import Sim3
 from mirage2matter.geometry.umeyama import umeyama
 from mirage2matter.sfm import SfMConfig, run_sfm
+from mirage2matter.sfm.known_poses import with_fixed_intrinsics
 
 SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
 
@@ -40,9 +41,13 @@ def _gt() -> dict:
     return json.loads((SAMPLE / "ground_truth.json").read_text())
 
 
-def _reconstruct(tmp: Path, n_keyframes: int, num_threads: int = -1):
+def _reconstruct(tmp: Path, n_keyframes: int, num_threads: int = -1, known_intrinsics: bool = False):
     keyframes = extract_keyframes(SAMPLE / "scene.mp4", tmp / "capture", CaptureConfig(max_keyframes=n_keyframes))
-    result = run_sfm(tmp / "capture", tmp / "sfm", SfMConfig(num_threads=num_threads))
+    config = SfMConfig(num_threads=num_threads)
+    if known_intrinsics:  # the capture camera's calibration, as a user with a calibrated phone would give it
+        cam = _gt()["camera"]
+        config = with_fixed_intrinsics(config, Camera(cam["K"], np.eye(4), cam["width"], cam["height"]))
+    result = run_sfm(tmp / "capture", tmp / "sfm", config)
     images = [np.asarray(Image.open(tmp / "capture" / c.name).convert("RGB")) for c in result.cameras]
     return keyframes, result, images
 
@@ -88,10 +93,13 @@ def test_wrong_board_or_too_few_views_are_clear_errors(small_reconstruction):
 
 @pytest.mark.slow
 def test_sample_alignment_accuracy_with_48_keyframes(tmp_path):
-    keyframes, sfm, images = _reconstruct(tmp_path, 48)
     gt = _gt()
     board = BoardSpec.from_json(gt["board"]["spec"])
+    # Issue 5: <= 0.2 %, 0.2 deg, 2 mm (medians). With the capture camera's known intrinsics held fixed
+    # in SfM this measured 0.014 %, 0.06 deg, 1.36 mm; self-calibrated (OPENCV, fy drifts 0.36 %) it
+    # was 0.21 %, 0.09 deg, 2.5 mm: the residual is SfM's, a best-possible Sim3 leaves 1.1 mm.
+    keyframes, sfm, images = _reconstruct(tmp_path / "known", 48, known_intrinsics=True)
     result = align_scene(sfm.cameras, images, sfm.points, board, np.asarray(gt["board"]["T_base_board"]))
     scale_err, rot, trans = _errors_vs_truth(keyframes, apply_to_cameras(result.sim3_sfm_to_base, sfm.cameras), gt)
-    # Issue 5 asks for <= 0.2 %, 0.2 deg, 2 mm; measured here 0.20 %, 0.12 deg, 2.3 mm (SfM-limited)
-    assert scale_err < 0.0025 and rot < 0.2 and trans < 3.0, (scale_err, rot, trans)
+    assert scale_err < 0.002 and rot < 0.2 and trans < 2.0, (scale_err, rot, trans)
+    assert np.allclose(sfm.cameras[0].K, gt["camera"]["K"])  # held fixed

@@ -76,3 +76,23 @@ def test_sample_transforms_helper_round_trips_poses(tmp_path):
     cams = load_transforms_json(path)
     assert [c.name for c in cams] == ["images/0000.png", "images/0240.png", "images/0480.png"]
     assert np.allclose(cams[1].T_world_cam, gt["frames"][240]["T_base_cam"], atol=1e-9)
+
+
+@needs_sample
+def test_known_intrinsics_are_held_fixed_and_must_match_the_images(tmp_path):
+    from mirage2matter.geometry.camera import Camera
+    from mirage2matter.sfm import run_sfm
+    from mirage2matter.sfm.known_poses import with_fixed_intrinsics
+
+    tf = write_sample_transforms(SAMPLE, tmp_path / "data", every=60, scale=0.5)
+    given = load_transforms_json(tf)[0]
+    cam = Camera(given.K, np.eye(4), given.width, given.height)
+    config = with_fixed_intrinsics(SfMConfig(num_threads=2), cam)
+    assert config.camera_model == "PINHOLE" and not config.refine_intrinsics
+    result = run_sfm(tf.parent / "images", tmp_path / "sfm", config)
+    assert result.registered >= 10
+    assert all(np.allclose(c.K, given.K) for c in result.cameras)
+    wrong = with_fixed_intrinsics(SfMConfig(), cam.scaled(2.0))
+    with pytest.raises(SfMError, match="images are 320x240 but the given intrinsics are for 640x480"):
+        run_sfm(tf.parent / "images", tmp_path / "sfm2", wrong)
+    assert not (tmp_path / "sfm2").exists()

@@ -125,17 +125,25 @@ class AlignResult:
         }
 
 
-def support_region(T_base_board: np.ndarray, board: BoardSpec, extent: float = 0.3, spacing: float = 0.004):
-    """The simulator's robot-base region as points: the plane the board lies on (the base's support
-    surface), a square of side board size + 2 * extent, sampled every ``spacing`` metres. [M,3]"""
+def support_region(
+    T_base_board: np.ndarray,
+    board: BoardSpec,
+    extent: float = 0.3,
+    spacing: float = 0.004,
+    footprint_xy: np.ndarray | None = None,
+) -> np.ndarray:
+    """The simulator's robot-base region as points [M,3]: the support plane the board lies on,
+    sampled every ``spacing`` metres over the board's square (side board size + 2 * ``extent``)
+    grown to cover the robot base's ``footprint_xy`` [P,2] when a robot model gives one."""
     w, h = board.size
     half = max(w, h) / 2 + extent
-    g = np.arange(-half, half + 1e-9, spacing)
-    xx, yy = np.meshgrid(g, g)
-    centre_board = np.array([w / 2, h / 2, 0.0])
-    centre = T_base_board[:3, :3] @ centre_board + T_base_board[:3, 3]
-    z = centre[2]
-    return np.c_[xx.ravel() + centre[0], yy.ravel() + centre[1], np.full(xx.size, z)]
+    centre = T_base_board[:3, :3] @ np.array([w / 2, h / 2, 0.0]) + T_base_board[:3, 3]
+    lo, hi = centre[:2] - half, centre[:2] + half
+    if footprint_xy is not None and len(footprint_xy):
+        lo = np.minimum(lo, np.min(footprint_xy, axis=0) - extent)
+        hi = np.maximum(hi, np.max(footprint_xy, axis=0) + extent)
+    xx, yy = np.meshgrid(np.arange(lo[0], hi[0] + 1e-9, spacing), np.arange(lo[1], hi[1] + 1e-9, spacing))
+    return np.c_[xx.ravel(), yy.ravel(), np.full(xx.size, centre[2])]
 
 
 def align_scene(
@@ -145,6 +153,7 @@ def align_scene(
     board: BoardSpec,
     T_base_board: np.ndarray | None = None,
     icp: bool = True,
+    footprint_xy: np.ndarray | None = None,
 ) -> AlignResult:
     """sim3_sfm_to_base from the board (and ICP of the points around it onto the support surface)."""
     T_base_board = default_T_base_board(board) if T_base_board is None else np.asarray(T_base_board, np.float64)
@@ -160,7 +169,7 @@ def align_scene(
         )
     icp_rmse, n_icp = None, 0
     if icp and len(points_sfm):
-        target = support_region(T_base_board, board)
+        target = support_region(T_base_board, board, footprint_xy=footprint_xy)
         lo, hi = target.min(0) - [0, 0, 0.02], target.max(0) + [0, 0, 0.02]
         moved = sim.apply(np.asarray(points_sfm, np.float64))
         near = np.all((moved >= lo) & (moved <= hi), axis=1)

@@ -67,3 +67,30 @@ class RobotKinematics:
         T[:3, :3] = self._data.xmat[body].reshape(3, 3)
         T[:3, 3] = self._data.xpos[body]
         return T
+
+    def base_points(self) -> np.ndarray:
+        """Vertices [M,3] of the base link's meshes (the root body's geoms) at the zero pose, in
+        the base frame: the part of the robot that stands on the table."""
+        m, d = self._model, self._data
+        roots = [b for b in range(1, m.nbody) if m.body_parentid[b] == 0]
+        d.qpos[:] = 0.0
+        self._mujoco.mj_kinematics(m, d)
+        pts = []
+        for g in range(m.ngeom):
+            if m.geom_bodyid[g] not in roots or m.geom_type[g] != self._mujoco.mjtGeom.mjGEOM_MESH:
+                continue
+            mesh = m.geom_dataid[g]
+            v = m.mesh_vert[m.mesh_vertadr[mesh] : m.mesh_vertadr[mesh] + m.mesh_vertnum[mesh]]
+            pts.append(v @ d.geom_xmat[g].reshape(3, 3).T + d.geom_xpos[g])
+        if not pts:
+            raise ValueError(f"{self.path.name}: the base link has no mesh geometry to take a footprint from")
+        return np.concatenate(pts).astype(np.float64)
+
+    def base_footprint(self, height: float = 0.01) -> np.ndarray:
+        """The base's footprint on its support plane: the convex hull [P,2] (x, y in metres,
+        counter-clockwise) of the base vertices within ``height`` of the lowest one."""
+        from scipy.spatial import ConvexHull
+
+        pts = self.base_points()
+        low = pts[pts[:, 2] <= pts[:, 2].min() + height][:, :2]
+        return low[ConvexHull(low).vertices]

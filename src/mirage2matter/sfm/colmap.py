@@ -50,6 +50,10 @@ class SfMConfig:
     downscale           features are extracted at this fraction of the image size (keypoints
                         are scaled back, so intrinsics stay in full-resolution pixels)
     refine_principal_point  let bundle adjustment move cx, cy
+    camera_params   known intrinsics as COLMAP params of ``camera_model`` (a calibrated camera, see
+                    :func:`mirage2matter.sfm.known_poses.with_fixed_intrinsics`); with
+                    ``refine_intrinsics=False`` bundle adjustment keeps them fixed;
+                    ``intrinsics_size`` (width, height) they are for, checked against the images
     min_registered_fraction  fewer registered images than this fraction is an error
     verbose             keep COLMAP's INFO log (thousands of lines); otherwise warnings and up only
     """
@@ -63,12 +67,17 @@ class SfMConfig:
     max_num_features: int = 8192
     downscale: float = 1.0
     refine_principal_point: bool = True
+    camera_params: list[float] | None = None
+    refine_intrinsics: bool = True
+    intrinsics_size: tuple[int, int] | None = None
     min_registered_fraction: float = 0.5
     num_threads: int = -1
     seed: int = 0
     verbose: bool = False
 
     def validate(self) -> None:
+        if not self.refine_intrinsics and self.camera_params is None:
+            raise SfMError("sfm config: refine_intrinsics=False needs camera_params (the known intrinsics)")
         if self.matching not in ("sequential", "exhaustive", "auto"):
             raise SfMError(f"sfm config: matching must be sequential, exhaustive or auto, got {self.matching!r}")
         if not 0 < self.downscale <= 1:
@@ -149,6 +158,15 @@ def _result_from_reconstruction(rec: Any, total: int, names: list[str], model_di
 
 
 # ---- running ------------------------------------------------------------------------------------
+def _reader_options(config: SfMConfig) -> Any:
+    import pycolmap
+
+    ro = pycolmap.ImageReaderOptions(camera_model=config.camera_model)
+    if config.camera_params is not None:
+        ro.camera_params = ",".join(repr(float(v)) for v in config.camera_params)
+    return ro
+
+
 def _list_images(image_dir: Path) -> list[str]:
     if not image_dir.is_dir():
         raise SfMError(f"{image_dir}: image folder not found; run the capture stage first")
@@ -198,6 +216,12 @@ def run_sfm(
             f"{sizes[odd[0]][0]}x{sizes[odd[0]][1]}); SfM assumes one camera, so resize them to one size"
         )
 
+    if config.intrinsics_size is not None and tuple(config.intrinsics_size) != (width, height):
+        raise SfMError(
+            f"{image_dir}: images are {width}x{height} but the given intrinsics are for "
+            f"{config.intrinsics_size[0]}x{config.intrinsics_size[1]}; pass intrinsics for this image size"
+        )
+
     log_level = pycolmap.logging.minloglevel
     if not config.verbose:
         pycolmap.logging.minloglevel = 1  # glog WARNING
@@ -214,7 +238,7 @@ def run_sfm(
                 image_dir,
                 image_names=names,
                 camera_mode=pycolmap.CameraMode.SINGLE,
-                reader_options=pycolmap.ImageReaderOptions(camera_model=config.camera_model),
+                reader_options=_reader_options(config),
                 extraction_options=eo,
                 device=pycolmap.Device.cpu,
             )
@@ -237,7 +261,10 @@ def run_sfm(
             t_matching = time.perf_counter()
 
             opts = pycolmap.IncrementalPipelineOptions()
-            opts.ba_refine_principal_point = config.refine_principal_point
+            opts.ba_refine_principal_point = config.refine_principal_point and config.refine_intrinsics
+            if not config.refine_intrinsics:
+                opts.ba_refine_focal_length = False
+                opts.ba_refine_extra_params = False
             opts.num_threads = config.num_threads
             opts.random_seed = config.seed
             models = pycolmap.incremental_mapping(db, image_dir, tmp / "mapper", options=opts)

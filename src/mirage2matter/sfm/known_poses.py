@@ -20,7 +20,7 @@ from ..geometry.camera import Camera
 from ..geometry.sim3 import invert_rigid
 from .colmap import SfMConfig, SfMError, SfMResult, _image_size, _result_from_reconstruction
 
-__all__ = ["colmap_camera_params", "triangulate_known_poses"]
+__all__ = ["colmap_camera_params", "triangulate_known_poses", "with_fixed_intrinsics"]
 
 _OPENCV_KEYS = ("k1", "k2", "p1", "p2")
 _FULL_OPENCV_KEYS = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
@@ -41,6 +41,23 @@ def colmap_camera_params(cam: Camera) -> tuple[str, list[float]]:
     if set(d) <= set(_OPENCV_KEYS):
         return "OPENCV", base + [d.get(k, 0.0) for k in _OPENCV_KEYS]
     return "FULL_OPENCV", base + [d.get(k, 0.0) for k in _FULL_OPENCV_KEYS]
+
+
+def with_fixed_intrinsics(config: SfMConfig, camera: Camera) -> SfMConfig:
+    """``config`` with ``camera``'s intrinsics (K, distortion) given to COLMAP and held fixed.
+
+    Self-calibration lets the focal length drift by tenths of a percent (fx and fy apart on the
+    sample), which shows up as millimetres in every pose; a calibrated camera's K avoids that."""
+    from dataclasses import replace
+
+    model, params = colmap_camera_params(camera)
+    return replace(
+        config,
+        camera_model=model,
+        camera_params=params,
+        refine_intrinsics=False,
+        intrinsics_size=(camera.width, camera.height),
+    )
 
 
 def triangulate_known_poses(
