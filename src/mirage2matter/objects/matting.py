@@ -1,0 +1,149 @@
+"""Masks from 3D: Gaussians that explain how the keyframes differ from the bare table.
+
+Gaussians fill the object's proxy (its points and footprint, grown a little) and are trained on
+crops around the object with the render composited over the table background of each keyframe
+(``background.table_background``) instead of a colour: only what differs from the table, seen
+consistently from all keyframes, keeps opacity. Alpha outside the proxy's projection is penalised.
+The rendered alpha > ``alpha_threshold`` is the object's mask in every keyframe. Colour alone
+cannot split a croissant from a wooden table; parallax over the whole orbit can.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..gaussians.model import Gaussians
+from ..gaussians.render import render
+from ..gaussians.train import TrainConfig, View, init_gaussians_from_points, train
+from ..geometry.camera import Camera
+from .background import table_background
+from .errors import ObjectsError
+from .support import ObjectCluster, Plane
+from .views import crop_camera, object_rois, proxy_mask, proxy_points
+
+__all__ = ["Matte", "MattingConfig", "matte_object", "render_alpha", "sample_in_hull"]
+
+
+@dataclass
+class MattingConfig:
+    iterations: int = 1000
+    init_gaussians: int = 20000
+    max_gaussians: int = 60000
+    sh_degree: int = 1
+    proxy_margin: float = 0.008  # metres the proxy grows beyond the object's points and footprint
+    roi_margin: float = 0.03  # metres of context around the proxy in the crops
+    lambda_alpha: float = 0.5
+    alpha_threshold: float = 0.5
+    min_views: int = 6  # fewer keyframes that see the object: error
+    seed: int = 0
+
+
+@dataclass
+class Matte:
+    name: str
+    gaussians: Gaussians  # base frame
+    masks: list[np.ndarray | None]  # per keyframe [H,W] bool, None where the object is not seen
+    rois: dict[int, tuple[int, int, int, int]]
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+
+def sample_in_hull(points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
+    """``n`` points [n,3] uniformly inside the convex hull of ``points`` [K,3]."""
+    from scipy.spatial import Delaunay
+
+    tri = Delaunay(points)
+    lo, hi = points.min(0), points.max(0)
+    rng = np.random.default_rng(seed)
+    out: list[np.ndarray] = []
+    have = 0
+    for _ in range(100):
+        cand = rng.uniform(lo, hi, size=(max(4 * n, 1000), 3))
+        cand = cand[tri.find_simplex(cand) >= 0]
+        out.append(cand)
+        have += len(cand)
+        if have >= n:
+            break
+    return np.concatenate(out)[:n]
+
+
+@torch.no_grad()
+def render_alpha(g: Gaussians, camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rgb [H,W,3] over black, alpha [H,W], expected depth [H,W]) of ``g`` seen by ``camera``."""
+    out = render(
+        g,
+        torch.as_tensor(camera.viewmat, dtype=torch.float32),
+        torch.as_tensor(camera.K, dtype=torch.float32),
+        camera.width,
+        camera.height,
+        torch.zeros(3),
+    )
+    return out.rgb.numpy(), out.alpha.numpy(), out.depth.numpy()
+
+
+def matte_object(
+    cluster: ObjectCluster,
+    plane: Plane,
+    cameras: Sequence[Camera],
+    images: Sequence[np.ndarray],
+    config: MattingConfig | None = None,
+    progress: bool = False,
+) -> Matte:
+    """Masks of ``cluster`` in every keyframe (``images`` [H,W,3] float32 in [0,1]) by matting
+    Gaussians against the table background. Raises ObjectsError when the object is seen in fewer
+    than ``config.min_views`` keyframes."""
+    config = config or MattingConfig()
+    rois = object_rois(cameras, cluster, plane, config.roi_margin)
+    if len(rois) < config.min_views:
+        raise ObjectsError(
+            f"object {cluster.name!r} is seen in only {len(rois)} keyframe(s) (need {config.min_views}); "
+            "capture more views around it"
+        )
+    proxy = proxy_points(cluster.points, plane, config.proxy_margin)
+    views = []
+    for i, roi in rois.items():
+        x0, y0, x1, y1 = roi
+        cam = crop_camera(cameras[i], roi)
+        bg = table_background(i, cameras, images, roi, plane)
+        views.append(
+            View(
+                image=torch.from_numpy(np.ascontiguousarray(images[i][y0:y1, x0:x1], dtype=np.float32)),
+                viewmat=torch.as_tensor(cam.viewmat, dtype=torch.float32),
+                K=torch.as_tensor(cam.K, dtype=torch.float32),
+                mask=torch.from_numpy(np.isfinite(bg[..., 0])),  # unknown background: no evidence
+                name=cam.name,
+                background=torch.from_numpy(np.nan_to_num(bg)),
+                alpha_mask=torch.from_numpy(proxy_mask(cameras[i], proxy, roi)),
+            )
+        )
+    pts = sample_in_hull(proxy, config.init_gaussians, config.seed)
+    init = init_gaussians_from_points(pts, np.full_like(pts, 0.5), sh_degree=config.sh_degree)
+    train_cfg = TrainConfig(
+        iterations=config.iterations,
+        sh_degree=config.sh_degree,
+        sh_increase_every=max(1, config.iterations // 2),
+        max_gaussians=config.max_gaussians,
+        checkpoint_every=0,
+        lambda_alpha=config.lambda_alpha,
+        seed=config.seed,
+    )
+    g, metrics = train(views, [], init, train_cfg, progress=progress)
+    masks: list[np.ndarray | None] = [None] * len(cameras)
+    for i, (x0, y0, x1, y1) in rois.items():
+        _, alpha, _ = render_alpha(g, crop_camera(cameras[i], (x0, y0, x1, y1)))
+        m = np.zeros((cameras[i].height, cameras[i].width), bool)
+        m[y0:y1, x0:x1] = alpha > config.alpha_threshold
+        masks[i] = m
+    seen = sum(1 for m in masks if m is not None and m.any())
+    if seen < config.min_views:
+        raise ObjectsError(
+            f"object {cluster.name!r}: matting found it in only {seen} keyframe(s) (need {config.min_views}); "
+            "it may be too flat or too similar to the table; give --masks or --prompts"
+        )
+    info = {"views": len(views), "gaussians": len(g), "iterations": metrics["iterations"]}
+    info["seconds"] = metrics["seconds"]
+    return Matte(cluster.name, g, masks, rois, info)

@@ -1,0 +1,305 @@
+"""Pipeline stage ``objects`` (DESIGN.md section 3, stage 5): per object, masks -> mesh -> object
+3DGS -> alignment -> one object frame, written to ``<ws>/objects/<name>/``:
+
+    masks/<keyframe stem>.png   the object's mask per keyframe (255 = object)
+    mesh.obj                    watertight mesh, object frame (origin at the bottom centre, z up)
+    collision/part_XX.obj       convex parts (CoACD), object frame
+    gaussians.ply               the object's Gaussians, object frame (Inria PLY)
+    align.json                  sim3_obj_to_base (placement), sim3_mesh_input_to_obj, the ICP fit,
+                                mass properties, metrics
+    figure.png                  Gaussians beside the mesh from the same keyframes
+
+Reads ``capture/`` (keyframes), ``calib/cameras_base.json`` and ``calib/points_base.npy``. Each
+object folder is built under a temporary name and swapped in complete; an object whose
+``align.json`` was written with the same settings is skipped, so a killed run resumes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..atomic import atomic_dir, atomic_write
+from ..geometry.camera import Camera
+from ..geometry.sim3 import Sim3
+from .errors import ObjectsError
+from .masks import FolderMasks, GeometricMasks, MaskProvider, Sam2Masks, Target, cluster_for_prompt, parse_prompt
+from .matting import MattingConfig, sample_in_hull
+from .splat import SplatConfig, mask_crop
+
+__all__ = ["ObjectsConfig", "load_workspace", "run_objects"]
+
+
+@dataclass
+class ObjectsConfig:
+    names: list[str] = field(default_factory=list)  # "banana" or "banana=x,y"; empty: every object found
+    prompts: list[str] = field(default_factory=list)  # "name@frame:box=..." / "name@frame:points=..."
+    masks_dir: str | None = None
+    meshes: dict[str, str] = field(default_factory=dict)  # name -> user mesh file
+    keypoints: dict[str, list] = field(default_factory=dict)  # name -> [[mesh xyz, base xyz], ...]
+    sam2_checkpoint: str | None = None
+    density: dict[str, float] = field(default_factory=dict)  # kg/m^3 per name
+    default_density: float = 500.0
+    matting: MattingConfig = field(default_factory=MattingConfig)
+    splat: SplatConfig = field(default_factory=SplatConfig)
+    voxel: float = 0.0015
+    skip_fraction: float = 0.08
+    grabcut: bool = True
+    collision_threshold: float = 0.05
+    collision_max_parts: int = 16
+    figure_views: int = 3
+
+
+def _fingerprint(config: ObjectsConfig, name: str, inputs: dict[str, Any]) -> str:
+    blob = json.dumps({"config": asdict(config), "name": name, "inputs": inputs}, sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def load_workspace(ws: Path) -> tuple[list[Camera], list[np.ndarray], np.ndarray]:
+    """(cameras in the base frame, keyframes [H,W,3] float32 in [0,1], points_base [M,3])."""
+    import cv2
+
+    cams_path, pts_path = ws / "calib" / "cameras_base.json", ws / "calib" / "points_base.npy"
+    for p in (cams_path, pts_path):
+        if not p.is_file():
+            raise ObjectsError(f"{p} not found; run `m2m align-scene -w {ws}` first (it writes the base-frame calib)")
+    cameras = [Camera.from_json(c, source=str(cams_path)) for c in json.loads(cams_path.read_text())]
+    images = []
+    for cam in cameras:
+        path = ws / "capture" / os.path.basename(cam.name)
+        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise ObjectsError(f"{path}: keyframe of camera {cam.name!r} missing or unreadable; rerun `m2m capture`")
+        if bgr.shape[:2] != (cam.height, cam.width):
+            raise ObjectsError(f"{path}: is {bgr.shape[1]}x{bgr.shape[0]}, its camera {cam.width}x{cam.height}")
+        images.append(bgr[..., ::-1].astype(np.float32) / 255.0)
+    return cameras, images, np.load(pts_path).astype(np.float64)
+
+
+def _targets(config: ObjectsConfig, cameras, points) -> tuple[Any, list[Target]]:
+    from .support import find_objects, name_clusters
+
+    plane, clusters = find_objects(points)
+    targets: list[Target] = []
+    free = list(clusters)
+    for text in config.prompts:
+        prompt = parse_prompt(text)
+        c = cluster_for_prompt(prompt, cameras, free)
+        free.remove(c)
+        c.name = prompt.name
+        targets.append(Target(prompt.name, c, plane))
+    if config.names:
+        wanted = [n for n in config.names if n.partition("=")[0] not in {t.name for t in targets}]
+        targets += [Target(c.name, c, plane) for c in name_clusters(free, wanted)]
+    elif not config.prompts:
+        targets += [Target(c.name, c, plane) for c in free]
+    return plane, targets
+
+
+def _provider(config: ObjectsConfig, progress: bool) -> MaskProvider:
+    if config.masks_dir:
+        return FolderMasks(Path(config.masks_dir), config.matting.min_views)
+    if config.sam2_checkpoint:
+        return Sam2Masks(Path(config.sam2_checkpoint), min_views=config.matting.min_views)
+    return GeometricMasks(config.matting, config.grabcut, progress)
+
+
+def _init_from_mesh(mesh, cameras, images, n: int = 20000):
+    """Initial Gaussians inside a mesh (for masks that came without Gaussians): colours are the
+    median of the keyframes' pixels at the points' projections."""
+    from ..gaussians.train import init_gaussians_from_points
+
+    pts = sample_in_hull(np.asarray(mesh.convex_hull.vertices), 4 * n)
+    pts = pts[mesh.contains(pts)][:n]  # the mesh is watertight here
+    cols = []
+    for cam, img in zip(cameras, images, strict=True):
+        uv, z = cam.project(pts)
+        ij = np.floor(uv).astype(int)  # pixel centres at +0.5
+        ok = (z > 0) & (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < cam.width) & (ij[:, 1] < cam.height)
+        c = np.full((len(pts), 3), np.nan)
+        c[ok] = img[ij[ok, 1], ij[ok, 0]]
+        cols.append(c)
+    colors = np.nan_to_num(np.nanmedian(np.stack(cols), axis=0), nan=0.5)
+    return init_gaussians_from_points(pts, colors, sh_degree=1)
+
+
+def _figure_cameras(cameras, masks, images, T_obj_base: np.ndarray, k: int):
+    """Up to ``k`` keyframes (spread over the orbit) cropped square around the mask, in the object frame."""
+    seen = [i for i, m in enumerate(masks) if m is not None and m.any()]
+    pick = [seen[int(j)] for j in np.linspace(0, len(seen) - 1, min(k, len(seen)))] if seen else []
+    cams, crops = [], []
+    for i in pick:
+        x0, y0, x1, y1 = mask_crop(masks[i], 10)  # type: ignore[misc]
+        side = max(x1 - x0, y1 - y0)
+        cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+        sx0, sy0 = int(round(cx - side / 2)), int(round(cy - side / 2))
+        K = cameras[i].K.copy()
+        K[0, 2] -= sx0
+        K[1, 2] -= sy0
+        cam = Camera(K, T_obj_base @ cameras[i].T_world_cam, side, side, cameras[i].name)
+        img = np.ones((side, side, 3), np.float32)
+        H, W = images[i].shape[:2]
+        a0, b0, a1, b1 = max(sx0, 0), max(sy0, 0), min(sx0 + side, W), min(sy0 + side, H)
+        img[b0 - sy0 : b1 - sy0, a0 - sx0 : a1 - sx0] = images[i][b0:b1, a0:a1]
+        cams.append(cam)
+        crops.append(img)
+    return cams, crops
+
+
+def process_object(
+    target: Target,
+    config: ObjectsConfig,
+    cameras: list[Camera],
+    images: list[np.ndarray],
+    out_dir: Path,
+    log: Callable[[str], None],
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Masks, mesh, object 3DGS, alignment and files for one object; returns its summary."""
+    import cv2
+    import torch
+
+    from ..gaussians.ply import write_ply
+    from ..gaussians.transform import apply_sim3
+    from .align import align_points_to_mesh, distance_to_mesh, object_frame
+    from .collision import convex_decomposition
+    from .figure import side_by_side
+    from .mesh import ensure_watertight, load_mesh, mass_properties, reconstruct_mesh
+    from .splat import train_object_gaussians
+
+    name = target.name
+    log(f"{name}: masks")
+    result = _provider(config, progress).masks(target, cameras, images)
+    masks = result.masks
+
+    user_mesh = config.meshes.get(name)
+    if user_mesh:
+        log(f"{name}: mesh from {user_mesh}")
+        mesh_input = ensure_watertight(load_mesh(user_mesh, name), name, source=str(user_mesh))
+    else:
+        if target.cluster is None or target.plane is None:
+            raise ObjectsError(f"object {name!r}: no points in the cloud to reconstruct from; give --mesh {name}=FILE")
+        log(f"{name}: mesh by carving {sum(m is not None for m in masks)} masks")
+        mesh_input = reconstruct_mesh(
+            target.cluster, target.plane, cameras, masks, config.voxel, skip_fraction=config.skip_fraction, name=name
+        )
+
+    log(f"{name}: object 3DGS")
+    init = result.gaussians if result.gaussians is not None else _init_from_mesh(mesh_input, cameras, images)
+    g_base, splat_metrics = train_object_gaussians(init, cameras, images, masks, config.splat, name, progress)
+
+    log(f"{name}: alignment")
+    opaque = (torch.sigmoid(g_base.logit_opacities) > 0.5).numpy()
+    means = g_base.means.detach().numpy().astype(np.float64)[opaque]
+    kp = config.keypoints.get(name)
+    keypoints = None if not kp else (np.array([k[1] for k in kp]), np.array([k[0] for k in kp]))
+    alignment = align_points_to_mesh(
+        means, mesh_input, keypoints=keypoints, init=None if (user_mesh or kp) else Sim3.identity()
+    )
+    sim3_mesh_to_base = alignment.sim3_points_to_mesh.inverse()
+    mesh_base = mesh_input.copy()
+    mesh_base.apply_transform(sim3_mesh_to_base.matrix())
+    T_base_obj = object_frame(mesh_base, up=target.plane.normal if target.plane is not None else (0, 0, 1))
+    sim3_obj_to_base = Sim3.from_matrix(T_base_obj)
+    sim3_base_to_obj = sim3_obj_to_base.inverse()
+    sim3_mesh_input_to_obj = sim3_base_to_obj @ sim3_mesh_to_base
+    mesh_obj = mesh_input.copy()
+    mesh_obj.apply_transform(sim3_mesh_input_to_obj.matrix())
+    g_obj = apply_sim3(g_base, sim3_base_to_obj)
+    dist = distance_to_mesh(sim3_base_to_obj.apply(means), mesh_obj)
+
+    density = float(config.density.get(name, config.default_density))
+    mass = mass_properties(mesh_obj, density)
+    log(f"{name}: convex decomposition")
+    parts = convex_decomposition(mesh_obj, config.collision_threshold, config.collision_max_parts)
+
+    with atomic_dir(out_dir) as tmp:
+        (tmp / "masks").mkdir()
+        for cam, m in zip(cameras, masks, strict=True):
+            if m is not None:
+                cv2.imwrite(str(tmp / "masks" / f"{Path(cam.name).stem}.png"), m.astype(np.uint8) * 255)
+        mesh_obj.export(tmp / "mesh.obj")
+        (tmp / "collision").mkdir()
+        for k, part in enumerate(parts):
+            part.export(tmp / "collision" / f"part_{k:02d}.obj")
+        write_ply(tmp / "gaussians.ply", g_obj)
+        fig_cams, crops = _figure_cameras(cameras, masks, images, sim3_base_to_obj.matrix(), config.figure_views)
+        if fig_cams:
+            fig = side_by_side(g_obj, mesh_obj, fig_cams, crops)
+            cv2.imwrite(str(tmp / "figure.png"), fig[..., ::-1])
+        summary = {
+            "name": name,
+            "frame": "origin at the bottom centre, z up (support plane normal), x along the footprint's long axis",
+            "sim3_obj_to_base": sim3_obj_to_base.to_json(),
+            "sim3_mesh_input_to_obj": sim3_mesh_input_to_obj.to_json(),
+            "mesh_source": str(user_mesh) if user_mesh else "reconstruction (carved masks)",
+            "masks": result.info,
+            "alignment": {
+                "start": alignment.start,
+                "icp_rmse_m": alignment.rmse,
+                "inlier_fraction": alignment.inlier_fraction,
+                "sim3_gaussians_base_to_mesh_input": alignment.sim3_points_to_mesh.to_json(),
+                "opaque_gaussians": int(opaque.sum()),
+                "median_distance_to_mesh_m": float(np.median(dist)) if len(dist) else None,
+            },
+            "mesh": {
+                "watertight": bool(mesh_obj.is_watertight),
+                "vertices": int(len(mesh_obj.vertices)),
+                "faces": int(len(mesh_obj.faces)),
+                **mass,
+            },
+            "collision": {"parts": len(parts), "threshold": config.collision_threshold},
+            "gaussians": splat_metrics,
+        }
+        with open(tmp / "align.json", "w", encoding="utf-8") as f:
+            json.dump({**summary, "fingerprint": target_fingerprint(config, target)}, f, indent=1)
+    return summary
+
+
+def target_fingerprint(config: ObjectsConfig, target: Target) -> str:
+    pts = None if target.cluster is None else np.round(target.cluster.points, 4).tobytes()
+    return _fingerprint(config, target.name, {"points": hashlib.sha256(pts or b"").hexdigest()})
+
+
+def run_objects(
+    ws: str | os.PathLike[str],
+    config: ObjectsConfig | None = None,
+    log: Callable[[str], None] = lambda s: None,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Run the object stage on workspace ``ws``; returns {name: summary} (also in objects/summary.json)."""
+    ws = Path(ws)
+    config = config or ObjectsConfig()
+    cameras, images, points = load_workspace(ws)
+    _, targets = _targets(config, cameras, points)
+    unknown = set(config.meshes) - {t.name for t in targets}
+    if unknown:
+        raise ObjectsError(
+            f"--mesh for {', '.join(sorted(unknown))}: no such object (objects: {[t.name for t in targets]})"
+        )
+    out: dict[str, Any] = {}
+    for target in targets:
+        folder = ws / "objects" / target.name
+        done = folder / "align.json"
+        if done.is_file():
+            previous = json.loads(done.read_text())
+            if previous.get("fingerprint") == target_fingerprint(config, target):
+                log(f"{target.name}: up to date, skipped")
+                out[target.name] = previous
+                continue
+        out[target.name] = process_object(target, config, cameras, images, folder, log, progress)
+    with atomic_write(ws / "objects" / "summary.json", "w", encoding="utf-8") as f:
+        json.dump(
+            {k: {kk: v[kk] for kk in ("sim3_obj_to_base", "mesh", "gaussians") if kk in v} for k, v in out.items()},
+            f,
+            indent=1,
+            default=str,
+        )
+    return out

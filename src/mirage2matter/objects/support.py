@@ -1,0 +1,181 @@
+"""Objects in the metric point cloud: the support plane, and what stands on it, clustered and named.
+
+The base-aligned SfM cloud (``calib/points_base.npy``) holds the table top as its largest
+near-horizontal plane. Points a few millimetres to a few decimetres above it, and over it, are
+clustered by distance (single linkage, like DBSCAN with min_samples 1 plus a minimum size); flat
+clusters (a sheet of paper, the calibration board) are dropped. What is left are the objects.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import ObjectsError
+
+__all__ = ["ObjectCluster", "Plane", "find_objects", "fit_support_plane", "name_clusters"]
+
+
+@dataclass
+class Plane:
+    """Points x with ``normal . x + offset = 0``; ``normal`` [3] unit, pointing up (to the cameras)."""
+
+    normal: np.ndarray
+    offset: float
+    inliers: np.ndarray  # [M] bool over the points it was fitted to
+
+    def height(self, points: np.ndarray) -> np.ndarray:
+        """Signed distance [N] of points [N,3] above the plane."""
+        return np.asarray(points, np.float64) @ self.normal + self.offset
+
+
+@dataclass
+class ObjectCluster:
+    """One object's points [K,3] (base frame) and where it stands."""
+
+    name: str
+    points: np.ndarray
+    centroid: np.ndarray  # [3]
+    height: float  # top above the support plane, metres
+
+    @property
+    def footprint_centre(self) -> np.ndarray:
+        return self.centroid[:2]
+
+
+def fit_support_plane(
+    points: np.ndarray,
+    threshold: float = 0.003,
+    max_tilt_deg: float = 30.0,
+    iterations: int = 2000,
+    seed: int = 0,
+) -> Plane:
+    """RANSAC plane with the most points within ``threshold`` whose normal is within
+    ``max_tilt_deg`` of +z (the base frame's up), refined by least squares on its inliers."""
+    pts = np.asarray(points, np.float64)
+    if len(pts) < 3:
+        raise ObjectsError(f"only {len(pts)} points; the support plane needs a point cloud (run align-scene first)")
+    rng = np.random.default_rng(seed)
+    cos_tilt = np.cos(np.radians(max_tilt_deg))
+    best, best_count = None, -1
+    for _ in range(iterations):
+        a, b, c = pts[rng.choice(len(pts), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        norm = np.linalg.norm(n)
+        if norm < 1e-12:
+            continue
+        n /= norm
+        if abs(n[2]) < cos_tilt:
+            continue
+        count = int((np.abs((pts - a) @ n) < threshold).sum())
+        if count > best_count:
+            best, best_count = (n, a), count
+    if best is None or best_count < 3:
+        raise ObjectsError("no near-horizontal support plane found in the point cloud; is it aligned to the base?")
+    n, a = best
+    inliers = np.abs((pts - a) @ n) < threshold
+    centre = pts[inliers].mean(0)
+    _, _, vt = np.linalg.svd(pts[inliers] - centre, full_matrices=False)
+    n = vt[2] if vt[2][2] > 0 else -vt[2]
+    offset = -float(n @ centre)
+    inliers = np.abs(pts @ n + offset) < threshold
+    return Plane(n, offset, inliers)
+
+
+def _components(points: np.ndarray, radius: float) -> np.ndarray:
+    """Connected-component label [N] of points linked when closer than ``radius``."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
+    n = len(points)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
+def find_objects(
+    points: np.ndarray,
+    plane: Plane | None = None,
+    min_height: float = 0.006,
+    max_height: float = 0.4,
+    link_radius: float = 0.035,
+    min_points: int = 12,
+    min_extent: float = 0.012,
+    table_margin: float = 0.05,
+) -> tuple[Plane, list[ObjectCluster]]:
+    """(support plane, object clusters named ``object_<i>`` ordered by distance from the base origin).
+
+    Keeps points between ``min_height`` and ``max_height`` above the plane that lie over the
+    table (within ``table_margin`` of the plane inliers' xy bounding box), links points closer than
+    ``link_radius``, and keeps clusters with at least ``min_points`` points that rise at least
+    ``min_extent`` above the plane (flat things on the table are not objects)."""
+    pts = np.asarray(points, np.float64)
+    plane = plane or fit_support_plane(pts)
+    h = plane.height(pts)
+    table = pts[plane.inliers]
+    lo = np.percentile(table[:, :2], 1, axis=0) - table_margin
+    hi = np.percentile(table[:, :2], 99, axis=0) + table_margin
+    over = np.all((pts[:, :2] >= lo) & (pts[:, :2] <= hi), axis=1)
+    keep = (h > min_height) & (h < max_height) & over
+    cand = pts[keep]
+    if len(cand) == 0:
+        raise ObjectsError(
+            "no object found: no points stand above the support plane; check that the objects are on the table "
+            "and seen in the keyframes (or give --prompts / --masks)"
+        )
+    labels = _components(cand, link_radius)
+    clusters = []
+    for lab in np.unique(labels):
+        p = cand[labels == lab]
+        top = float(plane.height(p).max())
+        if len(p) < min_points or top < min_extent:
+            continue
+        clusters.append(ObjectCluster("", p, p.mean(0), top))
+    if not clusters:
+        raise ObjectsError(
+            f"no object found: {len(cand)} points above the support plane but no cluster of >= {min_points} points "
+            f"rising >= {min_extent * 1000:.0f} mm; capture more views of the objects (or give --prompts / --masks)"
+        )
+    clusters.sort(key=lambda c: float(np.linalg.norm(c.centroid[:2])))
+    for i, c in enumerate(clusters):
+        c.name = f"object_{i}"
+    return plane, clusters
+
+
+def name_clusters(clusters: list[ObjectCluster], names: Sequence[str]) -> list[ObjectCluster]:
+    """Name clusters from ``names``: ``"banana"`` takes the next cluster in order of distance from
+    the base; ``"banana=0.42,0.16"`` takes the cluster nearest to that base-frame (x, y). Returns
+    only the named clusters, in the order of ``names``."""
+    free = list(clusters)
+    out: list[ObjectCluster | None] = [None] * len(names)
+    # positioned names first, so that the plain ones take what is left in distance order
+    for i, spec in enumerate(names):
+        if "=" not in spec:
+            continue
+        name, _, where = spec.partition("=")
+        try:
+            xy = np.array([float(v) for v in where.split(",")])
+            assert xy.shape == (2,)
+        except (ValueError, AssertionError):
+            raise ObjectsError(f"object name {spec!r}: expected name=x,y (base frame, metres)") from None
+        if not free:
+            raise ObjectsError(f"object {name!r}: no object left to name (found {len(clusters)})")
+        j = int(np.argmin([np.linalg.norm(c.centroid[:2] - xy) for c in free]))
+        if np.linalg.norm(free[j].centroid[:2] - xy) > 0.1:
+            raise ObjectsError(f"object {name!r}: no object found within 10 cm of ({xy[0]:.3f}, {xy[1]:.3f})")
+        out[i] = free.pop(j)
+        out[i].name = name
+    for i, spec in enumerate(names):
+        if "=" in spec:
+            continue
+        if not free:
+            raise ObjectsError(
+                f"object {spec!r}: only {len(clusters)} object(s) found on the table for {len(names)} names "
+                f"({', '.join(names)}); give fewer names or capture the missing objects"
+            )
+        out[i] = free.pop(0)
+        out[i].name = spec
+    return [c for c in out if c is not None]
