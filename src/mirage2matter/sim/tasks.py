@@ -183,20 +183,21 @@ class _Exec:
     def follow(
         self,
         targets: np.ndarray,
-        finger: float,
+        finger: float | np.ndarray,
         force: float | None = None,
         stop: Callable[[], bool] | None = None,
         check_every: int = 5,
     ) -> bool:
-        """Step through arm targets [T,7]; returns True if ``stop`` fired."""
+        """Step through arm targets [T,7] with finger targets (one value or [T]); True if ``stop`` fired."""
         tw = self.twin
+        fingers = np.broadcast_to(np.asarray(finger, dtype=np.float64), (len(targets),))
         for i, q in enumerate(targets):
             if self.n % self.spc == 0:
-                ahead = targets[min(i + self.spc, len(targets) - 1)]
-                self._record(ahead, 0.0 if force is not None else finger)
+                k = min(i + self.spc, len(targets) - 1)
+                self._record(targets[k], 0.0 if force is not None else fingers[k])
             self.q_cmd = q
-            self.finger = finger
-            tw.step(q, finger, force)
+            self.finger = float(fingers[i])
+            tw.step(q, self.finger, force)
             self.n += 1
             if self.watch is not None:
                 self.watch()
@@ -207,6 +208,14 @@ class _Exec:
     def hold(self, seconds: float, finger: float, force: float | None = None, stop=None) -> bool:
         n = max(1, round(seconds / self.twin.dt))
         return self.follow(np.repeat(self.q_cmd[None], n, axis=0), finger, force, stop)
+
+    def close(self, seconds: float = 0.4, squeeze_s: float = 0.2) -> None:
+        """Close the fingers at ~0.1 m/s under position control (a free finger driven by force alone crosses
+        a 4 cm gap within one physics step and tunnels through thin objects), then squeeze with GRASP_FORCE."""
+        n = max(1, round(seconds / self.twin.dt))
+        ramp = np.linspace(self.finger, 0.0, n + 1)[1:]
+        self.follow(np.repeat(self.q_cmd[None], n, axis=0), ramp)
+        self.hold(squeeze_s, 0.0, force=GRASP_FORCE)
 
     def _record(self, ahead: np.ndarray, finger_target: float) -> None:
         rec = StepRecord(
@@ -351,7 +360,7 @@ def _grasp(twin: Twin, spec: TaskSpec, ex: _Exec) -> tuple[bool, str, dict]:
     _move_to(ex, q_pre, GRIPPER_OPEN)
     _line(ex, T_pre, T_grasp, GRIPPER_OPEN, 0.8)
     ex.hold(0.1, GRIPPER_OPEN)
-    ex.hold(0.4, 0.0, force=GRASP_FORCE)
+    ex.close()
     T_lift = T_grasp.copy()
     T_lift[2, 3] += 0.15
     _line(ex, T_grasp, T_lift, 0.0, 1.0, force=GRASP_FORCE)
@@ -422,52 +431,100 @@ def _press(twin: Twin, spec: TaskSpec, ex: _Exec) -> tuple[bool, str, dict]:
 
 def _push(twin: Twin, spec: TaskSpec, ex: _Exec) -> tuple[bool, str, dict]:
     name = spec.target
-    points, com = _placed(twin, name)
-    c0 = com[:2].copy()
+    start_c = _placed_com(twin, name)[1][:2].copy()  # displacement counts from the episode's start
     if spec.direction is None:  # pull towards the robot base
-        d = -c0 / max(np.linalg.norm(c0), 1e-9)
+        d = -start_c / max(np.linalg.norm(start_c), 1e-9)
     else:
         d = np.asarray(spec.direction, dtype=np.float64)
+    goal = start_c + spec.distance * d
+    sweeps = 0
+    for attempt in range(3):  # the sweep, then up to two corrective sweeps for what rolled or slid aside
+        rem = goal - _placed_com(twin, name)[1][:2]
+        if attempt > 0 and np.linalg.norm(rem) <= 0.5 * spec.tolerance:
+            break
+        direction = d if attempt == 0 else rem / np.linalg.norm(rem)
+        try:
+            _sweep(ex, name, goal, direction, speed=0.08 if attempt == 0 else 0.05)
+        except PlanningError as e:
+            if attempt == 0:
+                return False, f"cannot reach the start of the {spec.verb}: {e}", {}
+            break
+        sweeps += 1
+    ex.hold(0.2, 0.0)
+    c = _placed_com(twin, name)[1][:2]
+    disp = c - start_c
+    err = float(np.linalg.norm(disp - spec.distance * d))
+    info = {"displacement_m": disp.tolist(), "target_m": (spec.distance * d).tolist(), "error_m": err, "sweeps": sweeps}
+    if err <= spec.tolerance:
+        return True, f"{name} moved {100 * np.linalg.norm(disp):.1f} cm, {100 * err:.1f} cm from the target", info
+    return False, f"{name} ended {100 * err:.1f} cm from the target (tolerance {100 * spec.tolerance:.1f} cm)", info
+
+
+def _sweep(ex: _Exec, name: str, goal: np.ndarray, d: np.ndarray, speed: float) -> None:
+    """Closed fingers lowered just behind the object (opposite ``d``), steered to ``goal``, lifted away, and
+    the object left to come to rest."""
+    twin = ex.twin
+    points, com = _placed(twin, name)
+    c0 = com[:2]
     back = float(((points[:, :2] - c0) @ d).min())  # most negative extent along d
     z_top = float(points[:, 2].max())
     start_xy = c0 + d * (back - 0.025)
     z_tcp = twin.cfg.table_z + 0.004 + (TIP_OFFSET - TCP_OFFSET)  # fingertips 4 mm over the table
     z_tcp = max(z_tcp, min(z_tcp + 0.01, z_top - 0.01))
-    perp = np.array([-d[1], d[0]])  # fingers close across the motion: the closed pair is a 5 cm wide pusher
-    T_low = _topdown(np.array([*start_xy, z_tcp]), perp)
-    T_pre = T_low.copy()
-    T_pre[2, 3] += max(z_top + 0.06, z_tcp + 0.06) - z_tcp  # hand above the object's top
-    q_now = twin.robot_state()
-    try:
-        q_pre = ik(twin, T_pre, q_now)
-    except PlanningError as e:
-        return False, f"cannot reach the start of the {spec.verb}: {e}", {}
+    perp = np.array([-d[1], d[0]])
+    q_now = np.concatenate([ex.q_cmd, twin.robot_state()[ARM_DOFS:]])
+    error: PlanningError | None = None
+    # Fingers closing across the motion make a 5 cm wide pusher; the other hand yaws are fallbacks for spots
+    # (close to the base) where that wrist pose is out of reach.
+    for axis in (perp, -perp, d, -d):
+        T_low = _topdown(np.array([*start_xy, z_tcp]), axis)
+        T_pre = T_low.copy()
+        T_pre[2, 3] += max(z_top + 0.06, z_tcp + 0.06) - z_tcp  # hand above the object's top
+        try:
+            q_pre = ik(twin, T_pre, q_now)
+            descent = cartesian_path(twin, T_pre, T_low, np.concatenate([q_pre, [0.0, 0.0]]), check_collision=False)
+            break
+        except PlanningError as e:
+            error = e
+    else:
+        raise error
     _move_to(ex, np.concatenate([q_pre, [0.0, 0.0]]), 0.0)
-    _line(ex, T_pre, T_low, 0.0, 0.7)
-    p0 = twin.object_poses()[name]
-    start_c = (p0[:3, :3] @ _surface_points(twin, name)[1] + p0[:3, 3])[:2]
-
-    def moved() -> bool:
-        _, c = _placed_com(twin, name)
-        return float((c[:2] - start_c) @ d) >= spec.distance - 0.004
-
-    T_end = T_low.copy()
-    T_end[:2, 3] += d * (spec.distance + 0.04)
-    seconds = (spec.distance + 0.04) / 0.10
-    _line(ex, T_low, T_end, 0.0, seconds, stop=moved)
-    ex.hold(0.1, 0.0)
+    ex.follow(time_parameterize(descent, twin.dt, through=True, duration=0.7), 0.0)
+    _steer(ex, name, T_low, goal, d, speed)
     T_here = twin.T_base_link()
     T_up = T_here.copy()
-    T_up[2, 3] += 0.06
+    T_up[2, 3] += max(0.06, z_top + 0.03 - (T_here[2, 3] - TCP_OFFSET))
     _line(ex, T_here, T_up, 0.0, 0.5)
-    ex.hold(0.3, 0.0)
-    _, c = _placed_com(twin, name)
-    disp = c[:2] - start_c
-    err = float(np.linalg.norm(disp - spec.distance * d))
-    info = {"displacement_m": disp.tolist(), "target_m": (spec.distance * d).tolist(), "error_m": err}
-    if err <= spec.tolerance:
-        return True, f"{name} moved {100 * np.linalg.norm(disp):.1f} cm, {100 * err:.1f} cm from the target", info
-    return False, f"{name} ended {100 * err:.1f} cm from the target (tolerance {100 * spec.tolerance:.1f} cm)", info
+    for _ in range(10):  # let a rolling object come to rest (<= 1 s)
+        ex.hold(0.1, 0.0)
+        b = twin.bodies[name].entity
+        if np.linalg.norm(np.asarray(b.get_vel())) < 0.005:
+            break
+
+
+def _steer(ex: _Exec, name: str, T_start: np.ndarray, goal: np.ndarray, d: np.ndarray, speed: float = 0.1) -> None:
+    """Closed-loop sweep: every control tick the pusher heads for the goal through the object's current centre
+    of mass (aim direction from the centre to the goal, the pusher pulled onto the line behind the centre), so
+    an object that turns or slides sideways is steered back. Stops when the centre has reached the goal
+    along ``d`` or the sweep ran (distance + 8 cm) / speed."""
+    tw = ex.twin
+    tick = ex.spc * tw.dt
+    T = T_start.copy()
+    max_ticks = math.ceil((float(np.linalg.norm(goal - _placed_com(tw, name)[1][:2])) + 0.08) / (speed * tick))
+    for _ in range(max_ticks):
+        c = _placed_com(tw, name)[1][:2]
+        rem = goal - c
+        if float(rem @ d) <= 0.006 or float(np.linalg.norm(rem)) < 0.004:  # the arm lags ~5 mm
+            break
+        aim = rem / np.linalg.norm(rem)
+        rel = T[:2, 3] - c
+        lateral = rel - (rel @ aim) * aim
+        step = speed * tick * aim - np.clip(0.5 * lateral, -0.01, 0.01)
+        T[:2, 3] += step
+        q_seed = np.concatenate([ex.q_cmd, tw.robot_state()[ARM_DOFS:]])
+        q = ik(tw, T, q_seed, attempts=1, check_collision=False)
+        ramp = ex.q_cmd + np.linspace(0.0, 1.0, ex.spc + 1)[1:, None] * (q - ex.q_cmd)
+        ex.follow(ramp, 0.0)
 
 
 def _placed_com(twin: Twin, name: str) -> tuple[np.ndarray, np.ndarray]:

@@ -38,6 +38,7 @@ GRIPPER_OPEN = 0.04  # Panda finger joint (m per finger) fully open
 _KP = np.array([4500, 4500, 3500, 3500, 2000, 2000, 2000, 100, 100], dtype=np.float64)
 _KV = np.array([450, 450, 350, 350, 200, 200, 200, 10, 10], dtype=np.float64)
 _FORCE = np.array([87, 87, 87, 87, 12, 12, 12, 100, 100], dtype=np.float64)
+_FINGER_COUPLING = 3000.0  # N/m on the difference of the two finger joints when squeezing
 
 
 def ensure_genesis(backend: str = "cpu") -> object:
@@ -404,19 +405,43 @@ class Twin:
                 b.entity.set_pos(T[:3, 3])
                 b.entity.set_quat(matrix_to_quat(T[:3, :3]))
                 b.entity.set_qpos(np.zeros(1))
-        for _ in range(max(0, round(self.options.settle_s / self.dt))):
-            self.scene.step()
+        self.settle()
         self.reset_info = {"seed": int(seed), "randomized": bool(randomize), "poses": self.object_poses()}
         return self.reset_info["poses"]
 
     # ---- physics ---------------------------------------------------------------------------------
+    def settle(self, max_s: float = 2.0, lin: float = 0.005, ang: float = 0.05) -> float:
+        """Step (robot holding still) until every free object rests (speed < ``lin`` m/s and ``ang`` rad/s),
+        at least ``options.settle_s`` and at most ``max_s`` seconds; a curved object placed upright may roll
+        onto its side first. Returns the simulated time."""
+        n_min = round(self.options.settle_s / self.dt)
+        free = [b.entity for b in self.bodies.values() if b.kind == "object"]
+        q = self.robot_state()
+        n = 0
+        while n < round(max_s / self.dt):
+            self.step(q[:ARM_DOFS], q[ARM_DOFS])
+            n += 1
+            if n >= n_min and n % 5 == 0:
+                v = max((float(np.linalg.norm(np.asarray(e.get_vel()))) for e in free), default=0.0)
+                w = max((float(np.linalg.norm(np.asarray(e.get_ang()))) for e in free), default=0.0)
+                if v < lin and w < ang:
+                    break
+        return n * self.dt
+
     def step(self, q_target: np.ndarray, finger: float | None = None, finger_force: float | None = None) -> None:
         """One physics step with the arm's PD target ``q_target`` [7]; fingers to position ``finger`` (m per
         finger), or squeezed with ``finger_force`` (N per finger, closing) when given."""
         robot = self.robot
         if finger_force is not None:
+            # The real Panda's fingers are geared together; Genesis loads them as two independent joints. A
+            # spring on their difference couples them, so the first finger to touch pushes the object to the
+            # middle instead of the pair squeezing it out sideways.
+            f = abs(float(finger_force))
+            ql, qr = np.asarray(robot.get_dofs_position(self.finger_dofs), dtype=np.float64)
+            e = _FINGER_COUPLING * (ql - qr)
+            forces = -np.clip([f + e, f - e], 0.0, 2.0 * f)
             robot.control_dofs_position(np.asarray(q_target, dtype=np.float64), self.arm_dofs)
-            robot.control_dofs_force(np.full(FINGER_DOFS, -abs(float(finger_force))), self.finger_dofs)
+            robot.control_dofs_force(forces, self.finger_dofs)
         else:
             q = np.concatenate([np.asarray(q_target, dtype=np.float64), [finger, finger]])
             robot.control_dofs_position(q)
