@@ -880,6 +880,9 @@ def _cmd_calibrate_handeye(args: argparse.Namespace) -> int:
         args.images, args.joints, BoardSpec.load(args.board), np.asarray(K, dtype=np.float64),
         mount=args.mount, method=args.method, robot=args.robot, link=args.link, refine=not args.no_refine,
     )  # fmt: skip
+    cam = intrinsics.get("head_camera", intrinsics)
+    if "width" in cam and "height" in cam:
+        out["width"], out["height"] = int(cam["width"]), int(cam["height"])
     path = Path(args.workspace) / "calib" / "handeye.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(path, "w", encoding="utf-8") as f:
@@ -889,6 +892,53 @@ def _cmd_calibrate_handeye(args: argparse.Namespace) -> int:
         f"{len(out['per_view'])} views used, {len(out['skipped'])} skipped; residual median "
         f"{out['residual_deg_median']:.3f} deg / {out['residual_mm_median']:.2f} mm -> {_show(path)}"
     )
+    return 0
+
+
+def _cmd_head_view(args: argparse.Namespace) -> int:
+    import numpy as np
+    from PIL import Image
+
+    from .atomic import atomic_write
+    from .calib.board import BoardSpec
+    from .calib.headview import check_head_view
+    from .gaussians.ply import read_ply
+    from .geometry.camera import Camera
+
+    ws = Path(args.workspace)
+    ply, he_path = ws / "scene" / "gaussians.ply", ws / "calib" / "handeye.json"
+    align_path = ws / "calib" / "sim3_sfm_to_base.json"
+    for path, stage in ((ply, "train-scene"), (he_path, "calibrate-handeye"), (align_path, "align-scene")):
+        if not path.is_file():
+            raise CliError(f"{path} not found; run `m2m {stage} -w {ws}` first")
+    he, al = json.loads(he_path.read_text()), json.loads(align_path.read_text())
+    if he.get("mount") != "head":
+        raise CliError(f"{he_path}: mount is {he.get('mount')!r}; the head-view check needs a head camera")
+    photo = np.asarray(Image.open(args.photo).convert("RGB")) if args.photo else None
+    width, height = he.get("width"), he.get("height")
+    if width is None:
+        if photo is None:
+            raise CliError(f"{he_path} has no image size; pass --photo (a head-camera image) to take it from")
+        height, width = photo.shape[:2]
+    cam = Camera(he["K"], he["T_base_headcam"], width, height, "head")
+    try:
+        check = check_head_view(read_ply(ply), cam, photo, BoardSpec.from_json(al["board"]),
+                                np.asarray(al["T_base_board"]), backend=_resolve_backend(args.backend))  # fmt: skip
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    out = Path(args.out) if args.out else ws / "calib" / "head_view.png"
+    sheet = check.render if photo is None else np.concatenate([check.render, photo], axis=1)
+    with atomic_write(out, "wb") as f:
+        Image.fromarray(sheet).save(f, format="PNG")
+    with atomic_write(out.with_suffix(".json"), "w", encoding="utf-8") as f:
+        json.dump(check.to_json(), f, indent=1)
+    known, seen = check.corners_vs_known_px, check.corners_vs_photo_px
+    parts = [] if check.psnr is None else [f"PSNR {check.psnr:.2f} dB vs the photo"]
+    if known.get("n"):
+        parts.append(f"board corners {known['median']:.2f} px (median, {known['n']}) from the board's known pose")
+    if seen.get("n"):
+        parts.append(f"{seen['median']:.2f} px from the photo's")
+    print(f"head view: {'; '.join(parts) or 'board not seen in the render'} -> {_show(out)} (+ .json)")
     return 0
 
 
@@ -1162,6 +1212,15 @@ def build_parser() -> argparse.ArgumentParser:
     v.set_defaults(func=_cmd_validate)
 
     # m2m sample make
+    hv = sub.add_parser(
+        "head-view", help="render the scene from the calibrated head camera; compare with a head-camera photo"
+    )
+    hv.add_argument("-w", "--workspace", required=True, metavar="DIR", help="workspace with scene/ and calib/")
+    hv.add_argument("--photo", metavar="PNG", help="an image the head camera took of the same scene")
+    hv.add_argument("--out", metavar="PNG", help="default <workspace>/calib/head_view.png (render | photo)")
+    hv.add_argument("--backend", default="auto", choices=("auto", "cpu", "cuda"))
+    hv.set_defaults(func=_cmd_head_view)
+
     sample = sub.add_parser("sample", help="the bundled sample capture with ground truth")
     sample_sub = sample.add_subparsers(dest="what", metavar="WHAT", required=True)
     sm = sample_sub.add_parser(
