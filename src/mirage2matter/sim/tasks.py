@@ -35,7 +35,7 @@ from ..world.validate import load_mesh
 from .planning import PlanningError, cartesian_path, ik, plan, time_parameterize
 from .twin import ARM_DOFS, GRIPPER_OPEN, Twin
 
-__all__ = ["StepRecord", "TaskError", "TaskResult", "TaskSpec", "parse_task", "run_task"]
+__all__ = ["StepRecord", "TaskError", "TaskResult", "TaskSpec", "evaluate", "parse_task", "run_task"]
 
 TASK_VERBS = ("grasp", "press", "push", "pull")
 TCP_OFFSET = 0.1034  # Panda hand frame: point between the finger pads along the approach axis (m)
@@ -556,3 +556,40 @@ def run_task(
         ok, reason, info = False, f"planning failed: {e}", {}
     info = {**info, "wall_s": time.perf_counter() - t0, "sim_s": ex.n * twin.dt}
     return TaskResult(bool(ok), reason, ex.steps, info)
+
+
+def evaluate(twin: Twin, spec: TaskSpec, episodes: int, seed: int = 0, progress: bool = False) -> dict:
+    """Run ``spec`` on ``episodes`` randomised starts (``twin.reset(seed + i)``). Returns a JSON-ready summary:
+    success rate, timings (simulated and wall seconds per episode) and every episode's outcome."""
+    from tqdm import tqdm
+
+    rows = []
+    it = range(episodes)
+    bar = tqdm(it, desc=spec.instruction, unit="ep", disable=not progress, leave=False)
+    for i in bar:
+        t0 = time.perf_counter()
+        twin.reset(seed=seed + i)
+        reset_s = time.perf_counter() - t0
+        r = run_task(twin, spec, np.random.default_rng(seed + i))
+        rows.append(
+            {
+                "seed": seed + i,
+                "success": r.success,
+                "reason": r.reason,
+                "sim_s": r.info["sim_s"],
+                "wall_s": r.info["wall_s"] + reset_s,
+                "steps": len(r.steps),
+            }
+        )
+        bar.set_postfix(success=f"{sum(x['success'] for x in rows)}/{len(rows)}")
+    n_ok = sum(x["success"] for x in rows)
+    return {
+        "task": spec.to_json(),
+        "episodes": episodes,
+        "successes": n_ok,
+        "success_rate": n_ok / max(episodes, 1),
+        "mean_sim_s": float(np.mean([x["sim_s"] for x in rows])) if rows else 0.0,
+        "mean_wall_s": float(np.mean([x["wall_s"] for x in rows])) if rows else 0.0,
+        "failures": [{"seed": x["seed"], "reason": x["reason"]} for x in rows if not x["success"]],
+        "runs": rows,
+    }

@@ -220,7 +220,7 @@ def sample_world(
 
     scene_ply = ws / "scene" / "gaussians.ply"
     if not scene_ply.is_file():
-        scene_ply = ws / "objects" / "_scene_stand_in" / "gaussians.ply"
+        scene_ply = world_dir / "scene_stand_in.ply"
         if overwrite or not scene_ply.is_file():
             scene_ply.parent.mkdir(parents=True, exist_ok=True)
             write_ply(scene_ply, _scene_stand_in(seed, scene_density_per_m2))
