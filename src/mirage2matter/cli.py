@@ -951,6 +951,103 @@ def _cmd_sample_make(args: argparse.Namespace) -> int:
     return 0
 
 
+def _xyz(text: str, flag: str) -> tuple[float, float, float]:
+    try:
+        v = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 3:
+        raise CliError(f"{flag} must be three numbers x,y,z (metres, robot-base frame), got {text!r}")
+    return v
+
+
+def _cmd_compose(args: argparse.Namespace) -> int:
+    from .world import load_world, sample_world
+    from .world.compose import consistency, write_world_ply
+    from .world.config import world_yaml_path
+
+    ws = Path(args.workspace)
+    if args.sample:
+        sample_world(args.sample, ws, overwrite=args.overwrite)
+    elif not world_yaml_path(ws).is_file():
+        raise CliError(f"{world_yaml_path(ws)} not found; write one or run `m2m compose -w {ws} --sample <sample>`")
+    cfg = load_world(ws)
+    ply = write_world_ply(cfg)
+    cons = consistency(cfg)
+    print(f"world: {len(cfg.objects)} objects, {len(cfg.articulated)} articulated -> {_show(ply)} (+ world.json)")
+    for name, d in cons.items():
+        print(f"  {name}: median Gaussian-to-mesh distance {1000 * d:.2f} mm")
+    worst = max(cons.values(), default=0.0)
+    if worst > args.max_mm / 1000:
+        raise CliError(f"an object's Gaussians and mesh disagree by {1000 * worst:.1f} mm (> {args.max_mm} mm)")
+    return 0
+
+
+def _cmd_world(args: argparse.Namespace) -> int:
+    from .world import edit, load_world, save_world
+    from .world.compose import write_world_ply
+
+    cfg = load_world(args.workspace)
+    op = args.op
+    if op == "delete":
+        new = edit.delete(cfg, args.name)
+    elif op == "import-placement":
+        new, sim = edit.import_placement(cfg, args.name, args.ply)
+        print(f"{args.name}: placement from {args.ply}: {sim}")
+    elif op == "match-lighting":
+        new, gain = edit.match_lighting(cfg, args.name, strength=args.strength, radius=args.radius)
+        print(f"{args.name}: colour gain r,g,b = {', '.join(f'{g:.3f}' for g in gain)}")
+    else:
+        base = None if op == "insert" else edit.placement_of(cfg, args.name)
+        if op == "move" and args.by:
+            d = _xyz(args.by, "--by")
+            placement = edit.placement_from_pose(base.translation + d, args.yaw, base.scale, base)
+        else:
+            if not args.to:
+                raise CliError(f"`m2m world {op}` needs --to x,y,z")
+            scale = args.scale if args.scale else (base.scale if base is not None else 1.0)
+            placement = edit.placement_from_pose(_xyz(args.to, "--to"), args.yaw, scale, base)
+        if op == "insert":
+            new = edit.insert(cfg, args.name, args.gaussians, args.mesh, placement, collision=args.collision,
+                              mass=args.mass)  # fmt: skip
+        elif op == "move":
+            new = edit.move(cfg, args.name, placement)
+        else:
+            new = edit.duplicate(cfg, args.name, args.as_name, placement)
+    save_world(new)
+    ply = write_world_ply(new)
+    print(f"{op} {args.name}: saved {_show(new.root / 'world.yaml')}, recomposed {_show(ply)}")
+    return 0
+
+
+def _cmd_task(args: argparse.Namespace) -> int:
+    from .atomic import atomic_write
+    from .sim.tasks import evaluate, parse_task
+    from .sim.twin import Twin, TwinOptions
+    from .world import load_world
+
+    cfg = load_world(args.workspace)
+    specs = [parse_task(t, cfg) for t in args.task]  # unknown tasks / objects fail before Genesis starts
+    out = Path(args.out) if args.out else cfg.root / "task_summary.json"
+    _check_output(out, "--out", (".json",))
+    t0 = time.perf_counter()
+    twin = Twin.build(cfg, TwinOptions(render=False))
+    build_s = time.perf_counter() - t0
+    results = []
+    for spec in specs:
+        r = evaluate(twin, spec, args.episodes, seed=args.seed, progress=True)
+        results.append(r)
+        print(
+            f"{spec.instruction!r}: {r['successes']}/{r['episodes']} = {100 * r['success_rate']:.0f}% "
+            f"(mean {r['mean_sim_s']:.1f} s simulated, {r['mean_wall_s']:.2f} s wall per episode)"
+        )
+    summary = {"world": str(cfg.root / "world.yaml"), "build_s": build_s, "seed": args.seed, "tasks": results}
+    with atomic_write(out, "w", encoding="utf-8") as f:
+        json.dump(summary, f, indent=1)
+    print(f"-> {_show(out)}")
+    return 0
+
+
 # ---- the parser ---------------------------------------------------------------------------------------------
 def _generation_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("-w", "--workspace", required=True, type=Path, help="workspace folder (with world/world.yaml)")
@@ -1236,6 +1333,53 @@ def build_parser() -> argparse.ArgumentParser:
     sm.add_argument("--seed", type=_int_at_least(0), default=0, help="scene and trajectory seed (default 0)")
     sm.add_argument("--short", action="store_true", help="a quick version: 4 s of video at 5 fps, 6 hand-eye views")
     sm.set_defaults(func=_cmd_sample_make)
+
+    # m2m compose / m2m world <edit> / m2m task
+    co = sub.add_parser("compose", help="world/world.yaml -> world/world.ply (scene + placed objects), checked")
+    co.add_argument("-w", "--workspace", required=True, metavar="DIR", help="workspace with world/world.yaml")
+    co.add_argument("--sample", metavar="DIR", help="first write the world from a sample's ground truth")
+    co.add_argument("--overwrite", action="store_true", help="with --sample: rebuild existing object folders")
+    co.add_argument("--max-mm", type=_positive_float, default=3.0, help="max median Gaussian-mesh distance (3 mm)")
+    co.set_defaults(func=_cmd_compose)
+    wo = sub.add_parser("world", help="edit world.yaml: insert, move, duplicate, delete, import-placement, ...")
+    wo_sub = wo.add_subparsers(dest="op", metavar="OP", required=True)
+    for op, text in (
+        ("insert", "add an object from a Gaussian PLY + a mesh"),
+        ("move", "move an object (--to x,y,z or --by dx,dy,dz; --yaw about z)"),
+        ("duplicate", "copy an object under a new name (--as NAME --to x,y,z)"),
+        ("delete", "remove an object"),
+        ("import-placement", "take an object's placement from a PLY moved in SuperSplat"),
+        ("match-lighting", "shift an object's colours toward the scene's illumination"),
+    ):
+        w = wo_sub.add_parser(op, help=text)
+        w.add_argument("-w", "--workspace", required=True, metavar="DIR")
+        w.add_argument("--name", required=True)
+        if op in ("insert", "move", "duplicate"):
+            w.add_argument("--to", metavar="X,Y,Z", help="new origin in the base frame (m)")
+            w.add_argument("--yaw", type=float, default=0.0, help="turn about z (deg)")
+            w.add_argument("--scale", type=_positive_float, help="placement scale (default: kept, or 1)")
+        if op == "move":
+            w.add_argument("--by", metavar="DX,DY,DZ", help="shift by (m)")
+        if op == "insert":
+            w.add_argument("--gaussians", required=True, metavar="PLY")
+            w.add_argument("--mesh", required=True, metavar="OBJ")
+            w.add_argument("--collision", metavar="DIR", help="convex parts (*.obj); computed when absent")
+            w.add_argument("--mass", type=_positive_float, help="kg (default: density 500 kg/m^3)")
+        if op == "duplicate":
+            w.add_argument("--as", dest="as_name", required=True, metavar="NEW")
+        if op == "import-placement":
+            w.add_argument("--ply", required=True, help="the object's (or world.ply's) Gaussians, moved")
+        if op == "match-lighting":
+            w.add_argument("--strength", type=_positive_float, default=1.0, help="0..1 of the full correction")
+            w.add_argument("--radius", type=_positive_float, default=0.3, help="scene neighbourhood (m)")
+        w.set_defaults(func=_cmd_world)
+    ta = sub.add_parser("task", help="run scripted tasks on randomised starts in the Genesis twin -> summary.json")
+    ta.add_argument("-w", "--workspace", required=True, metavar="DIR", help="workspace with world/world.yaml")
+    ta.add_argument("task", nargs="+", help='e.g. "grasp banana" "press button" "push croissant --direction 0,1"')
+    ta.add_argument("--episodes", type=_int_at_least(1), default=50, metavar="N", help="per task (default 50)")
+    ta.add_argument("--seed", type=_int_at_least(0), default=0, help="first reset seed (default 0)")
+    ta.add_argument("--out", metavar="JSON", help="default <workspace>/world/task_summary.json")
+    ta.set_defaults(func=_cmd_task)
     return parser
 
 
