@@ -768,6 +768,50 @@ def _cmd_train_scene(args: argparse.Namespace) -> int:
     return 0
 
 
+def _key_value(text: str, flag: str) -> tuple[str, str]:
+    name, sep, value = text.partition("=")
+    if not sep or not name or not value:
+        raise CliError(f"{flag} {text!r}: expected NAME=VALUE")
+    return name, value
+
+
+def _cmd_objects(args: argparse.Namespace) -> int:
+    from .objects import ObjectsError
+    from .objects.matting import MattingConfig
+    from .objects.splat import SplatConfig
+    from .objects.stage import ObjectsConfig, run_objects
+
+    meshes = dict(_key_value(t, "--mesh") for t in args.mesh)
+    try:
+        density = {k: float(v) for k, v in (_key_value(t, "--density") for t in args.density)}
+    except ValueError:
+        raise CliError("--density: expected NAME=KG_PER_M3 with a number") from None
+    config = ObjectsConfig(
+        names=args.names,
+        prompts=args.prompts,
+        masks_dir=args.masks,
+        meshes=meshes,
+        sam2_checkpoint=args.sam2_checkpoint,
+        density=density,
+        matting=MattingConfig(iterations=args.iterations),
+        splat=SplatConfig(iterations=args.iterations),
+    )
+    try:
+        out = run_objects(args.workspace, config, log=_info, progress=True)
+    except ObjectsError as e:
+        raise CliError(str(e)) from None
+    for name, s in out.items():
+        held = s["gaussians"]["heldout"]
+        print(
+            f"{name}: mesh {s['mesh']['volume'] * 1e6:.1f} cm3, {s['mesh']['mass'] * 1000:.0f} g, watertight "
+            f"{s['mesh']['watertight']}, {s['collision']['parts']} convex parts; 3DGS masked PSNR "
+            f"{held['psnr_masked']:.2f} dB, alpha outside {held['alpha_outside']:.3f}; Gaussians to mesh "
+            f"{1000 * s['alignment']['median_distance_to_mesh_m']:.2f} mm (median)"
+        )
+    print(f"-> {_show(Path(args.workspace) / 'objects')}/<name>/ (mesh.obj, collision/, gaussians.ply, align.json)")
+    return 0
+
+
 def _cmd_align_scene(args: argparse.Namespace) -> int:
     import numpy as np
     import pycolmap
@@ -1242,6 +1286,26 @@ def build_parser() -> argparse.ArgumentParser:
     ts.add_argument("--backend", default="auto", choices=("auto", "cpu", "cuda"))
     ts.add_argument("--force", action="store_true", help="retrain even if an identical run finished")
     ts.set_defaults(func=_cmd_train_scene)
+
+    # m2m objects
+    ob = sub.add_parser(
+        "objects", help="per object: masks, watertight mesh + collision parts, object 3DGS, aligned, in one frame"
+    )
+    ob.add_argument("-w", "--workspace", required=True, metavar="DIR", help="workspace with capture/ and calib/")
+    ob.add_argument(
+        "--names", nargs="+", default=[], metavar="NAME", help="names for the objects found, nearest the base first "
+        "(NAME=x,y picks the object nearest that base-frame point); default object_0, object_1, ..."
+    )  # fmt: skip
+    ob.add_argument(
+        "--prompts", nargs="+", default=[], metavar="PROMPT",
+        help="NAME@KEYFRAME:box=x0,y0,x1,y1 or NAME@KEYFRAME:points=x,y;x,y (pixels in that keyframe)",
+    )  # fmt: skip
+    ob.add_argument("--masks", metavar="DIR", help="masks from a folder: DIR/<name>/<keyframe stem>.png")
+    ob.add_argument("--mesh", action="append", default=[], metavar="NAME=FILE", help="user mesh (obj/stl/glb)")
+    ob.add_argument("--sam2-checkpoint", metavar="PATH", help="SAM2 masks with this local checkpoint")
+    ob.add_argument("--density", action="append", default=[], metavar="NAME=KG_M3", help="default 500 kg/m3")
+    ob.add_argument("--iterations", type=_int_at_least(1), default=1000, metavar="N", help="3DGS steps (1000)")
+    ob.set_defaults(func=_cmd_objects)
 
     # m2m align-scene
     al = sub.add_parser(

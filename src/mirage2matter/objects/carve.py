@@ -83,7 +83,7 @@ def carve(
     pts = grid.centres()
     dists = []
     for cam, mask in zip(cameras, masks, strict=True):
-        if mask is None:
+        if mask is None or not mask.any():  # an empty mask of a seen object is a failed mask, not evidence
             continue
         if mask.shape != (cam.height, cam.width):
             raise ObjectsError(f"{name}: mask of {cam.name} is {mask.shape[::-1]}, camera is {cam.width}x{cam.height}")

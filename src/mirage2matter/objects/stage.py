@@ -205,13 +205,13 @@ def process_object(
     )
     sim3_mesh_to_base = alignment.sim3_points_to_mesh.inverse()
     mesh_base = mesh_input.copy()
-    mesh_base.apply_transform(sim3_mesh_to_base.matrix())
+    mesh_base.apply_transform(sim3_mesh_to_base.matrix)
     T_base_obj = object_frame(mesh_base, up=target.plane.normal if target.plane is not None else (0, 0, 1))
     sim3_obj_to_base = Sim3.from_matrix(T_base_obj)
     sim3_base_to_obj = sim3_obj_to_base.inverse()
     sim3_mesh_input_to_obj = sim3_base_to_obj @ sim3_mesh_to_base
     mesh_obj = mesh_input.copy()
-    mesh_obj.apply_transform(sim3_mesh_input_to_obj.matrix())
+    mesh_obj.apply_transform(sim3_mesh_input_to_obj.matrix)
     g_obj = apply_sim3(g_base, sim3_base_to_obj)
     dist = distance_to_mesh(sim3_base_to_obj.apply(means), mesh_obj)
 
@@ -230,7 +230,7 @@ def process_object(
         for k, part in enumerate(parts):
             part.export(tmp / "collision" / f"part_{k:02d}.obj")
         write_ply(tmp / "gaussians.ply", g_obj)
-        fig_cams, crops = _figure_cameras(cameras, masks, images, sim3_base_to_obj.matrix(), config.figure_views)
+        fig_cams, crops = _figure_cameras(cameras, masks, images, sim3_base_to_obj.matrix, config.figure_views)
         if fig_cams:
             fig = side_by_side(g_obj, mesh_obj, fig_cams, crops)
             cv2.imwrite(str(tmp / "figure.png"), fig[..., ::-1])
