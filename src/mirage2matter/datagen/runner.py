@@ -111,6 +111,7 @@ def _worker_main(factory, staging_root, threads, tasks, results, parent) -> None
     if os.getppid() != parent:  # the parent died before prctl took effect
         os._exit(1)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    os.environ.setdefault("LP_NUM_THREADS", str(threads))  # Mesa llvmpipe: one GL thread per core we own
     try:
         from .. import configure_threads
 

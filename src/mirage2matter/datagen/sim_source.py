@@ -21,6 +21,7 @@ import numpy as np
 from ..export.spec import PANDA_STATE_NAMES, DatasetSpec, EpisodeData
 from ..render.composite import ColorJitter, composite, to_uint8
 from ..render.splat_world import MovablePart, SplatRenderOptions, SplatWorld
+from .robot_proxy import lowpoly_robot
 from .runner import Attempt
 
 CAMERAS = ("head", "wrist")
@@ -59,6 +60,11 @@ class SimSourceConfig:
     splat: SplatRenderOptions = field(default_factory=SplatRenderOptions)
     depth_aware: bool = True
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # Render speed (CPU): the robot drawn from a copy with visual meshes decimated to this many faces each
+    # (None: the original meshes), and cameras on the hand reuse the robot layer while the fingers keep their
+    # opening (the hand and fingers do not move in such a camera; only their shading would, slightly).
+    robot_render_faces: int | None = 1500
+    reuse_hand_camera_robot: bool = True
 
     def spec(self) -> DatasetSpec:
         w, h = self.size
@@ -106,10 +112,13 @@ class SimEpisodeSource:
             raise ValueError(f"the world has no calibrated camera {missing}; cameras: {sorted(world.cameras)} "
                              "(run `m2m calibrate-handeye` / `m2m compose` first)")  # fmt: skip
         self.task = parse_task(cfg.task, world)
+        if cfg.robot_render_faces and world.robot.file.lower().endswith(".xml"):
+            world.robot.file = str(lowpoly_robot(world.robot.file, robot_cache_dir(), cfg.robot_render_faces))
         w, h = cfg.size
         self.twin = Twin.build(world, TwinOptions(render=True, camera_sizes={c: (w, h) for c in cfg.cameras}))
         self.mounts = {c: world.cameras[c].T_mount_cam.copy() for c in cfg.cameras}
         self.static_cameras = {c for c in cfg.cameras if world.cameras[c].mount == "base"}
+        self.hand_cameras = {c for c in cfg.cameras if world.cameras[c].mount == world.robot.ee_link}
         parts = [MovablePart(o.name, read_ply(o.part.gaussians), o.placement.scale) for o in world.objects]
         for a in world.articulated:
             parts.append(MovablePart(a.name, read_ply(a.base.gaussians), a.placement.scale))
@@ -117,6 +126,16 @@ class SimEpisodeSource:
         static = read_ply(world.scene_gaussians) if world.scene_gaussians is not None else None
         self.splat = SplatWorld(static, parts, cfg.splat)
         self.build_s = time.perf_counter() - t0
+
+    def _robot_layer(self, camera: str, w: int, h: int, state: np.ndarray) -> dict[str, np.ndarray]:
+        if not (self.cfg.reuse_hand_camera_robot and camera in self.hand_cameras):
+            return self.twin.render_robot(camera, w, h)
+        key = tuple(np.round(np.asarray(state[7:9], np.float64) / 5e-4).astype(int))  # 0.5 mm finger steps
+        hit = self._robot_cache.get(camera)
+        if hit is None or hit[0] != key:
+            hit = (key, self.twin.render_robot(camera, w, h))
+            self._robot_cache[camera] = hit
+        return hit[1]
 
     def run(self, attempt: int, seed: int) -> Attempt:
         from ..geometry.sim3 import invert_rigid
@@ -141,6 +160,7 @@ class SimEpisodeSource:
             twin.cfg.cameras[c].T_mount_cam = mounts[c]
         start_poses = twin.reset(reset_seed, randomize=rnd.objects)
         self.splat.reset_cache()
+        self._robot_cache: dict[str, tuple] = {}
         timings["reset"] = time.perf_counter() - t
         w, h = cfg.size
         frames: dict[str, list[np.ndarray]] = {c: [] for c in cfg.cameras}
@@ -159,7 +179,7 @@ class SimEpisodeSource:
                 else:
                     rgb, alpha, depth = self.splat.render(view, Kr, w, h, cfg.background)
                 t2 = time.perf_counter()
-                robot = twin.render_robot(c, w, h)
+                robot = self._robot_layer(c, w, h, rec.state)
                 t3 = time.perf_counter()
                 splat8 = to_uint8(jitter.apply(rgb))
                 if cfg.depth_aware:
@@ -206,6 +226,12 @@ class SimSourceFactory:
 
     def __call__(self) -> SimEpisodeSource:
         return SimEpisodeSource(self.cfg)
+
+
+def robot_cache_dir() -> Path:
+    import os
+
+    return Path(os.environ.get("M2M_CACHE", Path.home() / ".cache" / "mirage2matter")) / "robots"
 
 
 def world_fingerprint(world: str | Path) -> dict[str, Any]:

@@ -79,6 +79,14 @@ def generate(
         episodes=cfg.episodes, seed=cfg.seed, max_attempts=cfg.max_attempts, workers=cfg.workers,
         ray_address=cfg.ray_address, format=cfg.format, preview=cfg.preview,
     )  # fmt: skip
+    if source.robot_render_faces:  # build the render copy of the robot once, before workers race for it
+        from ..world.config import load_world
+        from .robot_proxy import lowpoly_robot
+        from .sim_source import robot_cache_dir
+
+        robot_file = load_world(ws).robot.file
+        if robot_file.lower().endswith(".xml"):
+            lowpoly_robot(robot_file, robot_cache_dir(), source.robot_render_faces)
     fingerprint = {**world_fingerprint(ws), "source": json.loads(json.dumps(source.to_json(), default=str))}
     summary = generate_dataset(out, SimSourceFactory(source), source.spec(), run, fingerprint,
                                {"task": cfg.task, "dataset": str(out)}, log, progress)  # fmt: skip
