@@ -1,0 +1,34 @@
+"""The bundled sample through the reconstruction stages with the `m2m` commands a user runs:
+capture -> sfm (calibrated intrinsics) -> align-scene -> calibrate-handeye -> train-scene -> head-view."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from mirage2matter.cli import main
+
+SAMPLE = Path(__file__).resolve().parents[1] / "samples" / "tabletop"
+
+
+@pytest.mark.slow
+def test_sample_scene_is_reconstructed_in_the_base_frame_and_seen_by_the_head_camera(tmp_path):
+    if not (SAMPLE / "scene.mp4").is_file():
+        pytest.skip("samples/tabletop not built")
+    ws, s = str(tmp_path / "ws"), str(SAMPLE)
+    assert main(["capture", f"{s}/scene.mp4", "-w", ws, "--max-keyframes", "48"]) == 0
+    assert main(["sfm", "-w", ws, "--intrinsics", f"{s}/ground_truth.json"]) == 0
+    assert main(["align-scene", "-w", ws, "--board", f"{s}/board.json", "--board-pose", f"{s}/ground_truth.json"]) == 0
+    he = f"{s}/handeye"
+    assert main(["calibrate-handeye", "--images", f"{he}/images", "--joints", f"{he}/joints.json",
+                 "--board", f"{he}/board.json", "--intrinsics", f"{s}/ground_truth.json", "-w", ws]) == 0  # fmt: skip
+    assert main(["train-scene", "-w", ws, "--minutes", "8"]) == 0
+    metrics = json.loads((tmp_path / "ws" / "scene" / "metrics.json").read_text())
+    # issue 4: held-out PSNR >= 28 dB on the sample (measured 31.7 dB after 12 min on a busy machine)
+    assert metrics["frame"] == "base" and metrics["psnr_heldout"] >= 28.0, metrics["psnr_heldout"]
+    assert main(["head-view", "-w", ws, "--photo", f"{s}/head_view.png"]) == 0
+    check = json.loads((tmp_path / "ws" / "calib" / "head_view.json").read_text())
+    # issue 5: the board lands on the same pixels (<= 3 px); measured 0.6 px, PSNR 22 dB (the head camera
+    # sees floor the hand-held orbit never did)
+    assert check["corners_vs_photo_px"]["n"] >= 6 and check["corners_vs_photo_px"]["median"] <= 3.0
+    assert check["corners_vs_known_px"]["median"] <= 3.0 and check["psnr"] > 18.0
