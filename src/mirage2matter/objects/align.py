@@ -128,7 +128,7 @@ def object_frame(mesh_base, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
     x = major[0] * e1 + major[1] * e2
     y = np.cross(up, x)
     R = np.stack([x, y, up], axis=1)
-    local = pts @ R
+    local = np.asarray(mesh_base.vertices, np.float64) @ R
     lo, hi = local.min(0), local.max(0)
     centre_local = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
     T = np.eye(4)

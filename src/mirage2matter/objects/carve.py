@@ -3,8 +3,9 @@
 Each keyframe's mask becomes a signed distance image (pixels, positive inside). A voxel's value is
 a low order statistic over the views that see it (the ``skip``-th smallest: a mask that misses
 part of the object in one view does not cut it away), so the zero level set is the visual hull with
-sub-pixel boundaries. Below the support plane the field is negative: the unseen underside is closed
-against the table. Marching cubes (scikit-image) turns the zero level into a mesh.
+sub-pixel boundaries. Depth maps (e.g. rendered from the object's Gaussians) carve the free space
+in front of the surfaces they see. Below the support plane the field is negative: the unseen
+underside is closed against the table. Marching cubes (scikit-image) turns the zero level into a mesh.
 """
 
 from __future__ import annotations
@@ -69,6 +70,16 @@ def _bilinear(img: np.ndarray, uv: np.ndarray, outside: float) -> np.ndarray:
     return np.where(ok, v, outside)
 
 
+def _nearest(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """img [H,W] at the pixels containing uv [N,2] (NaN off-image)."""
+    h, w = img.shape
+    ij = np.floor(uv).astype(np.int64)
+    ok = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < w) & (ij[:, 1] < h)
+    out = np.full(len(uv), np.nan, np.float64)
+    out[ok] = img[ij[ok, 1], ij[ok, 0]]
+    return out
+
+
 def carve(
     grid: Grid,
     cameras: Sequence[Camera],
@@ -76,19 +87,33 @@ def carve(
     plane_height=None,
     skip: int = 1,
     name: str = "object",
+    depths: Sequence[np.ndarray | None] | None = None,
+    depth_edge_px: float = 2.0,
 ) -> np.ndarray:
     """Carving field [nx,ny,nz] float32 (pixels; > 0 inside the hull) from the ``masks`` [H,W] bool of
     the ``cameras`` (None: the object is not seen there). ``plane_height(points) -> [N]`` gives the
-    height above the support plane; the field is negative below it. ``skip`` views may disagree."""
+    height above the support plane; the field is negative below it. ``skip`` views may disagree.
+
+    ``depths`` [H,W] (metres along the camera's z, NaN where unknown) carve free space too: a voxel
+    in front of the surface a keyframe sees is empty. Silhouettes alone cannot carve what lies
+    above a flat top seen only from above at an angle; depth can."""
     pts = grid.centres()
     dists = []
-    for cam, mask in zip(cameras, masks, strict=True):
+    for k, (cam, mask) in enumerate(zip(cameras, masks, strict=True)):
         if mask is None or not mask.any():  # an empty mask of a seen object is a failed mask, not evidence
             continue
         if mask.shape != (cam.height, cam.width):
             raise ObjectsError(f"{name}: mask of {cam.name} is {mask.shape[::-1]}, camera is {cam.width}x{cam.height}")
         uv, z = cam.project(pts)
-        sd = _bilinear(signed_distance_image(mask), uv, np.nan)  # off-image: no evidence
+        sdi = signed_distance_image(mask)
+        sd = _bilinear(sdi, uv, np.nan)  # off-image: no evidence
+        depth = None if depths is None else depths[k]
+        if depth is not None:
+            # depth jumps at the silhouette: a voxel beside the object may fall in a pixel that sees
+            # its front; only depth well inside the mask is used
+            d = _nearest(np.where(sdi >= depth_edge_px, depth, np.nan), uv)
+            behind = (z - d) * cam.fx / np.maximum(z, 1e-9)  # pixels, > 0 behind the seen surface
+            sd = np.where(np.isfinite(behind), np.minimum(sd, behind), sd)
         sd[z <= 0] = np.nan
         dists.append(sd.astype(np.float32))
     if len(dists) <= skip + 1:

@@ -1,10 +1,11 @@
 """Object meshes: reconstruction from masks, user-supplied meshes, watertightness, mass properties.
 
-Reconstruction carves the masks (``carve``) on a voxel grid around the object's points, closes the
-underside against the support plane, extracts the surface with marching cubes and smooths it
-lightly (Taubin, volume-preserving). Every mesh, reconstructed or supplied, must be watertight (a
-simulator needs a closed volume for mass and contacts): small defects are repaired; a mesh that is
-open beyond repair is an error naming the object and the file.
+Reconstruction carves the masks and the depth rendered from the object's Gaussians (``carve``) on
+a voxel grid around the object's points, closes the underside against the support plane, extracts
+the surface with marching cubes and smooths it lightly (Taubin, volume-preserving). Every mesh,
+reconstructed or supplied, must be watertight (a simulator needs a closed volume for mass and
+contacts): small defects are repaired; a mesh that is open beyond repair is an error naming the
+object and the file.
 """
 
 from __future__ import annotations
@@ -34,9 +35,11 @@ def reconstruct_mesh(
     skip_fraction: float = 0.08,
     smooth_iterations: int = 5,
     name: str | None = None,
+    depths: Sequence[np.ndarray | None] | None = None,
 ):
-    """Watertight trimesh.Trimesh (base frame) of the object from its masks. ``skip_fraction`` of
-    the views that see a voxel may disagree with the others without cutting it away."""
+    """Watertight trimesh.Trimesh (base frame) of the object from its masks (and, when given, depth
+    maps [H,W] per keyframe, NaN where unknown, that carve the free space in front of what they
+    see). ``skip_fraction`` of the views that see a voxel may disagree without cutting it away."""
     import trimesh
 
     name = name or cluster.name
@@ -47,7 +50,7 @@ def reconstruct_mesh(
     grid = Grid.around(lo, hi, voxel)
     n_seen = sum(1 for m in masks if m is not None)
     skip = int(round(skip_fraction * n_seen))
-    field = carve(grid, cameras, masks, plane_height=plane.height, skip=skip, name=name)
+    field = carve(grid, cameras, masks, plane_height=plane.height, skip=skip, name=name, depths=depths)
     mesh = surface_mesh(field, grid, name=name)
     if smooth_iterations > 0:
         trimesh.smoothing.filter_taubin(mesh, iterations=smooth_iterations)

@@ -1,5 +1,6 @@
-"""Pipeline stage ``objects`` (DESIGN.md section 3, stage 5): per object, masks -> mesh -> object
-3DGS -> alignment -> one object frame, written to ``<ws>/objects/<name>/``:
+"""Pipeline stage ``objects`` (DESIGN.md section 3, stage 5): per object, masks -> object 3DGS ->
+mesh (masks + the 3DGS depth, or the user's) -> alignment -> one object frame, written to
+``<ws>/objects/<name>/``:
 
     masks/<keyframe stem>.png   the object's mask per keyframe (255 = object)
     mesh.obj                    watertight mesh, object frame (origin at the bottom centre, z up)
@@ -31,7 +32,7 @@ from ..geometry.camera import Camera
 from ..geometry.sim3 import Sim3
 from .errors import ObjectsError
 from .masks import FolderMasks, GeometricMasks, MaskProvider, Sam2Masks, Target, cluster_for_prompt, parse_prompt
-from .matting import MattingConfig, sample_in_hull
+from .matting import MattingConfig, render_alpha, sample_in_hull
 from .splat import SplatConfig, mask_crop
 
 __all__ = ["ObjectsConfig", "load_workspace", "run_objects"]
@@ -130,6 +131,12 @@ def _init_from_mesh(mesh, cameras, images, n: int = 20000):
     return init_gaussians_from_points(pts, colors, sh_degree=1)
 
 
+def _solid_depth(g, camera: Camera, min_alpha: float = 0.9) -> np.ndarray:
+    """Expected depth [H,W] of the Gaussians where they are nearly opaque, NaN elsewhere."""
+    _, alpha, depth = render_alpha(g, camera)
+    return np.where(alpha > min_alpha, depth, np.nan)
+
+
 def _figure_cameras(cameras, masks, images, T_obj_base: np.ndarray, k: int):
     """Up to ``k`` keyframes (spread over the orbit) cropped square around the mask, in the object frame."""
     seen = [i for i, m in enumerate(masks) if m is not None and m.any()]
@@ -180,20 +187,32 @@ def process_object(
     masks = result.masks
 
     user_mesh = config.meshes.get(name)
+    if not user_mesh and (target.cluster is None or target.plane is None):
+        raise ObjectsError(f"object {name!r}: no points in the cloud to reconstruct from; give --mesh {name}=FILE")
+    init = result.gaussians
+    if init is None:  # masks from a folder / SAM2: start the Gaussians inside the visual hull
+        hull = reconstruct_mesh(target.cluster, target.plane, cameras, masks, 2 * config.voxel, name=name)
+        init = _init_from_mesh(hull, cameras, images)
+
+    log(f"{name}: object 3DGS")
+    g_base, splat_metrics = train_object_gaussians(init, cameras, images, masks, config.splat, name, progress)
+
     if user_mesh:
         log(f"{name}: mesh from {user_mesh}")
         mesh_input = ensure_watertight(load_mesh(user_mesh, name), name, source=str(user_mesh))
     else:
-        if target.cluster is None or target.plane is None:
-            raise ObjectsError(f"object {name!r}: no points in the cloud to reconstruct from; give --mesh {name}=FILE")
-        log(f"{name}: mesh by carving {sum(m is not None for m in masks)} masks")
+        log(f"{name}: mesh from {sum(m is not None for m in masks)} masks and the 3DGS depth")
+        depths = [None if m is None else _solid_depth(g_base, cam) for cam, m in zip(cameras, masks, strict=True)]
         mesh_input = reconstruct_mesh(
-            target.cluster, target.plane, cameras, masks, config.voxel, skip_fraction=config.skip_fraction, name=name
+            target.cluster,
+            target.plane,
+            cameras,
+            masks,
+            config.voxel,
+            skip_fraction=config.skip_fraction,
+            name=name,
+            depths=depths,
         )
-
-    log(f"{name}: object 3DGS")
-    init = result.gaussians if result.gaussians is not None else _init_from_mesh(mesh_input, cameras, images)
-    g_base, splat_metrics = train_object_gaussians(init, cameras, images, masks, config.splat, name, progress)
 
     log(f"{name}: alignment")
     opaque = (torch.sigmoid(g_base.logit_opacities) > 0.5).numpy()
@@ -239,7 +258,7 @@ def process_object(
             "frame": "origin at the bottom centre, z up (support plane normal), x along the footprint's long axis",
             "sim3_obj_to_base": sim3_obj_to_base.to_json(),
             "sim3_mesh_input_to_obj": sim3_mesh_input_to_obj.to_json(),
-            "mesh_source": str(user_mesh) if user_mesh else "reconstruction (carved masks)",
+            "mesh_source": str(user_mesh) if user_mesh else "reconstruction (masks + 3DGS depth, carved)",
             "masks": result.info,
             "alignment": {
                 "start": alignment.start,

@@ -1,0 +1,90 @@
+"""Visual hull carving and its surface: a box on the table seen from an orbit of cameras."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import trimesh
+
+from mirage2matter.geometry.camera import Camera, look_at_pose
+from mirage2matter.objects import ObjectsError
+from mirage2matter.objects.carve import Grid, carve, signed_distance_image, surface_mesh
+
+K = np.array([[300.0, 0, 80], [0, 300.0, 60], [0, 0, 1]])
+LO, HI = np.array([-0.03, -0.02, 0.0]), np.array([0.03, 0.02, 0.03])  # a 6 x 4 x 3 cm box on the table
+
+
+def _cameras(n: int = 24) -> list[Camera]:
+    cams = []
+    for k in range(n):
+        az = 2 * np.pi * k / n
+        el = np.radians(30 if k % 2 else 55)
+        eye = 0.5 * np.array([np.cos(az) * np.cos(el), np.sin(az) * np.cos(el), np.sin(el)])
+        cams.append(Camera(K, look_at_pose(eye, [0, 0, 0.015]), 160, 120, f"c{k}"))
+    return cams
+
+
+def _silhouette(cam: Camera) -> np.ndarray:
+    """Exact mask (pixel coverage > 1/2, from 4x supersampling) of the box."""
+    corners = np.array([[x, y, z] for x in (LO[0], HI[0]) for y in (LO[1], HI[1]) for z in (LO[2], HI[2])])
+    uv, _ = cam.project(corners)
+    big = np.zeros((cam.height * 4, cam.width * 4), np.uint8)
+    cv2.fillConvexPoly(big, cv2.convexHull(np.round((uv * 4 - 0.5) * 16).astype(np.int32)), 1, shift=4)
+    return cv2.resize(big.astype(np.float32), (cam.width, cam.height), interpolation=cv2.INTER_AREA) > 0.5
+
+
+def _depth(cam: Camera) -> np.ndarray:
+    """Depth (camera z, metres) of the box's surface at every pixel centre, NaN off the box."""
+    box = trimesh.creation.box(bounds=[LO, HI])
+    v, u = np.mgrid[0 : cam.height, 0 : cam.width] + 0.5
+    rays = np.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, np.ones_like(u)], -1).reshape(-1, 3)
+    R, c = cam.T_world_cam[:3, :3], cam.center
+    hits, ray_idx, _ = box.ray.intersects_location(np.repeat(c[None], len(rays), 0), rays @ R.T, multiple_hits=False)
+    depth = np.full(len(rays), np.nan)
+    depth[ray_idx] = (hits - c) @ R[:, 2]
+    return depth.reshape(cam.height, cam.width)
+
+
+def test_signed_distance_image_is_zero_on_pixel_edges():
+    m = np.zeros((9, 9), bool)
+    m[3:6, 3:6] = True
+    sd = signed_distance_image(m)
+    assert sd[4, 4] > 0 and sd[0, 0] < 0
+    assert sd[4, 3] == pytest.approx(0.5) and sd[4, 2] == pytest.approx(-0.5)
+
+
+def test_box_is_recovered_and_one_bad_mask_is_outvoted():
+    cams = _cameras()
+    masks = [_silhouette(c) for c in cams]
+    masks[3] = masks[3].copy()
+    masks[3][:, : masks[3].shape[1] // 2 + 5] = False  # half the object missing in one view
+    grid = Grid.around([-0.05, -0.04, -0.003], [0.05, 0.04, 0.05], 0.001)
+    true_volume = float(np.prod(HI - LO))
+    hull = surface_mesh(carve(grid, cams, masks, plane_height=lambda p: p[:, 2], skip=1), grid)
+    # silhouettes from above at an angle never carve the "roof" over a flat top
+    assert hull.volume > 1.15 * true_volume and hull.bounds[1][2] > HI[2] + 0.005
+
+    depths = [_depth(c) for c in cams]
+    field = carve(grid, cams, masks, plane_height=lambda p: p[:, 2], skip=1, depths=depths)
+    mesh = surface_mesh(field, grid)
+    assert mesh.is_watertight
+    assert mesh.volume == pytest.approx(true_volume, rel=0.05)
+    lo, hi = mesh.bounds
+    np.testing.assert_allclose(lo[:2], LO[:2], atol=0.002)  # about a pixel (1.7 mm here)
+    np.testing.assert_allclose(hi, HI, atol=0.002)
+    assert abs(lo[2]) < 0.0015  # closed against the table plane
+
+    strict = surface_mesh(carve(grid, cams, masks, plane_height=lambda p: p[:, 2], skip=0, depths=depths), grid)
+    assert strict.volume < 0.85 * true_volume  # without the vote the bad mask cuts the box
+
+
+def test_too_few_views_and_nothing_left_are_errors():
+    cams = _cameras(4)
+    grid = Grid.around([-0.05, -0.04, 0.0], [0.05, 0.04, 0.05], 0.002)
+    masks = [_silhouette(c) for c in cams]
+    with pytest.raises(ObjectsError, match="masks in only 2"):
+        carve(grid, cams[:2], masks[:2], skip=1, name="box")
+    shifted = [np.roll(m, 40, axis=1) for m in masks]  # masks that agree on nothing
+    with pytest.raises(ObjectsError, match="carve the whole volume away"):
+        surface_mesh(carve(grid, cams, shifted, skip=0, name="box"), grid, name="box")

@@ -1,0 +1,56 @@
+"""Support plane and object clusters in a synthetic base-frame cloud."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mirage2matter.objects import ObjectsError
+from mirage2matter.objects.support import find_objects, fit_support_plane, name_clusters
+
+
+def _scene(seed: int = 0) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """A 1 x 1 m table top at z = 0 (1 mm noise), a flat sheet on it, three blobs standing on it,
+    and scattered outliers off the table."""
+    rng = np.random.default_rng(seed)
+    table = np.c_[rng.uniform(-0.2, 0.8, (3000, 2)), rng.normal(0, 0.001, 3000)]
+    sheet = np.c_[rng.uniform(0.0, 0.2, (300, 2)), 0.002 + rng.normal(0, 0.0005, 300)]
+    centres = {"near": np.array([0.3, 0.1]), "middle": np.array([0.5, -0.2]), "far": np.array([0.6, 0.35])}
+    blobs = {}
+    for k, (name, c) in enumerate(centres.items()):
+        n = 60 + 20 * k
+        blobs[name] = np.c_[c + rng.normal(0, 0.015, (n, 2)), rng.uniform(0.008, 0.04, n)]
+    off = np.c_[rng.uniform(2, 3, (100, 2)), rng.uniform(-1, 1, 100)]
+    return np.concatenate([table, sheet, *blobs.values(), off]), centres
+
+
+def test_plane_is_the_table():
+    pts, _ = _scene()
+    tilt = np.array([[1, 0, 0], [0, np.cos(0.1), -np.sin(0.1)], [0, np.sin(0.1), np.cos(0.1)]])
+    plane = fit_support_plane(pts @ tilt.T + [0, 0, 0.05])
+    assert np.degrees(np.arccos(abs(plane.normal @ (tilt @ [0, 0, 1])))) < 0.5
+    assert abs(plane.height(np.array([[0.3, 0.0, 0.05]]) @ tilt.T)[0] - 0.0) < 0.01
+
+
+def test_objects_found_ordered_and_named():
+    pts, centres = _scene()
+    plane, clusters = find_objects(pts)
+    assert len(clusters) == 3  # the sheet is flat, the outliers are off the table
+    dist = [np.linalg.norm(c.centroid[:2] - centres["near"]) for c in clusters]
+    assert np.argmin(dist) == 0  # nearest the base first
+    named = name_clusters(clusters, ["b", "a=0.6,0.35"])
+    assert [c.name for c in named] == ["b", "a"]
+    assert np.linalg.norm(named[1].centroid[:2] - centres["far"]) < 0.01
+    assert np.linalg.norm(named[0].centroid[:2] - centres["near"]) < 0.01
+
+
+def test_no_object_and_too_many_names_are_clear_errors():
+    pts, _ = _scene()
+    table_only = pts[pts[:, 2] < 0.005]
+    with pytest.raises(ObjectsError, match="no object found"):
+        find_objects(table_only)
+    _, clusters = find_objects(pts)
+    with pytest.raises(ObjectsError, match="'d'.*only 3 object"):
+        name_clusters(clusters, ["a", "b", "c", "d"])
+    with pytest.raises(ObjectsError, match="within 10 cm"):
+        name_clusters(clusters, ["x=5,5"])

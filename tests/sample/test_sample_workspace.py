@@ -1,0 +1,67 @@
+"""The ground-truth workspace fixture: keyframes, base-frame cameras and triangulated points that
+agree with the sample's ground truth (checked against the meshes, not against themselves)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from mirage2matter.geometry.camera import Camera
+from mirage2matter.sample.workspace import ground_truth_workspace, keyframe_indices
+
+SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+
+
+@pytest.fixture(scope="module")
+def ws(tmp_path_factory) -> Path:
+    if not (SAMPLE / "ground_truth.json").is_file():
+        pytest.fail(f"the shipped sample is missing: {SAMPLE}")
+    out = tmp_path_factory.mktemp("gtws")
+    ground_truth_workspace(out, SAMPLE, n_keyframes=12)
+    return out
+
+
+def test_keyframe_indices_spread_over_the_video():
+    assert keyframe_indices(720, 4) == [0, 240, 479, 719]
+    with pytest.raises(ValueError, match="n_keyframes"):
+        keyframe_indices(10, 11)
+
+
+def test_files_and_cameras_match_ground_truth(ws):
+    gt = json.loads((SAMPLE / "ground_truth.json").read_text())
+    frames = {f["index"]: np.asarray(f["T_base_cam"]) for f in gt["frames"]}
+    cams = [Camera.from_json(c) for c in json.loads((ws / "calib" / "cameras_base.json").read_text())]
+    kf = json.loads((ws / "capture" / "keyframes.json").read_text())
+    assert len(cams) == 12 == len(kf["keyframes"])
+    for cam, rec in zip(cams, kf["keyframes"], strict=True):
+        assert (ws / "capture" / cam.name).is_file() and cam.name == rec["file"]
+        np.testing.assert_allclose(cam.T_world_cam, frames[rec["frame_index"]], atol=1e-9)
+        np.testing.assert_allclose(cam.K, gt["camera"]["K"])
+
+
+def test_points_lie_on_the_ground_truth_surfaces(ws):
+    """Triangulated points over the table lie on the table top or on an object's mesh."""
+    gt = json.loads((SAMPLE / "ground_truth.json").read_text())
+    pts = np.load(ws / "calib" / "points_base.npy").astype(np.float64)
+    assert pts.dtype == np.float64 and pts.shape[1] == 3 and len(pts) > 500
+    over_table = (np.abs(pts[:, 0] - 0.3) < 0.4) & (np.abs(pts[:, 1]) < 0.5) & (pts[:, 2] > -0.05) & (pts[:, 2] < 0.2)
+    p = pts[over_table]
+    dist = np.abs(p[:, 2])  # table top z = 0 (the board is 1 mm thick)
+    for o in gt["objects"]:
+        if o["category"] == "board":
+            continue
+        mesh = trimesh.load(SAMPLE / o["mesh"], force="mesh")
+        mesh.apply_transform(np.asarray(o["T_base_obj"]))
+        dist = np.minimum(dist, np.abs(trimesh.proximity.signed_distance(mesh, p)))
+    assert np.median(dist) < 0.002
+    assert np.mean(dist < 0.005) > 0.9
+
+
+def test_rerun_with_same_settings_is_skipped(ws):
+    before = (ws / "calib" / "points_base.npy").stat().st_mtime_ns
+    ground_truth_workspace(ws, SAMPLE, n_keyframes=12)
+    assert (ws / "calib" / "points_base.npy").stat().st_mtime_ns == before
