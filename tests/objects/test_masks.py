@@ -1,0 +1,125 @@
+"""Mask providers: prompts pick the right cluster, a mask folder is read or rejected clearly, and
+SAM2 runs only with the package and a local checkpoint."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from mirage2matter.geometry.camera import Camera, look_at_pose
+from mirage2matter.objects import ObjectsError
+from mirage2matter.objects.masks import (
+    FolderMasks,
+    Sam2Masks,
+    Target,
+    cluster_for_prompt,
+    fill_holes,
+    parse_prompt,
+    refine_grabcut,
+)
+from mirage2matter.objects.support import ObjectCluster
+
+K = np.array([[400.0, 0, 160], [0, 400.0, 120], [0, 0, 1]])
+
+
+def _cams(n=8):
+    return [
+        Camera(K, look_at_pose([0.6 * np.cos(a), 0.6 * np.sin(a), 0.4], [0, 0, 0]), 320, 240, f"frame_{k:06d}.jpg")
+        for k, a in enumerate(np.linspace(0, 2 * np.pi, n, endpoint=False))
+    ]
+
+
+def _cluster(name, centre):
+    rng = np.random.default_rng(0)
+    pts = np.asarray(centre) + rng.normal(0, 0.01, (50, 3)) * [1, 1, 0.5] + [0, 0, 0.02]
+    return ObjectCluster(name, pts, pts.mean(0), 0.04)
+
+
+def test_parse_prompt_and_bad_prompts():
+    p = parse_prompt("banana@frame_000031.jpg:box=10,20,110,90")
+    assert (p.name, p.frame, p.box) == ("banana", "frame_000031.jpg", (10.0, 20.0, 110.0, 90.0))
+    q = parse_prompt("cup@frame_000031:points=5,6;7.5,8")
+    assert q.points == [(5.0, 6.0), (7.5, 8.0)]
+    for bad in ("banana", "banana@f:box=1,2,3", "banana@f:box=5,5,1,1", "x@f:points=1"):
+        with pytest.raises(ObjectsError, match="prompt"):
+            parse_prompt(bad)
+
+
+def test_prompt_picks_the_cluster_it_points_at():
+    cams = _cams()
+    a, b = _cluster("object_0", [0.1, 0.0, 0.0]), _cluster("object_1", [-0.1, 0.05, 0.0])
+    cam = cams[2]
+    uv, _ = cam.project(b.centroid[None])
+    (u, v) = uv[0]
+    box = parse_prompt(f"cup@{cam.name}:box={u - 15},{v - 15},{u + 15},{v + 15}")
+    assert cluster_for_prompt(box, cams, [a, b]) is b
+    pts = parse_prompt(f"cup@frame_000002:points={u},{v}")
+    assert cluster_for_prompt(pts, cams, [a, b]) is b
+    empty = parse_prompt(f"cup@{cam.name}:box=0,0,5,5")
+    with pytest.raises(ObjectsError, match="no object found there"):
+        cluster_for_prompt(empty, cams, [a, b])
+    with pytest.raises(ObjectsError, match="not in the workspace"):
+        cluster_for_prompt(parse_prompt("cup@nope.jpg:box=0,0,5,5"), cams, [a, b])
+
+
+def test_folder_masks(tmp_path):
+    cams = _cams()
+    (tmp_path / "cup").mkdir()
+    for cam in cams[:7]:
+        m = np.zeros((240, 320), np.uint8)
+        cv2.circle(m, (160, 120), 30, 255, -1)
+        cv2.imwrite(str(tmp_path / "cup" / f"{Path(cam.name).stem}.png"), m)
+    res = FolderMasks(tmp_path).masks(Target("cup", None, None), cams, [None] * len(cams))
+    assert res.masks[7] is None and all(m.sum() == pytest.approx(np.pi * 30**2, rel=0.05) for m in res.masks[:7])
+    with pytest.raises(ObjectsError, match=r"'plate'.*not found"):
+        FolderMasks(tmp_path).masks(Target("plate", None, None), cams, [])
+    cv2.imwrite(str(tmp_path / "cup" / f"{Path(cams[0].name).stem}.png"), np.zeros((10, 10), np.uint8))
+    with pytest.raises(ObjectsError, match=r"'cup'.*10x10"):
+        FolderMasks(tmp_path).masks(Target("cup", None, None), cams, [])
+    for p in (tmp_path / "cup").iterdir():
+        p.unlink()
+    with pytest.raises(ObjectsError, match="only 0 keyframe"):
+        FolderMasks(tmp_path).masks(Target("cup", None, None), cams, [])
+
+
+def test_grabcut_follows_the_edge_from_a_rough_alpha():
+    img = np.full((80, 100, 3), (150, 100, 60), np.uint8)  # wood-ish
+    cv2.rectangle(img, (30, 20), (70, 60), (40, 40, 40), -1)  # a dark object
+    alpha = np.zeros((80, 100), np.float32)
+    alpha[24:52, 34:66] = 1.0  # the core, bottom rows missing (as near the table)
+    alpha[52:58, 34:66] = 0.3
+    m = refine_grabcut(img, alpha)
+    truth = np.zeros((80, 100), bool)
+    truth[20:61, 30:71] = True
+    assert (m & truth).sum() / (m | truth).sum() > 0.95
+    ring = np.ones((5, 5), bool)
+    ring[2, 2] = False
+    assert fill_holes(ring).all()
+
+
+def test_sam2_without_package_or_checkpoint_says_what_to_do(tmp_path):
+    cams = _cams()
+    target = Target("cup", _cluster("cup", [0, 0, 0]), None)
+    with pytest.raises(ObjectsError, match="SAM2|sam2"):
+        Sam2Masks(tmp_path / "missing.pt").masks(Target("cup", target.cluster, object()), cams, [])
+
+
+@pytest.mark.skipif(
+    importlib.util.find_spec("sam2") is None or not os.environ.get("M2M_SAM2_CHECKPOINT"),
+    reason="SAM2 runs only with the sam2 package and a local checkpoint in M2M_SAM2_CHECKPOINT (nothing is downloaded)",
+)
+def test_sam2_masks_on_the_sample(tmp_path):
+    from mirage2matter.objects.stage import ObjectsConfig, _targets, load_workspace
+    from mirage2matter.sample.workspace import ground_truth_workspace
+
+    ground_truth_workspace(tmp_path, n_keyframes=12)
+    cams, images, points = load_workspace(tmp_path)
+    _, targets = _targets(ObjectsConfig(names=["banana"]), cams, points)
+    res = Sam2Masks(Path(os.environ["M2M_SAM2_CHECKPOINT"])).masks(targets[0], cams, images)
+    areas = [m.sum() for m in res.masks if m is not None]
+    assert len(areas) >= 6 and min(areas) > 100
