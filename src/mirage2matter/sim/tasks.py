@@ -70,6 +70,11 @@ class TaskSpec:
         where = _direction_words(self.direction) if self.direction is not None else "towards the robot"
         return f"{self.verb} the {name} {round(100 * self.distance)} cm {where}"
 
+    @classmethod
+    def parse(cls, text: str, cfg: WorldConfig | None = None) -> TaskSpec:
+        """Same as :func:`parse_task`."""
+        return parse_task(text, cfg)
+
     def to_json(self) -> dict:
         return {
             "verb": self.verb,

@@ -470,12 +470,21 @@ class Twin:
 
     # ---- cameras ---------------------------------------------------------------------------------
     def camera(self, name: str) -> tuple[np.ndarray, np.ndarray, int, int]:
-        """(T_base_cam [4,4] OpenCV axes, K [3,3], width, height) of camera ``name`` in the current state."""
+        """(T_base_cam [4,4] OpenCV axes, K [3,3], width, height) of camera ``name`` in the current state.
+
+        Size and K are the twin's rendering ones (``TwinOptions.camera_sizes``, default the world's): with
+        another size than the world's, K keeps the vertical field of view, square pixels and a centred
+        principal point, exactly as Genesis renders it (and as the Gaussians must be rendered to match)."""
         if name not in self.cfg.cameras:
             raise KeyError(f"no camera {name!r}; cameras: {sorted(self.cfg.cameras)}")
         c = self.cfg.cameras[name]
         T_mount = np.eye(4) if c.mount == "base" else self.T_base_link(c.mount)
-        return T_mount @ c.T_mount_cam, np.asarray(c.K, dtype=np.float64).copy(), int(c.width), int(c.height)
+        w, h = self.options.camera_sizes.get(name, (c.width, c.height))
+        K = np.asarray(c.K, dtype=np.float64).copy()
+        if (w, h) != (c.width, c.height):
+            f = K[1, 1] * h / c.height
+            K = np.array([[f, 0.0, 0.5 * w], [0.0, f, 0.5 * h], [0.0, 0.0, 1.0]])
+        return T_mount @ c.T_mount_cam, K, int(w), int(h)
 
     def render_robot(self, name: str, width: int | None = None, height: int | None = None) -> dict[str, np.ndarray]:
         """Genesis render from camera ``name``: {"rgb" uint8 [H,W,3], "depth" float32 [H,W] (planar, metres,

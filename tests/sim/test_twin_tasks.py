@@ -1,0 +1,189 @@
+"""The Genesis twin of the sample world: state, cameras, planning, and the scripted tasks' real outcomes.
+
+One twin per module (Genesis builds in ~15 s with warm kernel caches, ~110 s cold); every test resets it.
+"""
+
+import time
+
+import numpy as np
+import pytest
+
+from mirage2matter.sim.planning import PlanningError, collision_free, ik, plan, segment_free, time_parameterize
+from mirage2matter.sim.tasks import TCP_OFFSET, TaskError, TaskSpec, _topdown, parse_task, run_task
+from mirage2matter.world import load_world
+from mirage2matter.world.compose import WorldGaussians
+
+
+@pytest.fixture(scope="module")
+def twin(sim_ws):
+    from mirage2matter.sim.twin import Twin, TwinOptions
+
+    tw = Twin.build(load_world(sim_ws), TwinOptions(render=True, camera_sizes={"head": (96, 72), "wrist": (64, 48)}))
+    yield tw
+    tw.close()
+
+
+def test_state_and_poses(twin):
+    twin.reset(seed=0, randomize=False)
+    q = twin.robot_state()
+    assert q.shape == (9,) and np.allclose(q[:7], twin.cfg.robot.home, atol=0.02)
+    poses = twin.object_poses()
+    assert set(poses) == {"banana", "croissant", "button", "button/cap"}
+    # At the world's placements (the curved banana may roll onto its side while settling: xy within 2 cm).
+    for name in ("croissant", "button"):
+        assert np.allclose(poses[name][:3, 3], _placement(twin, name)[:3, 3], atol=0.01)
+    assert np.linalg.norm(poses["banana"][:2, 3] - _placement(twin, "banana")[:2, 3]) < 0.02
+    assert poses["button/cap"][2, 3] == pytest.approx(0.04, abs=0.002)  # rests on the 4 cm base
+
+
+def _placement(twin, name):
+    item = next(it for it in [*twin.cfg.objects, *twin.cfg.articulated] if it.name == name)
+    return item.placement.matrix
+
+
+def test_randomised_resets(twin):
+    a = twin.reset(seed=3)
+    b = twin.reset(seed=3)
+    c = twin.reset(seed=4)
+    assert all(np.allclose(a[k], b[k], atol=1e-4) for k in a)
+    assert not np.allclose(a["banana"][:3, 3], c["banana"][:3, 3], atol=1e-3)
+    r = twin.cfg.randomize
+    for seed in range(5):
+        poses = twin.reset(seed=seed)
+        centres = {}
+        for name, body in twin.bodies.items():
+            c_xy = (poses[name][:3, :3] @ body.centre_obj + poses[name][:3, 3])[:2]
+            assert r.x[0] - 0.03 <= c_xy[0] <= r.x[1] + 0.03 and r.y[0] - 0.03 <= c_xy[1] <= r.y[1] + 0.03
+            centres[name] = (c_xy, body.footprint_radius)
+        names = list(centres)
+        for i in range(len(names)):
+            for j in range(i + 1, len(names)):
+                (ci, ri), (cj, rj) = centres[names[i]], centres[names[j]]
+                assert np.linalg.norm(ci - cj) >= ri + rj  # footprints apart (objects may roll a little)
+
+
+def test_twin_gaussians_follow_physics_bodies(twin):
+    """The visual (Gaussians at the physics poses) and the physical body (Genesis collision geometry) agree."""
+    twin.reset(seed=2)
+    world = WorldGaussians.load(twin.cfg)
+    poses = twin.object_poses()
+    for name in ("banana", "croissant"):
+        means = world.parts[name].at(poses[name]).means.numpy()
+        verts = np.asarray(twin.bodies[name].entity.get_verts())
+        assert np.abs(means.min(0) - verts.min(0)).max() < 0.006, name
+        assert np.abs(means.max(0) - verts.max(0)).max() < 0.006, name
+
+
+def test_cameras(twin):
+    twin.reset(seed=0, randomize=False)
+    T_head, K, w, h = twin.camera("head")
+    assert np.allclose(T_head, twin.cfg.cameras["head"].T_mount_cam) and (w, h) == (96, 72)
+    K_world = twin.cfg.cameras["head"].K
+    assert np.allclose(K, [[K_world[1, 1] * 72 / 480, 0, 48], [0, K_world[1, 1] * 72 / 480, 36], [0, 0, 1]])
+    T_wrist0, *_ = twin.camera("wrist")
+    assert np.allclose(T_wrist0, twin.T_base_link("hand") @ twin.cfg.cameras["wrist"].T_mount_cam)
+    q = twin.robot_state()
+    q[0] += 0.5
+    twin.set_robot_state(q)
+    T_wrist1, *_ = twin.camera("wrist")
+    assert np.linalg.norm(T_wrist1[:3, 3] - T_wrist0[:3, 3]) > 0.1  # the wrist camera moves with the hand
+    out = twin.render_robot("head", 96, 72)
+    assert out["rgb"].shape == (72, 96, 3) and out["rgb"].dtype == np.uint8
+    assert out["depth"].shape == (72, 96) and out["robot_mask"].dtype == bool
+    m = out["robot_mask"]
+    assert 0.01 < m.mean() < 0.9
+    assert np.isfinite(out["depth"][m]).all() and (out["depth"][m] > 0.3).all()
+    # Our camera model and Genesis' render agree: robot links project onto robot pixels, at their depth.
+    # Our camera model and Genesis' render agree: the robot's geometry projects onto robot pixels.
+    X = np.asarray(twin.robot.get_verts(), dtype=np.float64)
+    Xc = X @ np.linalg.inv(T_head)[:3, :3].T + np.linalg.inv(T_head)[:3, 3]
+    uv = (Xc @ K.T)[:, :2] / Xc[:, 2:]
+    inside = (uv[:, 0] >= 1) & (uv[:, 0] < 95) & (uv[:, 1] >= 1) & (uv[:, 1] < 71)
+    iu, iv = uv[inside, 0].astype(int), uv[inside, 1].astype(int)
+    grown = m.copy()  # one pixel of slack for rasterisation at the silhouette
+    grown[1:] |= m[:-1]
+    grown[:-1] |= m[1:]
+    grown[:, 1:] |= m[:, :-1]
+    grown[:, :-1] |= m[:, 1:]
+    assert inside.sum() > 100 and grown[iv, iu].mean() > 0.95
+    with pytest.raises(ValueError, match="renders 96x72"):
+        twin.render_robot("head", 640, 480)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_grasp_lifts_the_object(twin, seed):
+    for name in ("banana", "croissant"):
+        twin.reset(seed=seed)
+        z0 = twin.object_poses()[name][2, 3]
+        seen = []
+        r = run_task(twin, parse_task(f"grasp {name}", twin.cfg), on_step=seen.append)
+        assert r.success, r.reason
+        assert twin.object_poses()[name][2, 3] - z0 > 0.05  # still up, in the hand
+        assert len(seen) == len(r.steps) > 30 and r.steps[-1].t < 7.0
+        assert r.steps[0].state.shape == (9,) and r.steps[0].action.shape == (8,)
+        assert abs(r.steps[-1].state[7]) < 0.03  # fingers closed on it, not on air
+
+
+def test_press_button(twin):
+    twin.reset(seed=5)
+    r = run_task(twin, parse_task("press button", twin.cfg))
+    assert r.success, r.reason
+    assert r.info["max_travel_m"] >= twin.cfg.articulated[0].threshold
+    assert twin.button_travel("button") < 0.002  # the spring pushed the cap back up
+
+
+def test_push_and_pull(twin):
+    for text, seed in (("push croissant --direction 0,1 --distance 0.1", 0), ("pull banana --distance 0.1", 1)):
+        twin.reset(seed=seed)
+        spec = parse_task(text, twin.cfg)
+        r = run_task(twin, spec)
+        assert r.success, r.reason
+        assert r.info["error_m"] <= spec.tolerance
+        assert np.linalg.norm(r.info["displacement_m"]) > 0.07
+
+
+def test_unknown_target_raises(twin):
+    with pytest.raises(TaskError, match="no object named 'kiwi'"):
+        run_task(twin, TaskSpec("grasp", "kiwi"))
+
+
+def test_plan_around_an_obstacle(twin):
+    """Hand low on either side of the button: the straight joint path sweeps through it; RRTConnect goes round."""
+    twin.reset(seed=0, randomize=False)
+    bx, by = twin.object_poses()["button"][:2, 3]
+    q0 = twin.robot_state()
+    axis = np.array([0.0, -1.0])
+    qa = ik(twin, _topdown(np.array([bx, by - 0.12, 0.03]), axis), q0)
+    qb = ik(twin, _topdown(np.array([bx, by + 0.12, 0.03]), axis), np.concatenate([qa, q0[7:]]))
+    fingers = q0[7:]
+    assert not segment_free(twin, qa, qb, fingers)
+    t0 = time.perf_counter()
+    path = plan(twin, np.concatenate([qa, fingers]), qb, timeout=10.0)
+    assert time.perf_counter() - t0 < 10.0
+    assert len(path) >= 3 and np.allclose(path[0], qa) and np.allclose(path[-1], qb)
+    dense = time_parameterize(path, 0.01, 0.5)
+    with twin.restoring():
+        for q in dense[::2]:
+            assert collision_free(twin, np.concatenate([q, fingers])), "the planned path collides"
+    # The hand went over (or round) the button: somewhere it rose above the button's top.
+    with twin.restoring():
+        heights = []
+        for q in dense[::5]:
+            twin.robot.set_qpos(np.concatenate([q, fingers]))
+            heights.append(twin.T_base_link()[2, 3] - TCP_OFFSET)
+    assert max(heights) > 0.055
+
+
+def test_unreachable_target_fails_fast(twin):
+    twin.reset(seed=0, randomize=False)
+    q0 = twin.robot_state()
+    T_far = _topdown(np.array([1.6, 0.0, 0.2]), np.array([0.0, 1.0]))
+    t0 = time.perf_counter()
+    with pytest.raises(PlanningError, match="beyond its reach"):
+        ik(twin, T_far, q0)
+    T_odd = np.eye(4)  # hand pointing up, 5 cm above the table, inside the robot's own base
+    T_odd[:3, 3] = (0.05, 0.0, 0.05)
+    with pytest.raises(PlanningError, match="unreachable|collides"):
+        ik(twin, T_odd, q0)
+    assert time.perf_counter() - t0 < 5.0
+    assert np.allclose(twin.robot_state(), q0, atol=1e-6)  # queries leave the robot where it was
