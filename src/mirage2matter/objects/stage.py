@@ -182,11 +182,15 @@ def process_object(
     from .splat import train_object_gaussians
 
     name = target.name
+    user_mesh = config.meshes.get(name)
+    mesh_input = None
+    if user_mesh:  # check it before the long work
+        log(f"{name}: mesh from {user_mesh}")
+        mesh_input = ensure_watertight(load_mesh(user_mesh, name), name, source=str(user_mesh))
     log(f"{name}: masks")
     result = _provider(config, progress).masks(target, cameras, images)
     masks = result.masks
 
-    user_mesh = config.meshes.get(name)
     if not user_mesh and (target.cluster is None or target.plane is None):
         raise ObjectsError(f"object {name!r}: no points in the cloud to reconstruct from; give --mesh {name}=FILE")
     init = result.gaussians
@@ -197,10 +201,7 @@ def process_object(
     log(f"{name}: object 3DGS")
     g_base, splat_metrics = train_object_gaussians(init, cameras, images, masks, config.splat, name, progress)
 
-    if user_mesh:
-        log(f"{name}: mesh from {user_mesh}")
-        mesh_input = ensure_watertight(load_mesh(user_mesh, name), name, source=str(user_mesh))
-    else:
+    if mesh_input is None:
         log(f"{name}: mesh from {sum(m is not None for m in masks)} masks and the 3DGS depth")
         depths = [None if m is None else _solid_depth(g_base, cam) for cam, m in zip(cameras, masks, strict=True)]
         mesh_input = reconstruct_mesh(
