@@ -3,11 +3,14 @@
 The mesh (reconstructed, or supplied by the user at any scale and orientation) and the object's
 Gaussians must share one frame. An initial similarity comes from keypoint correspondences
 (Umeyama): automatic ones are the centroid and the ends of the principal axes of both point sets
-(each sign choice of the axes is tried), or the user's. Scaled ICP (``geometry.icp``) of the
-opaque Gaussian means onto points sampled densely on the mesh surface refines each start; the best
-fit wins. Gaussians lie on the visible surface only (not the underside), which the trimmed ICP
-tolerates because every Gaussian has a surface point near it, while not every surface point has a
-Gaussian: that is why the Gaussians are the moving set.
+(each sign choice of the axes is tried), or the user's. Scaled ICP (``geometry.icp``) onto points
+sampled densely on the mesh surface refines each start; the best fit wins.
+
+What is aligned (``objects.stage``): a user mesh against the reconstruction's surface (two closed
+surfaces pin the scale well; the Gaussians cover only what the cameras saw, and a similarity fitted
+to them can shrink and tilt the mesh over its unseen underside), or against the opaque Gaussian
+means when the user gives keypoints; a reconstructed mesh, already in the Gaussians' frame, gets
+at most a small rigid correction.
 
 The object frame has its origin at the bottom centre of the object, z up (the support plane's
 normal), x along the footprint's principal axis, like the sample's ground-truth meshes.

@@ -172,9 +172,11 @@ def process_object(
     """Masks, mesh, object 3DGS, alignment and files for one object; returns its summary."""
     import cv2
     import torch
+    import trimesh
 
     from ..gaussians.ply import write_ply
     from ..gaussians.transform import apply_sim3
+    from ..geometry.rotation import rotation_angle
     from .align import align_points_to_mesh, distance_to_mesh, object_frame
     from .collision import convex_decomposition
     from .figure import side_by_side
@@ -201,10 +203,11 @@ def process_object(
     log(f"{name}: object 3DGS")
     g_base, splat_metrics = train_object_gaussians(init, cameras, images, masks, config.splat, name, progress)
 
-    if mesh_input is None:
+    recon = None
+    if target.cluster is not None and target.plane is not None:
         log(f"{name}: mesh from {sum(m is not None for m in masks)} masks and the 3DGS depth")
         depths = [None if m is None else _solid_depth(g_base, cam) for cam, m in zip(cameras, masks, strict=True)]
-        mesh_input = reconstruct_mesh(
+        recon = reconstruct_mesh(
             target.cluster,
             target.plane,
             cameras,
@@ -220,9 +223,21 @@ def process_object(
     means = g_base.means.detach().numpy().astype(np.float64)[opaque]
     kp = config.keypoints.get(name)
     keypoints = None if not kp else (np.array([k[1] for k in kp]), np.array([k[0] for k in kp]))
-    alignment = align_points_to_mesh(
-        means, mesh_input, keypoints=keypoints, init=None if (user_mesh or kp) else Sim3.identity()
-    )
+    if mesh_input is None:
+        # the reconstruction is the Gaussians' own geometry, in the base frame already: a rigid
+        # refinement at most (a similarity would slide the visible top over the closed underside)
+        mesh_input = recon
+        alignment = align_points_to_mesh(means, mesh_input, init=Sim3.identity(), with_scale=False)
+        moved = alignment.sim3_points_to_mesh
+        if np.linalg.norm(moved.translation) > 0.003 or np.degrees(rotation_angle(moved.rotation)) > 2.0:
+            alignment.sim3_points_to_mesh, alignment.start = Sim3.identity(), "identity (ICP moved too far)"
+    elif recon is not None and keypoints is None:
+        # a user mesh (any scale, any pose) against the reconstruction: two closed surfaces, which
+        # pins the scale far better than the visible-only Gaussians do
+        surface = trimesh.sample.sample_surface(recon, 20000, seed=0)[0]
+        alignment = align_points_to_mesh(surface, mesh_input)
+    else:
+        alignment = align_points_to_mesh(means, mesh_input, keypoints=keypoints)
     sim3_mesh_to_base = alignment.sim3_points_to_mesh.inverse()
     mesh_base = mesh_input.copy()
     mesh_base.apply_transform(sim3_mesh_to_base.matrix)
