@@ -155,3 +155,20 @@ def test_static_camera_cache_matches_the_full_render() -> None:
     assert footprint.sum() > 10
     assert np.abs(got[0][footprint] - full[0][footprint]).mean() < 0.02
     assert world._moving == {"a"}
+
+
+def test_view_culling_changes_no_pixel() -> None:
+    # A wide scene seen close up: most Gaussians are outside the view and get dropped before rendering.
+    g = torch.Generator().manual_seed(7)
+    n = 4000
+    means = torch.rand(n, 3, generator=g) * torch.tensor([2.0, 2.0, 0.05]) - torch.tensor([0.5, 1.0, 0.0])
+    quats = torch.nn.functional.normalize(torch.randn(n, 4, generator=g), dim=1)
+    scales = torch.rand(n, 3, generator=g) * 0.03 + 0.002
+    scene = Gaussians.from_activated(means, quats, scales, torch.full((n,), 0.8), rgb=torch.rand(n, 3, generator=g))
+    view = _camera((0.4, 0.0, 0.25), target=(0.45, 0.0, 0.0))
+    culled = SplatWorld(scene, [], SplatRenderOptions(backend="cpu", cull=True))
+    plain = SplatWorld(scene, [], SplatRenderOptions(backend="cpu", cull=False))
+    keep = SplatWorld._in_view(culled.gaussians, view, K, W, H)
+    assert 0.02 < float(keep.float().mean()) < 0.5
+    for a, b in zip(culled.render(view, K, W, H), plain.render(view, K, W, H), strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-6)

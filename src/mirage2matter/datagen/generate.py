@@ -108,6 +108,7 @@ def summarize(run: RunStats, cfg: RunConfig, fingerprint: dict[str, Any], extra:
     mine_frames = sum(int(r.get("length", 0)) for r in mine if r.get("success"))
     mine_ok = sum(1 for r in mine if r.get("success"))
     busy = sum(r["t_end"] - r["t_start"] for r in mine)
+    cpu = sum(r.get("cpu_s", 0.0) for r in mine)
     summary = {
         "requested": cfg.episodes,
         "episodes": len(run.selected),
@@ -127,6 +128,10 @@ def summarize(run: RunStats, cfg: RunConfig, fingerprint: dict[str, Any], extra:
         "demos_per_min": round(60.0 * mine_ok / run.wall_s, 3) if run.wall_s > 0 and mine_ok else None,
         "ms_per_frame": round(1000.0 * busy / mine_frames, 2) if mine_frames else None,
         "seconds_per_attempt_median": _median([r["t_end"] - r["t_start"] for r in mine]),
+        # CPU cost per successful demo (failed attempts included): on a machine shared with other work the
+        # wall-clock rate above says little; 60 / cpu_s_per_demo is the rate per core given to the workers.
+        "cpu_s_per_demo": round(cpu / mine_ok, 2) if mine_ok else None,
+        "demos_per_cpu_min": round(60.0 * mine_ok / cpu, 3) if cpu > 0 and mine_ok else None,
         "stage_seconds_total": {k: round(v, 3) for k, v in sorted(stage_totals.items())},
         "attempt_selection": {"selected": run.selected, "failed": [r["attempt"] for r in failures]},
         "fingerprint": fingerprint,

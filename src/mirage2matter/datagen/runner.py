@@ -61,14 +61,16 @@ def attempt_seed(seed: int, attempt: int) -> int:
 
 
 def _run_and_commit(source: EpisodeSource, staging_root: Path, attempt: int, seed: int) -> dict[str, Any]:
-    t0 = time.time()
+    t0, cpu0 = time.time(), time.process_time()
     out = source.run(attempt, seed)
     t1 = time.time()
     result = {"seed": seed, "success": out.success, "reason": out.reason, "record": out.record,
               "timings": dict(out.timings)}  # fmt: skip
     committed = commit_attempt(staging_root, source.spec, attempt, result, out.episode if out.success else None)
     committed["timings"]["commit"] = time.time() - t1
-    committed.update(t_start=t0, t_end=time.time(), worker=os.getpid())
+    # CPU seconds of this process (its GL and numba threads included): the cost of an attempt however
+    # busy the machine is with other work.
+    committed.update(t_start=t0, t_end=time.time(), cpu_s=time.process_time() - cpu0, worker=os.getpid())
     return committed
 
 

@@ -115,7 +115,8 @@ def bench_datagen(
         finally:
             shutil.rmtree(out, ignore_errors=True)
         per_run.append(s)
-        log(json.dumps({k: s.get(k) for k in (*BENCH_KEYS, "startup_s", "wall_s", "stage_seconds_total")}))
+        extra = ("startup_s", "wall_s", "cpu_s_per_demo", "demos_per_cpu_min", "stage_seconds_total")
+        log(json.dumps({k: s.get(k) for k in (*BENCH_KEYS, *extra)}))
 
     def med(key):
         vals = [s[key] for s in per_run if s.get(key) is not None]
@@ -134,5 +135,7 @@ def bench_datagen(
         "fps": cfg.fps,
         "task": cfg.task,
         "startup_s": med("startup_s"),
+        "cpu_s_per_demo": med("cpu_s_per_demo"),
+        "demos_per_cpu_min": med("demos_per_cpu_min"),
         "stage_seconds_total": per_run[-1].get("stage_seconds_total"),
     }

@@ -42,6 +42,7 @@ class SplatRenderOptions:
     sh_degree: int = 3
     min_opacity: float = 0.0
     backend: str = "auto"
+    cull: bool = True  # drop Gaussians that cannot reach the image before rendering (same pixels, less work)
 
 
 class SplatWorld:
@@ -151,8 +152,33 @@ class SplatWorld:
         depth = np.where(front & (fg_alpha >= 0.5), fg_depth, bg_depth)
         return np.clip(rgb, 0.0, 1.0), alpha, depth
 
+    @staticmethod
+    def _in_view(g: Gaussians, viewmat, K, width: int, height: int) -> torch.Tensor:
+        """bool [N]: Gaussians whose 3-sigma extent can reach the image (a conservative frustum test, so the
+        render of the kept ones equals the render of all; near plane as the renderers')."""
+        from ..gaussians.render.conventions import NEAR_PLANE
+
+        V = torch.as_tensor(viewmat, dtype=g.means.dtype)
+        Kt = torch.as_tensor(K, dtype=g.means.dtype)
+        pc = g.means @ V[:3, :3].T + V[:3, 3]
+        z = pc[:, 2]
+        zc = z.clamp_min(NEAR_PLANE)
+        r = 3.5 * torch.exp(g.log_scales.max(dim=1).values)  # the renderers cut at <= 3.33 sigma (alpha 1/255)
+        f = torch.maximum(Kt[0, 0], Kt[1, 1])
+        # Projected radius in pixels, doubled: off-axis the projection stretches a footprint by up to
+        # 1 + (x/z)^2 (the renderers clamp x/z at 1.3x the half field of view); + the low-pass filter's spread.
+        rp = 2.0 * f * r / zc + 4.0
+        u = Kt[0, 0] * pc[:, 0] / zc + Kt[0, 2]
+        v = Kt[1, 1] * pc[:, 1] / zc + Kt[1, 2]
+        return (z > NEAR_PLANE) & (u > -rp) & (u < width + rp) & (v > -rp) & (v < height + rp)
+
     def _render(self, gaussians: Gaussians, viewmat, K, width, height, background):
         from ..gaussians.render import render
+
+        if self.options.cull:
+            keep = self._in_view(gaussians, viewmat, K, width, height)
+            if not bool(keep.all()):
+                gaussians = gaussians.select(keep)
 
         out = render(
             gaussians,
