@@ -158,3 +158,12 @@ def test_sigkill_midway_then_rerun_gives_exactly_n_episodes(tmp_path: Path) -> N
     # Same episodes as a run that was never interrupted.
     _generate(tmp_path / "ref", episodes=n)
     _same_dataset(out, tmp_path / "ref")
+
+
+def test_killed_after_the_swap_before_cleanup(tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    _generate(out, episodes=3)
+    leftover = staging_dir_for(out)
+    (leftover / "attempts").mkdir(parents=True)  # as if killed between the swap and removing the staging area
+    s = _generate(out, episodes=3)
+    assert s["episodes"] == 3 and validate(out) == [] and not leftover.exists()

@@ -14,6 +14,7 @@ The dataset folder appears complete or not at all; a killed run resumes (export/
 from __future__ import annotations
 
 import json
+import shutil
 import statistics
 import time
 from collections import Counter
@@ -78,7 +79,7 @@ def check_output(out_dir: Path, fingerprint: dict[str, Any]) -> dict[str, Any] |
     if not out_dir.exists() or not any(out_dir.iterdir()):
         return None
     summary = out_dir / "summary.json"
-    if summary.is_file() and not staging_dir_for(out_dir).exists():
+    if summary.is_file():
         try:
             old = json.loads(summary.read_text(encoding="utf-8"))
         except ValueError:
@@ -164,6 +165,8 @@ def generate_dataset(
                    "max_attempts": cfg.attempts_limit}  # fmt: skip
     existing = check_output(out_dir, fingerprint)
     if existing is not None:
+        # A run killed after swapping the dataset in but before removing its staging area leaves the latter.
+        shutil.rmtree(staging_dir_for(out_dir), ignore_errors=True)
         log(f"{out_dir} already holds this dataset ({existing.get('episodes')} episodes); nothing to do")
         return existing
     out_dir.parent.mkdir(parents=True, exist_ok=True)
