@@ -32,7 +32,7 @@ import trimesh
 
 from ..world.config import WorldConfig, WorldConfigError
 from ..world.validate import load_mesh
-from .planning import PlanningError, cartesian_path, ik, plan, time_parameterize
+from .planning import PlanningError, cartesian_path, collision_free, ik, plan, time_parameterize
 from .twin import ARM_DOFS, GRIPPER_OPEN, Twin
 
 __all__ = ["StepRecord", "TaskError", "TaskResult", "TaskSpec", "evaluate", "parse_task", "run_task"]
@@ -235,20 +235,18 @@ class _Exec:
 
 
 # ---- geometry of the target ---------------------------------------------------------------------
-_SURFACE_CACHE: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-
-
 def _surface_points(twin: Twin, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """(points [N,3] on the object's mesh surface, centre of mass [3]) in its body frame (placement-scaled)."""
-    b = twin.bodies[name]
-    key = f"{id(twin)}:{name}"
-    if key not in _SURFACE_CACHE:
+    """(points [N,3] on the object's mesh surface, centre of mass [3]) in its body frame (placement-scaled);
+    for a press button, its cap's. Cached on the twin."""
+    cache = twin.__dict__.setdefault("_surface_cache", {})
+    if name not in cache:
+        b = twin.bodies[name]
         mesh = load_mesh(b.cfg.part.mesh if b.kind == "object" else b.cfg.cap.mesh)
         s = b.cfg.placement.scale
         pts, _ = trimesh.sample.sample_surface(mesh, 3000, seed=0)
         com = mesh.center_mass if mesh.is_volume else mesh.bounds.mean(axis=0)
-        _SURFACE_CACHE[key] = (np.asarray(pts) * s, np.asarray(com) * s)
-    return _SURFACE_CACHE[key]
+        cache[name] = (np.asarray(pts) * s, np.asarray(com) * s)
+    return cache[name]
 
 
 def _placed(twin: Twin, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -320,7 +318,7 @@ def _yaw_choices(yaw: float) -> list[float]:
 
 
 # ---- the tasks ---------------------------------------------------------------------------------------
-def _move_to(ex: _Exec, q_goal: np.ndarray, finger: float, allow=(), speed: float = 0.6, timeout: float = 3.0) -> None:
+def _move_to(ex: _Exec, q_goal: np.ndarray, finger: float, allow=(), speed: float = 0.8, timeout: float = 3.0) -> None:
     tw = ex.twin
     q_now = np.concatenate([ex.q_cmd, tw.robot_state()[ARM_DOFS:]])
     path = plan(tw, q_now, q_goal, timeout=timeout, allow=allow)
@@ -348,27 +346,31 @@ def _grasp(twin: Twin, spec: TaskSpec, ex: _Exec) -> tuple[bool, str, dict]:
             T_grasp = _topdown(tcp, axis)
             T_pre = T_grasp.copy()
             T_pre[2, 3] += 0.10
-            try:
+            T_lift = T_grasp.copy()
+            T_lift[2, 3] += 0.10
+            try:  # the whole approach and lift must be feasible, or the next candidate
                 q_pre = ik(twin, T_pre, q_now)
-                q_grasp = ik(twin, T_grasp, np.concatenate([q_pre, q_now[ARM_DOFS:]]), allow=(name,))
+                down = cartesian_path(twin, T_pre, T_grasp, np.concatenate([q_pre, q_now[ARM_DOFS:]]),
+                                      check_collision=False)  # fmt: skip
+                up = cartesian_path(twin, T_grasp, T_lift, np.concatenate([down[-1], q_now[ARM_DOFS:]]),
+                                    check_collision=False)  # fmt: skip
             except PlanningError:
                 continue
-            if np.abs(q_grasp - q_pre).max() > 0.6:
-                continue
-            chosen = (tcp, w, T_pre, T_grasp, q_pre)
+            with twin.restoring():  # the open fingers may touch the target, nothing else
+                if not collision_free(twin, np.concatenate([down[-1], q_now[ARM_DOFS:]]), allow=(name,)):
+                    continue
+            chosen = (tcp, w, q_pre, down, up)
             break
         if chosen:
             break
     if chosen is None:
         return False, f"no reachable top-down grasp of {name} ({tried} tried)", {}
-    tcp, w, T_pre, T_grasp, q_pre = chosen
-    _move_to(ex, q_pre, GRIPPER_OPEN)
-    _line(ex, T_pre, T_grasp, GRIPPER_OPEN, 0.8)
-    ex.hold(0.1, GRIPPER_OPEN)
+    tcp, w, q_pre, down, up = chosen
+    _move_to(ex, q_pre, GRIPPER_OPEN, speed=0.6)
+    ex.follow(time_parameterize(down, twin.dt, through=True, duration=0.8), GRIPPER_OPEN)
+    ex.hold(0.15, GRIPPER_OPEN)  # let the arm's tracking error settle: a grasp off the widest height squeezes out
     ex.close()
-    T_lift = T_grasp.copy()
-    T_lift[2, 3] += 0.15
-    _line(ex, T_grasp, T_lift, 0.0, 1.0, force=GRASP_FORCE)
+    ex.follow(time_parameterize(up, twin.dt, through=True, duration=0.7), 0.0, force=GRASP_FORCE)
     rise0 = float(twin.object_poses()[name][2, 3]) - z0
     lowest = [rise0]
 
@@ -449,7 +451,7 @@ def _push(twin: Twin, spec: TaskSpec, ex: _Exec) -> tuple[bool, str, dict]:
             break
         direction = d if attempt == 0 else rem / np.linalg.norm(rem)
         try:
-            _sweep(ex, name, goal, direction, speed=0.08 if attempt == 0 else 0.05)
+            _sweep(ex, name, goal, direction, speed=0.1 if attempt == 0 else 0.06)
         except PlanningError as e:
             if attempt == 0:
                 return False, f"cannot reach the start of the {spec.verb}: {e}", {}
@@ -484,7 +486,7 @@ def _sweep(ex: _Exec, name: str, goal: np.ndarray, d: np.ndarray, speed: float) 
     for axis in (perp, -perp, d, -d):
         T_low = _topdown(np.array([*start_xy, z_tcp]), axis)
         T_pre = T_low.copy()
-        T_pre[2, 3] += max(z_top + 0.06, z_tcp + 0.06) - z_tcp  # hand above the object's top
+        T_pre[2, 3] += max(z_top + 0.04, z_tcp + 0.05) - z_tcp  # hand above the object's top
         try:
             q_pre = ik(twin, T_pre, q_now)
             descent = cartesian_path(twin, T_pre, T_low, np.concatenate([q_pre, [0.0, 0.0]]), check_collision=False)
@@ -494,12 +496,12 @@ def _sweep(ex: _Exec, name: str, goal: np.ndarray, d: np.ndarray, speed: float) 
     else:
         raise error
     _move_to(ex, np.concatenate([q_pre, [0.0, 0.0]]), 0.0)
-    ex.follow(time_parameterize(descent, twin.dt, through=True, duration=0.7), 0.0)
+    ex.follow(time_parameterize(descent, twin.dt, through=True, duration=0.5), 0.0)
     _steer(ex, name, T_low, goal, d, speed)
     T_here = twin.T_base_link()
     T_up = T_here.copy()
-    T_up[2, 3] += max(0.06, z_top + 0.03 - (T_here[2, 3] - TCP_OFFSET))
-    _line(ex, T_here, T_up, 0.0, 0.5)
+    T_up[2, 3] += max(0.04, z_top + 0.02 - (T_here[2, 3] - TCP_OFFSET))
+    _line(ex, T_here, T_up, 0.0, 0.35)
     for _ in range(10):  # let a rolling object come to rest (<= 1 s)
         ex.hold(0.1, 0.0)
         b = twin.bodies[name].entity

@@ -34,9 +34,10 @@ __all__ = ["ARM_DOFS", "FINGER_DOFS", "GRIPPER_OPEN", "Twin", "TwinOptions", "en
 ARM_DOFS = 7
 FINGER_DOFS = 2
 GRIPPER_OPEN = 0.04  # Panda finger joint (m per finger) fully open
-# Panda PD gains and force limits (Genesis' Franka examples); the fingers are force-controlled when grasping.
-_KP = np.array([4500, 4500, 3500, 3500, 2000, 2000, 2000, 100, 100], dtype=np.float64)
-_KV = np.array([450, 450, 350, 350, 200, 200, 200, 10, 10], dtype=np.float64)
+# Panda PD gains and force limits (Genesis' Franka examples, fingers 10x stiffer: with kp 100 a closing pair lags,
+# touches one side first and rolls a round object away); the fingers are force-controlled when squeezing.
+_KP = np.array([4500, 4500, 3500, 3500, 2000, 2000, 2000, 1000, 1000], dtype=np.float64)
+_KV = np.array([450, 450, 350, 350, 200, 200, 200, 40, 40], dtype=np.float64)
 _FORCE = np.array([87, 87, 87, 87, 12, 12, 12, 100, 100], dtype=np.float64)
 _FINGER_COUPLING = 3000.0  # N/m on the difference of the two finger joints when squeezing
 
