@@ -257,8 +257,11 @@ class WorldConfig:
         if data.get("version", 1) != 1:
             raise WorldConfigError(f"world.yaml: version {data.get('version')!r} is not supported (expected 1)")
         r = _check_keys(data.get("robot") or {}, {f.name for f in fields(RobotConfig)}, "robot")
+        robot_file = str(r.get("file", DEFAULT_ROBOT))
+        if not Path(robot_file).is_absolute() and (root / robot_file).is_file():  # beside world.yaml
+            robot_file = str((root / robot_file).resolve())
         robot = RobotConfig(
-            file=str(r.get("file", DEFAULT_ROBOT)),
+            file=robot_file,
             ee_link=str(r.get("ee_link", "hand")),
             home=tuple(float(v) for v in r.get("home", PANDA_HOME)),
         )
