@@ -89,6 +89,7 @@ def carve(
     name: str = "object",
     depths: Sequence[np.ndarray | None] | None = None,
     depth_edge_px: float = 2.0,
+    depth_margin: float = 0.0,
 ) -> np.ndarray:
     """Carving field [nx,ny,nz] float32 (pixels; > 0 inside the hull) from the ``masks`` [H,W] bool of
     the ``cameras`` (None: the object is not seen there). ``plane_height(points) -> [N]`` gives the
@@ -96,7 +97,8 @@ def carve(
 
     ``depths`` [H,W] (metres along the camera's z, NaN where unknown) carve free space too: a voxel
     in front of the surface a keyframe sees is empty. Silhouettes alone cannot carve what lies
-    above a flat top seen only from above at an angle; depth can."""
+    above a flat top seen only from above at an angle; depth can. Only what lies more than
+    ``depth_margin`` (metres) in front of the seen surface is carved (rendered depth is noisy)."""
     pts = grid.centres()
     dists = []
     for k, (cam, mask) in enumerate(zip(cameras, masks, strict=True)):
@@ -112,7 +114,7 @@ def carve(
             # depth jumps at the silhouette: a voxel beside the object may fall in a pixel that sees
             # its front; only depth well inside the mask is used
             d = _nearest(np.where(sdi >= depth_edge_px, depth, np.nan), uv)
-            behind = (z - d) * cam.fx / np.maximum(z, 1e-9)  # pixels, > 0 behind the seen surface
+            behind = (z - d + depth_margin) * cam.fx / np.maximum(z, 1e-9)  # pixels, > 0 behind the surface
             sd = np.where(np.isfinite(behind), np.minimum(sd, behind), sd)
         sd[z <= 0] = np.nan
         dists.append(sd.astype(np.float32))

@@ -36,10 +36,12 @@ def reconstruct_mesh(
     smooth_iterations: int = 5,
     name: str | None = None,
     depths: Sequence[np.ndarray | None] | None = None,
+    depth_margin: float = 0.002,
 ):
     """Watertight trimesh.Trimesh (base frame) of the object from its masks (and, when given, depth
     maps [H,W] per keyframe, NaN where unknown, that carve the free space in front of what they
-    see). ``skip_fraction`` of the views that see a voxel may disagree without cutting it away."""
+    see, beyond ``depth_margin``: the expected depth of a 3DGS sits ~2 mm in front of the true surface
+    on the sample). ``skip_fraction`` of the views that see a voxel may disagree without cutting it away."""
     import trimesh
 
     name = name or cluster.name
@@ -50,7 +52,9 @@ def reconstruct_mesh(
     grid = Grid.around(lo, hi, voxel)
     n_seen = sum(1 for m in masks if m is not None)
     skip = int(round(skip_fraction * n_seen))
-    field = carve(grid, cameras, masks, plane_height=plane.height, skip=skip, name=name, depths=depths)
+    field = carve(
+        grid, cameras, masks, plane_height=plane.height, skip=skip, name=name, depths=depths, depth_margin=depth_margin
+    )
     mesh = surface_mesh(field, grid, name=name)
     if smooth_iterations > 0:
         trimesh.smoothing.filter_taubin(mesh, iterations=smooth_iterations)

@@ -25,7 +25,7 @@ from .errors import ObjectsError
 from .matting import render_alpha
 from .views import crop_camera
 
-__all__ = ["SplatConfig", "mask_crop", "object_metrics", "train_object_gaussians"]
+__all__ = ["SplatConfig", "heldout_views", "mask_crop", "object_metrics", "train_object_gaussians"]
 
 
 @dataclass
@@ -124,6 +124,18 @@ def object_metrics(g: Gaussians, views: Sequence[View], dilate_px: int = 3) -> d
         "alpha_outside": float(np.mean([p["alpha_outside"] for p in per])),
         "views": per,
     }
+
+
+def heldout_views(
+    cameras: Sequence[Camera],
+    images: Sequence[np.ndarray],
+    masks: Sequence[np.ndarray | None],
+    config: SplatConfig | None = None,
+) -> list[View]:
+    """The held-out views ``train_object_gaussians`` evaluates on (same crops, same split)."""
+    config = config or SplatConfig()
+    items = _views(cameras, images, masks, config)
+    return [items[k][1] for k in split_holdout(len(items), config.holdout_every)[1]]
 
 
 def train_object_gaussians(

@@ -21,7 +21,7 @@ import hashlib
 import json
 import os
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -53,6 +53,7 @@ class ObjectsConfig:
     voxel: float = 0.0015
     skip_fraction: float = 0.08
     grabcut: bool = True
+    prune_inside: float = 0.003  # metres: Gaussians deeper inside the reconstruction are dropped
     collision_threshold: float = 0.05
     collision_max_parts: int = 16
     figure_views: int = 3
@@ -217,6 +218,19 @@ def process_object(
             name=name,
             depths=depths,
         )
+
+    if recon is not None:
+        # Gaussians deep inside the object (the matting starts them throughout its volume) sit far
+        # from the surface; drop them and let a short second round heal the surface they backed
+        depth_inside = trimesh.proximity.signed_distance(recon, g_base.means.detach().numpy().astype(np.float64))
+        inside = depth_inside >= config.prune_inside
+        if inside.any():
+            log(f"{name}: {int(inside.sum())} Gaussians inside the object dropped, short retraining")
+            heal = replace(config.splat, iterations=max(1, config.splat.iterations // 4), min_opacity_init=0.0)
+            g_base, healed = train_object_gaussians(
+                g_base.select(torch.from_numpy(~inside)), cameras, images, masks, heal, name, progress
+            )
+            splat_metrics = {**healed, "pruned_inside": int(inside.sum()), "first_round": splat_metrics}
 
     log(f"{name}: alignment")
     opaque = (torch.sigmoid(g_base.logit_opacities) > 0.5).numpy()
