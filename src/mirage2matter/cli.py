@@ -12,11 +12,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import statistics
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +24,6 @@ EXIT_ERROR = 2  # bad input, like argparse's own usage errors
 EXIT_INTERRUPTED = 130
 
 # Stages of DESIGN.md section 3 that later issues add; `m2m demo` says so.
-NOT_IMPLEMENTED = ("scene training", "objects", "physics", "datasets")
 
 _CAMERA_FIELDS = '{"width", "height", "K" (3x3, pixels), "T_world_cam" (4x4 camera-to-world, OpenCV axes)}'
 
@@ -251,362 +248,48 @@ def _cmd_bench_render(args: argparse.Namespace) -> int:
 
 
 # ---- m2m demo ---------------------------------------------------------------------------------------------
-@dataclass
-class DemoConfig:
-    """Settings of ``m2m demo``; the bench_* fields size its render benchmark."""
-
-    workspace: Path = Path("workspaces/demo")
-    gaussians: int = 300_000
-    size: int = 448
-    views: int = 4
-    sh_degree: int = 3
-    seed: int = 0
-    backend: str = "auto"
-    bench_gaussians: int = 100_000
-    bench_size: int = 224
-    bench_views: int = 4
-    bench_repeats: int = 3
-    bench_warmup: int = 2
-    sfm_keyframes: int = 24  # keyframes of the sample video for capture + SfM (0: skip those steps)
-
-
-class _Steps:
-    """One stderr line per finished step: ``[i/n] what  [step seconds, total seconds]``."""
-
-    def __init__(self, total: int, log: Callable[[str], None]) -> None:
-        self.total, self.log = total, log
-        self.done = 0
-        self.t_start = self.t_step = time.perf_counter()
-
-    def finish(self, what: str) -> float:
-        now = time.perf_counter()
-        dt, self.t_step = now - self.t_step, now
-        self.done += 1
-        self.log(f"[{self.done}/{self.total}] {what}  [{dt:.2f} s, total {now - self.t_start:.1f} s]")
-        return round(dt, 3)
-
-    def begin(self) -> None:
-        """Restart the step clock (after work that should not count towards the next step)."""
-        self.t_step = time.perf_counter()
-
-
-def _contact_sheet(images: list, cols: int = 2):
-    """Tile equally sized uint8 [H,W,3] images into a grid, row-major; empty cells are black."""
-    import numpy as np
-
-    rows = -(-len(images) // cols)
-    blank = np.zeros_like(images[0])
-    cells = images + [blank] * (rows * cols - len(images))
-    return np.concatenate([np.concatenate(cells[r * cols : (r + 1) * cols], axis=1) for r in range(rows)], axis=0)
-
-
-def run_demo(cfg: DemoConfig, log: Callable[[str], None] = _info) -> dict[str, Any]:
-    """Build, save, reload, render and benchmark the synthetic tabletop scene in ``cfg.workspace``.
-
-    Returns the summary also written to ``<workspace>/demo_summary.json``; output paths in it are
-    relative to the workspace. Every file is written atomically, so a rerun simply replaces them.
-    """
-    ws = Path(cfg.workspace)
-    if ws.exists() and not ws.is_dir():
-        raise CliError(f"workspace {ws} exists and is not a directory; choose another with -w")
-    backend = _resolve_backend(cfg.backend)
-    from .bench import RenderBenchConfig
-
-    bench_cfg = RenderBenchConfig(
-        gaussians=cfg.bench_gaussians,
-        size=cfg.bench_size,
-        backend=backend,
-        sh_degree=cfg.sh_degree,
-        views=cfg.bench_views,
-        repeats=cfg.bench_repeats,
-        warmup=cfg.bench_warmup,
-        seed=cfg.seed,
-    )
-    bench_cfg.validate()  # before minutes of work, not after
-
-    import numpy as np
-    import torch
-
-    from .atomic import atomic_write
-    from .bench import bench_render
-    from .gaussians.ply import read_ply, write_ply
-    from .gaussians.render import render
-    from .gaussians.synthetic import orbit_cameras, tabletop_scene
-    from .geometry.camera import Camera, load_camera_json, save_camera_json
-
-    try:
-        (ws / "scene").mkdir(parents=True, exist_ok=True)
-        (ws / "renders").mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise CliError(f"cannot create workspace folders in {ws} ({_describe(e)}); choose another with -w") from e
-    threads = configure_threads()
-    steps = _Steps(12 if cfg.sfm_keyframes else 9, log)
-    timings: dict[str, float] = {}
-
-    # The pipeline starts from a video like a user's: today it reads the bundled sample capture and
-    # checks its board against the ground truth; SfM and the rest come in later issues.
-    from .sample.inspect import BUNDLED_SAMPLE, inspect_sample
-
-    sample = inspect_sample(BUNDLED_SAMPLE)
-    timings["sample"] = steps.finish(
-        f"read the bundled sample video {_show(BUNDLED_SAMPLE / 'scene.mp4')}: {sample['video_frames']} frames; "
-        f"ChArUco board found in {sample['board_detected']}/{sample['frames_checked']} checked frames, "
-        f"{sample['board_corner_error_px_median']:.2f} px from the ground truth"
-    )
-
-    reconstruction = None
-    if cfg.sfm_keyframes:
-        reconstruction = _demo_capture_and_sfm(ws, BUNDLED_SAMPLE, cfg.sfm_keyframes)
-        timings["capture"] = steps.finish(
-            f"capture: {reconstruction['keyframes']} keyframes from the sample video into {_show(ws / 'capture')}"
-        )
-        timings["sfm"] = steps.finish(
-            f"SfM: registered {reconstruction['registered']}/{reconstruction['keyframes']}, vs ground truth "
-            f"{reconstruction['rotation_deg_median']:.3f} deg / {100 * reconstruction['centre_frac_median']:.3f}% "
-            f"(median, after a Sim3 fit) into {_show(ws / 'sfm')}"
-        )
-        rc = reconstruction
-        timings["align"] = steps.finish(
-            f"metric alignment to the robot base: scale {rc['align_scale']:.5f}, cameras vs ground truth "
-            f"{rc['aligned_rotation_deg_median']:.3f} deg / {rc['aligned_translation_mm_median']:.1f} mm "
-            f"(median) into {_show(ws / 'calib')}"
-        )
-    handeye = _demo_handeye(ws, BUNDLED_SAMPLE)
-    timings["handeye"] = steps.finish(
-        f"hand-eye calibration of the head camera from {handeye['views']} views: "
-        f"{handeye['rotation_deg']:.3f} deg / {handeye['translation_mm']:.2f} mm from the ground truth"
-    )
-
-    g = tabletop_scene(cfg.gaussians, cfg.sh_degree, cfg.seed)
-    timings["build_scene"] = steps.finish(
-        f"built the synthetic tabletop scene: {len(g):,} Gaussians, SH degree {g.sh_degree}"
-    )
-
-    ply_rel = "scene/gaussians.ply"
-    write_ply(ws / ply_rel, g)
-    ply_bytes = (ws / ply_rel).stat().st_size
-    timings["write_ply"] = steps.finish(f"wrote {_show(ws / ply_rel)} ({ply_bytes / 1e6:.1f} MB)")
-
-    g_read = read_ply(ws / ply_rel)
-    exact = all(torch.equal(a, b) for a, b in zip(g.tensors().values(), g_read.tensors().values(), strict=True))
-    if not exact:
-        raise RuntimeError(
-            f"PLY round trip changed the Gaussians in {ws / ply_rel}; this is a bug in write_ply/read_ply"
-        )
-    timings["read_ply"] = steps.finish(f"read it back: {len(g_read):,} Gaussians, identical to what was written")
-
-    cams = orbit_cameras(cfg.views, cfg.size, cfg.size, seed=cfg.seed)
-    view_rels = [f"renders/view_{i}.png" for i in range(len(cams))]
-    images, render_ms = [], []
-    with torch.no_grad():
-        for (viewmat, K), rel in zip(cams, view_rels, strict=True):
-            t0 = time.perf_counter()
-            out = render(g_read, torch.from_numpy(viewmat), torch.from_numpy(K), cfg.size, cfg.size, backend=backend)
-            if backend == "cuda":
-                torch.cuda.synchronize()
-            render_ms.append(round((time.perf_counter() - t0) * 1e3, 2))
-            images.append(_to_uint8(out.rgb))
-            _write_png(ws / rel, images[-1])
-    # The first view's camera as a file, so `m2m render` can reproduce view_0.png from the PLY.
-    cam_rel = "renders/view_0.camera.json"
-    viewmat0, K0 = cams[0]
-    save_camera_json(ws / cam_rel, Camera(K0, np.linalg.inv(viewmat0), cfg.size, cfg.size, name="view_0"))
-    cam_back = load_camera_json(ws / cam_rel)
-    camera_ok = bool(np.allclose(cam_back.viewmat, viewmat0, atol=1e-9) and np.allclose(cam_back.K, K0))
-    if not camera_ok:
-        raise RuntimeError(f"camera JSON round trip changed the camera in {ws / cam_rel}; this is a bug")
-    timings["render_views"] = steps.finish(
-        f"rendered {len(cams)} views at {cfg.size}x{cfg.size} on {backend} into {_show(ws / 'renders')}/ "
-        f"(ms per view: {', '.join(f'{m:.0f}' for m in render_ms)}; the first includes JIT load)"
-    )
-
-    sheet_rel = "renders/contact_sheet.png"
-    _write_png(ws / sheet_rel, _contact_sheet(images))
-    timings["contact_sheet"] = steps.finish(f"wrote the 2x2 contact sheet {_show(ws / sheet_rel)}")
-
-    bench = bench_render(bench_cfg, log=lambda m: log(f"      {m}"))
-    timings["benchmark"] = steps.finish(
-        f"benchmark: {bench['gaussians']:,} Gaussians at {bench['width']}x{bench['height']}, "
-        f"median {bench['ms_median']:.2f} ms"
-    )
-
-    summary_rel = "demo_summary.json"
-    timings["total"] = round(time.perf_counter() - steps.t_start, 3)
-    summary: dict[str, Any] = {
-        "mirage2matter_version": __version__,
-        "workspace": str(ws.resolve()),
-        "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()},
-        "threads": threads,
-        "sample": sample,
-        "reconstruction": reconstruction,
-        "handeye": handeye,
-        "scene": {
-            "ply": ply_rel,
-            "gaussians": len(g),
-            "sh_degree": g.sh_degree,
-            "ply_bytes": ply_bytes,
-            "ply_roundtrip_exact": exact,
-        },
-        "renders": {
-            "backend": backend,
-            "width": cfg.size,
-            "height": cfg.size,
-            "views": view_rels,
-            "contact_sheet": sheet_rel,
-            "camera": cam_rel,
-            "camera_roundtrip_ok": camera_ok,
-            "ms": render_ms,
-            "ms_median": round(statistics.median(render_ms), 2),
-        },
-        "benchmark": bench,
-        "timings_s": timings,
-        "not_implemented": list(NOT_IMPLEMENTED),
-    }
-    with atomic_write(ws / summary_rel, "w", encoding="utf-8") as f:
-        json.dump(summary, f, indent=2)
-        f.write("\n")
-    steps.finish(f"wrote {_show(ws / summary_rel)}")
-    return summary
-
-
-def _demo_capture_and_sfm(ws: Path, sample: Path, n_keyframes: int) -> dict[str, Any]:
-    """Keyframes from the sample video, SfM, and the poses compared with the sample's ground truth."""
-    import numpy as np
-
-    from .capture import CaptureConfig, extract_keyframes
-    from .sfm import SfMConfig, SfMError, compare_poses, run_sfm
-
-    keyframes = extract_keyframes(sample / "scene.mp4", ws / "capture", CaptureConfig(max_keyframes=n_keyframes))
-    try:
-        result = run_sfm(ws / "capture", ws / "sfm", SfMConfig())
-    except SfMError as e:
-        raise CliError(f"SfM of the sample failed: {e}") from None
-    gt = json.loads((sample / "ground_truth.json").read_text())
-    reference = {k["file"]: np.asarray(gt["frames"][k["frame_index"]]["T_base_cam"]) for k in keyframes}
-    errors = compare_poses(result.poses, reference)
-
-    from PIL import Image
-
-    from .atomic import atomic_write
-    from .calib.align import align_scene, apply_to_cameras
-    from .calib.board import BoardSpec
-    from .geometry.rotation import rotation_angle
-
-    board = BoardSpec.from_json(gt["board"]["spec"])
-    images = [np.asarray(Image.open(ws / "capture" / c.name).convert("RGB")) for c in result.cameras]
-    aligned = align_scene(result.cameras, images, result.points, board, np.asarray(gt["board"]["T_base_board"]))
-    cameras_base = apply_to_cameras(aligned.sim3_sfm_to_base, result.cameras)
-    (ws / "calib").mkdir(exist_ok=True)
-    with atomic_write(ws / "calib" / "sim3_sfm_to_base.json", "w", encoding="utf-8") as f:
-        json.dump(aligned.to_json(), f, indent=1)
-    rot, trans = [], []
-    for cam in cameras_base:
-        T_gt = reference[cam.name]
-        rot.append(float(np.degrees(rotation_angle(cam.T_world_cam[:3, :3].T @ T_gt[:3, :3]))))
-        trans.append(float(1000 * np.linalg.norm(cam.T_world_cam[:3, 3] - T_gt[:3, 3])))
-    return {
-        "align_scale": aligned.sim3_sfm_to_base.scale,
-        "aligned_rotation_deg_median": float(np.median(rot)),
-        "aligned_translation_mm_median": float(np.median(trans)),
-        "keyframes": len(keyframes),
-        "registered": result.registered,
-        "reprojection_px": result.mean_reprojection_error,
-        "points": len(result.points),
-        "rotation_deg_median": errors["rotation_deg_median"],
-        "centre_frac_median": errors["center_frac_median"],
-    }
-
-
-def _demo_handeye(ws: Path, sample: Path) -> dict[str, Any]:
-    """Hand-eye calibration of the sample's head camera, compared with its ground truth."""
-    import numpy as np
-
-    from .atomic import atomic_write
-    from .calib.board import BoardSpec
-    from .calib.handeye import calibrate_from_files
-    from .geometry.rotation import rotation_angle
-
-    gt = json.loads((sample / "ground_truth.json").read_text())
-    result, out = calibrate_from_files(
-        sample / "handeye" / "images", sample / "handeye" / "joints.json",
-        BoardSpec.load(sample / "handeye" / "board.json"), np.asarray(gt["head_camera"]["K"]),
-    )  # fmt: skip
-    (ws / "calib").mkdir(parents=True, exist_ok=True)
-    with atomic_write(ws / "calib" / "handeye.json", "w", encoding="utf-8") as f:
-        json.dump(out, f, indent=1)
-    T_gt = np.asarray(gt["head_camera"]["T_base_headcam"])
-    return {
-        "views": len(out["per_view"]),
-        "rotation_deg": float(np.degrees(rotation_angle(result.T[:3, :3].T @ T_gt[:3, :3]))),
-        "translation_mm": float(1000 * np.linalg.norm(result.T[:3, 3] - T_gt[:3, 3])),
-    }
-
-
-def _print_demo_summary(ws: Path, s: dict[str, Any], elapsed: float) -> None:
-    sc, r, b = s["scene"], s["renders"], s["benchmark"]
-    p = lambda rel: _show(ws / rel)
-    n_views = len(r["views"])
-    ply, cam = p(sc["ply"]), p(r["camera"])
-    sm = s["sample"]
-    lines = [
-        f"m2m demo finished in {elapsed:.1f} s; workspace {_show(ws)}/",
-        f"  sample     {_show(Path(sm['sample']))}/scene.mp4: {sm['video_frames']} frames at "
-        f"{sm['size'][0]}x{sm['size'][1]}, "
-        f"board in {sm['board_detected']}/{sm['frames_checked']} checked frames "
-        f"({sm['board_corner_error_px_median']:.2f} px from ground truth), {sm['handeye_views']} hand-eye views; "
-        "see its contact_sheet.jpg",
-        *(
-            [
-                f"  sfm        {p('sfm')}: {rc['registered']}/{rc['keyframes']} keyframes registered, "
-                f"{rc['points']:,} points, {rc['reprojection_px']:.2f} px; poses vs ground truth "
-                f"{rc['rotation_deg_median']:.3f} deg / {100 * rc['centre_frac_median']:.3f}% (median)"
-            ]
-            if (rc := s["reconstruction"])
-            else []
-        ),
-        *(
-            [
-                f"  align      {p('calib/sim3_sfm_to_base.json')}: SfM -> robot base, cameras vs ground truth "
-                f"{rc['aligned_rotation_deg_median']:.3f} deg / {rc['aligned_translation_mm_median']:.1f} mm (median)"
-            ]
-            if rc
-            else []
-        ),
-        f"  hand-eye   {p('calib/handeye.json')}: T_base_headcam from {s['handeye']['views']} views, "
-        f"{s['handeye']['rotation_deg']:.3f} deg / {s['handeye']['translation_mm']:.2f} mm from the ground truth",
-        f"  scene      {ply}: {sc['gaussians']:,} Gaussians, SH degree {sc['sh_degree']}, "
-        f"{sc['ply_bytes'] / 1e6:.1f} MB (Inria 3DGS layout; opens in SuperSplat), read back identical",
-        f"  renders    {p('renders')}/view_0..{n_views - 1}.png: {r['width']}x{r['height']}, {r['backend']} backend, "
-        f"median {r['ms_median']:.0f} ms per view",
-        f"  sheet      {p(r['contact_sheet'])}: the {n_views} views as a grid",
-        f"  camera     {cam}: re-render view 0 with",
-        f"             m2m render {ply} --camera {cam} --out view_0.png",
-        f"  benchmark  {b['gaussians']:,} Gaussians at {b['width']}x{b['height']}, "
-        f"SH {b['sh_degree']}, {b['backend']}: "
-        f"median {b['ms_median']:.2f} ms (min {b['ms_min']:.2f}, max {b['ms_max']:.2f}) over {b['runs']} renders",
-        f"  summary    {p('demo_summary.json')}: all numbers above as JSON",
-        f"  not implemented yet: {', '.join(s['not_implemented'])} (coming in later issues)",
-    ]
+def _print_demo_summary(result: dict[str, Any], elapsed: float) -> None:
+    ws = Path(result["workspace"])
+    st = result["stages"]
+    rel = lambda *parts: _show(ws.joinpath(*parts))
+    where = {
+        "capture": rel("capture"), "sfm": rel("sfm"), "align": rel("calib", "sim3_sfm_to_base.json"),
+        "handeye": rel("calib", "handeye.json"), "scene": rel("scene", "gaussians.ply"),
+        "head_view": rel("calib", "head_view.png"), "objects": rel("objects"), "world": rel("world", "world.yaml"),
+        "generate": rel("datasets"),
+    }  # fmt: skip
+    lines = [f"m2m demo finished in {elapsed / 60:.1f} min; workspace {_show(ws)}/"]
+    for stage, summary in st.items():
+        lines.append(f"  {stage:<10} {where[stage]}: {summary['line']}")
+    if "generate" in st:
+        for task, t in st["generate"]["tasks"].items():
+            lines.append(f"             {task}: {_show(Path(t['dataset']))} (preview.mp4, contact_sheet.png)")
+    lines.append(f"  summary    {rel('demo_summary.json')}; stage records in {rel('pipeline.json')}")
     print("\n".join(lines), flush=True)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    cfg = DemoConfig(
-        workspace=Path(args.workspace),
-        gaussians=args.gaussians,
-        size=args.size,
-        seed=args.seed,
-        backend=args.backend,
-        bench_gaussians=args.bench_gaussians,
-        bench_size=args.bench_size,
-        bench_views=args.bench_views,
-        bench_repeats=args.bench_repeats,
-        bench_warmup=args.bench_warmup,
-        sfm_keyframes=args.sfm_keyframes,
-    )
+    from .atomic import atomic_write
+    from .pipeline import PipelineConfig, run_pipeline
+
+    configure_threads()
+    cfg = PipelineConfig(
+        workspace=Path(args.workspace), keyframes=args.keyframes, scene_minutes=args.scene_minutes,
+        episodes=args.episodes, workers=args.workers, stop_after=args.stop_after,
+        sample=Path(args.sample) if args.sample else None,
+    )  # fmt: skip
+    ws = cfg.workspace
+    if ws.exists() and not ws.is_dir():
+        raise CliError(f"workspace {ws} exists and is not a directory; choose another with -w")
     t0 = time.perf_counter()
-    summary = run_demo(cfg)
-    _print_demo_summary(cfg.workspace, summary, time.perf_counter() - t0)
+    try:
+        result = run_pipeline(cfg, log=_info)
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    result["mirage2matter_version"] = __version__
+    with atomic_write(ws / "demo_summary.json", "w", encoding="utf-8") as f:
+        json.dump(result, f, indent=1, default=str)
+    _print_demo_summary(result, time.perf_counter() - t0)
     return 0
 
 
@@ -1213,35 +896,23 @@ def build_parser() -> argparse.ArgumentParser:
     # m2m demo
     d = sub.add_parser(
         "demo",
-        help="show what the pipeline does today on a synthetic tabletop scene",
+        help="the whole pipeline on the bundled sample: video -> reconstruction -> world -> demonstrations",
         description=(
-            "Build the synthetic tabletop scene, save it as scene/gaussians.ply, read it back, render 4 views and "
-            "a contact sheet into renders/, run a short render benchmark and write demo_summary.json. "
-            "Rerunning overwrites the outputs (atomically)."
+            "Run every stage on the bundled sample capture (as it would run on yours): keyframes, SfM, metric "
+            "alignment, hand-eye, scene 3DGS and its head-camera check, objects, the world and its Genesis twin, "
+            "and a few LeRobot demonstrations per task, validated. Each stage is recorded in pipeline.json; a "
+            "rerun (e.g. after an interruption) skips the finished ones."
         ),
     )
-    d.add_argument(
-        "-w",
-        "--workspace",
-        default="workspaces/demo",
-        metavar="DIR",
-        help="workspace folder (default ./workspaces/demo)",
-    )
-    d.add_argument(
-        "--gaussians", type=_int_at_least(1), default=300_000, metavar="N", help="scene size (default 300000)"
-    )
-    d.add_argument(
-        "--size", type=_int_at_least(1), default=448, metavar="S", help="render size in pixels (default 448)"
-    )
-    d.add_argument("--backend", default="auto", choices=("auto", "cpu", "cuda"), help="renderer (default auto)")
-    d.add_argument("--seed", type=_int_at_least(0), default=0, help=argparse.SUPPRESS)
-    # Advanced: size of the built-in benchmark (tests shrink it).
-    d.add_argument("--bench-gaussians", type=_int_at_least(1), default=100_000, help=argparse.SUPPRESS)
-    d.add_argument("--bench-size", type=_int_at_least(1), default=224, help=argparse.SUPPRESS)
-    d.add_argument("--bench-views", type=_int_at_least(1), default=4, help=argparse.SUPPRESS)
-    d.add_argument("--bench-repeats", type=_int_at_least(1), default=3, help=argparse.SUPPRESS)
-    d.add_argument("--bench-warmup", type=_int_at_least(0), default=2, help=argparse.SUPPRESS)
-    d.add_argument("--sfm-keyframes", type=_int_at_least(0), default=24, help=argparse.SUPPRESS)
+    d.add_argument("-w", "--workspace", default="workspaces/demo", metavar="DIR", help="default ./workspaces/demo")
+    d.add_argument("--keyframes", type=_int_at_least(8), default=40, metavar="N", help="keyframes (default 40)")
+    d.add_argument("--scene-minutes", type=_positive_float, default=6.0, metavar="M", help="3DGS budget (default 6)")
+    d.add_argument("--episodes", type=_int_at_least(1), default=3, metavar="N", help="demonstrations per task (3)")
+    d.add_argument("--workers", type=_int_at_least(1), default=2, metavar="W", help="generation workers (default 2)")
+    from .pipeline import STAGES
+
+    d.add_argument("--stop-after", default="generate", choices=STAGES, help="last stage to run (default: all)")
+    d.add_argument("--sample", metavar="DIR", help=argparse.SUPPRESS)
     d.set_defaults(func=_cmd_demo)
 
     # m2m capture / m2m sfm
