@@ -689,15 +689,16 @@ def _xyz(text: str, flag: str) -> tuple[float, float, float]:
 
 
 def _cmd_compose(args: argparse.Namespace) -> int:
-    from .world import load_world, sample_world
+    from .world import WorkspaceWorldOptions, from_workspace, load_world, sample_world
     from .world.compose import consistency, write_world_ply
     from .world.config import world_yaml_path
 
     ws = Path(args.workspace)
     if args.sample:
         sample_world(args.sample, ws, overwrite=args.overwrite)
-    elif not world_yaml_path(ws).is_file():
-        raise CliError(f"{world_yaml_path(ws)} not found; write one or run `m2m compose -w {ws} --sample <sample>`")
+    elif args.rebuild or not world_yaml_path(ws).is_file():  # the world from the workspace's reconstruction
+        opts = WorkspaceWorldOptions(buttons=tuple(args.button), crop_margin=args.crop_margin)
+        from_workspace(ws, opts, log=_info)
     cfg = load_world(ws)
     ply = write_world_ply(cfg)
     cons = consistency(cfg)
@@ -1070,10 +1071,18 @@ def build_parser() -> argparse.ArgumentParser:
     sm.set_defaults(func=_cmd_sample_make)
 
     # m2m compose / m2m world <edit> / m2m task
-    co = sub.add_parser("compose", help="world/world.yaml -> world/world.ply (scene + placed objects), checked")
-    co.add_argument("-w", "--workspace", required=True, metavar="DIR", help="workspace with world/world.yaml")
+    co = sub.add_parser(
+        "compose", help="world/world.yaml (from the workspace's reconstruction when absent) -> world/world.ply, checked"
+    )
+    co.add_argument("-w", "--workspace", required=True, metavar="DIR", help="workspace (world/world.yaml is made "
+                    "from scene/, objects/ and calib/handeye.json when absent)")  # fmt: skip
     co.add_argument("--sample", metavar="DIR", help="first write the world from a sample's ground truth")
     co.add_argument("--overwrite", action="store_true", help="with --sample: rebuild existing object folders")
+    co.add_argument("--rebuild", action="store_true", help="rewrite world.yaml from the workspace's reconstruction")
+    co.add_argument("--button", action="append", default=[], metavar="NAME",
+                    help="a reconstructed object that is a press button (names with 'button' always are)")
+    co.add_argument("--crop-margin", type=_positive_float, default=0.01, metavar="M",
+                    help="scene Gaussians this close to an object's mesh are removed (0.01 m)")  # fmt: skip
     co.add_argument("--max-mm", type=_positive_float, default=3.0, help="max median Gaussian-mesh distance (3 mm)")
     co.set_defaults(func=_cmd_compose)
     wo = sub.add_parser("world", help="edit world.yaml: insert, move, duplicate, delete, import-placement, ...")

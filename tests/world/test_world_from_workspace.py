@@ -1,0 +1,242 @@
+"""The world from a workspace's own reconstruction (`from_workspace`, `m2m compose` without world.yaml).
+
+The workspace is hand-made in the objects stage's format (objects/<name>/{mesh.obj, collision/, gaussians.ply,
+align.json}) from the sample's meshes: the button as ONE remeshed solid (what a reconstruction gives: no
+separate cap), the banana's placement floating 3 mm over the table; a scene splat that contains the objects
+(table + board + each object's surface); calib/handeye.json with the sample's head camera.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from mirage2matter.cli import main
+from mirage2matter.gaussians.model import Gaussians
+from mirage2matter.gaussians.ply import read_ply, write_ply
+from mirage2matter.gaussians.transform import apply_sim3
+from mirage2matter.geometry.sim3 import Sim3
+from mirage2matter.world import WorldConfigError, from_workspace, load_world
+from mirage2matter.world.compose import WorldGaussians, consistency, write_world_ply
+from mirage2matter.world.sample import _scene_stand_in, surface_gaussians
+
+SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+MARGIN = 0.01
+
+
+def _remeshed(mesh: trimesh.Trimesh, pitch: float = 0.002) -> trimesh.Trimesh:
+    """A voxel remesh (marching cubes), bottom centre at the origin: a reconstruction-like single solid."""
+    grid = mesh.voxelized(pitch).fill()
+    out = grid.marching_cubes
+    out.apply_transform(grid.transform)
+    lo, hi = out.bounds
+    out.apply_translation([-(lo[0] + hi[0]) / 2, -(lo[1] + hi[1]) / 2, -lo[2]])
+    return out
+
+
+def _write_object(ws: Path, name: str, mesh: trimesh.Trimesh, placement: Sim3, seed: int) -> None:
+    folder = ws / "objects" / name
+    (folder / "collision").mkdir(parents=True)
+    mesh.export(folder / "mesh.obj")
+    write_ply(folder / "gaussians.ply", surface_gaussians(mesh, 3000, seed))
+    for i, part in enumerate([mesh.convex_hull]):
+        part.export(folder / "collision" / f"part_{i:02d}.obj")
+    align = {"name": name, "sim3_obj_to_base": placement.to_json(), "mesh": {"density": 600.0}}
+    (folder / "align.json").write_text(json.dumps(align))
+
+
+@pytest.fixture(scope="module")
+def recon_ws(tmp_path_factory) -> tuple[Path, dict[str, trimesh.Trimesh]]:
+    """(workspace, {name: the object's mesh in the base frame where it really stands})."""
+    from mirage2matter.sample.assets import build_assets
+
+    gt_path = SAMPLE / "ground_truth.json"
+    if not gt_path.is_file():
+        pytest.skip(f"bundled sample missing at {SAMPLE}")
+    gt = json.loads(gt_path.read_text())
+    assets = {a.name: a for a in build_assets(0)}
+    cap = assets["button_cap"].mesh.copy()
+    cap.apply_translation([0.0, 0.0, 0.04])
+    meshes = {
+        "banana": assets["banana"].mesh,
+        "croissant": assets["croissant"].mesh,
+        "button": _remeshed(trimesh.util.concatenate([assets["button_base"].mesh, cap])),
+    }
+    poses = {n: np.asarray(assets[n if n != "button" else "button_base"].T_base_obj, float) for n in meshes}
+    ws = tmp_path_factory.mktemp("recon_ws")
+    truth = {}
+    scene = [_scene_stand_in(0, 8000.0)]
+    for k, (name, mesh) in enumerate(meshes.items()):
+        placement = Sim3.from_matrix(poses[name])
+        scene.append(apply_sim3(surface_gaussians(mesh, 3000, 100 + k), placement))  # the splat holds the objects
+        m = mesh.copy()
+        m.apply_transform(placement.matrix)
+        truth[name] = m
+        if name == "banana":  # a reconstruction whose bottom stops 3 mm over the table
+            placement = Sim3(1.0, placement.rotation, placement.translation + [0.0, 0.0, 0.003])
+        _write_object(ws, name, mesh, placement, k)
+    (ws / "objects" / "summary.json").write_text(json.dumps({n: {} for n in meshes}))
+    (ws / "scene").mkdir()
+    write_ply(ws / "scene" / "gaussians.ply", Gaussians.concat(scene))
+    head = gt["head_camera"]
+    (ws / "calib").mkdir()
+    handeye = {"mount": "head", "T_base_headcam": head["T_base_headcam"], "K": head["K"], "width": head["width"]}
+    (ws / "calib" / "handeye.json").write_text(json.dumps({**handeye, "height": head["height"]}))
+    from_workspace(ws)
+    return ws, truth
+
+
+def test_world_from_reconstruction(recon_ws):
+    ws, truth = recon_ws
+    cfg = load_world(ws)  # validates: files, names, no overlaps, nothing under the table
+    assert [o.name for o in cfg.objects] == ["banana", "croissant"]
+    assert [a.name for a in cfg.articulated] == ["button"] and cfg.articulated[0].kind == "press_button"
+    head = json.loads((SAMPLE / "ground_truth.json").read_text())["head_camera"]
+    assert np.allclose(cfg.cameras["head"].T_mount_cam, head["T_base_headcam"]) and cfg.cameras["head"].mount == "base"
+    assert cfg.cameras["wrist"].mount == "hand"
+    # the floating banana rests on the table, and its Gaussians came down with it
+    banana = cfg.object("banana")
+    assert banana.placement.translation[2] == pytest.approx(0.0, abs=1e-6)
+    assert banana.density == 600.0 and banana.mass is None
+
+    # Gaussians and meshes agree for every part, the button's base and cap included
+    cons = consistency(cfg)
+    assert set(cons) == {"banana", "croissant", "button", "button/cap"}
+    assert max(cons.values()) <= 0.003, cons
+
+
+def test_button_split_into_base_and_cap(recon_ws):
+    ws, _ = recon_ws
+    a = load_world(ws).articulated_asset("button")
+    # the cap (4 x 4 x 1.5 cm) sits on the 8 x 8 x 4 cm base: the cut is found at the step, not at a third
+    z_cut = a.T_base_cap[2, 3]
+    assert abs(z_cut - 0.041) <= 0.0025, z_cut  # the remesh shifted surfaces by up to a voxel (2 mm)
+    assert np.abs(a.T_base_cap[:2, 3]).max() < 0.003
+    cap = trimesh.load(a.cap.mesh, force="mesh")
+    base = trimesh.load(a.base.mesh, force="mesh")
+    assert cap.is_volume and base.is_volume
+    assert 0.03 < cap.extents[0] < 0.05 and base.extents[0] > 0.075
+    assert base.bounds[1, 2] == pytest.approx(z_cut, abs=1e-6) and cap.bounds[0, 2] == pytest.approx(0.0, abs=1e-6)
+    for p in sorted(a.cap.collision.glob("*.obj")):
+        part = trimesh.load(p, force="mesh")
+        assert part.is_convex and part.bounds[0, 2] >= -1e-6
+    for p in sorted(a.base.collision.glob("*.obj")):
+        part = trimesh.load(p, force="mesh")
+        assert part.is_convex and part.bounds[1, 2] <= z_cut + 1e-6
+    assert (a.axis, a.travel) == ((0.0, 0.0, -1.0), 0.008)
+    cap_g = read_ply(a.cap.gaussians)
+    assert 100 < len(cap_g) < len(read_ply(a.base.gaussians))
+
+
+def _surface_distance(mesh: trimesh.Trimesh, X: np.ndarray) -> np.ndarray:
+    """Distance (m, ~1 mm accurate) from points [N,3] to a mesh surface, via dense surface samples."""
+    from scipy.spatial import cKDTree
+
+    pts, _ = trimesh.sample.sample_surface(mesh, 60000, seed=0)
+    return cKDTree(pts).query(X)[0]
+
+
+def test_scene_loses_the_objects_and_keeps_the_table(recon_ws):
+    ws, truth = recon_ws
+    cfg = load_world(ws)
+    g0, g1 = read_ply(ws / "scene" / "gaussians.ply"), read_ply(cfg.scene_gaussians)
+    before, after = (g.means.numpy().astype(np.float64) for g in (g0, g1))
+    near = lambda mesh, X: int(((_surface_distance(mesh, X) < 0.005) & (X[:, 2] > 0.003)).sum())
+    for name, mesh in truth.items():
+        assert near(mesh, before) > 1000, name  # the splat had the object
+        assert near(mesh, after) == 0, name  # and now has none of it
+    # 4 cm away from every object nothing changed
+    far = lambda X: X[np.min([_surface_distance(m, X) for m in truth.values()], axis=0) > 0.04]
+    assert np.array_equal(np.sort(far(after), axis=0), np.sort(far(before), axis=0))
+
+    # every table Gaussian removed is replaced by a fill Gaussian within the fill spacing, coloured like the table
+    from scipy.spatial import cKDTree
+
+    table0, table1 = np.abs(before[:, 2]) < 0.002, np.abs(after[:, 2]) < 0.002
+    gone = cKDTree(after).query(before)[0] > 1e-7
+    removed = before[gone & table0]
+    assert len(removed) > 50
+    d, idx = cKDTree(after[table1]).query(removed)
+    assert d.max() < 0.003
+    rgb = lambda g: (g.sh[:, 0].numpy() * 0.28209479177387814 + 0.5).clip(0, 1)
+    fills = np.unique(idx)
+    kept_near = table1 & (cKDTree(before).query(after)[0] < 1e-7)
+    ring = kept_near & (np.min([_surface_distance(m, after) for m in truth.values()], axis=0) < 0.03)
+    assert np.abs(rgb(g1)[table1][fills].mean(0) - rgb(g1)[ring].mean(0)).max() < 0.1
+    info = json.loads((ws / "world" / "reconstruction.json").read_text())["objects"]
+    assert all(info[n]["scene_removed"] > 1000 and info[n]["scene_filled"] > 0 for n in truth)
+
+
+def test_grasped_object_leaves_nothing_behind(recon_ws):
+    ws, truth = recon_ws
+    cfg = load_world(ws)
+    world = WorldGaussians.load(cfg)
+    lifted = cfg.object("banana").placement.matrix.copy()
+    lifted[2, 3] += 0.2
+    X = world.at({"banana": lifted}).means.numpy().astype(np.float64)
+    X = X[X[:, 2] > 0.003]
+    assert (_surface_distance(truth["banana"], X) < 0.005).sum() == 0
+    ply = write_world_ply(cfg)
+    assert len(read_ply(ply)) == len(world.at())
+
+
+def test_missing_inputs_name_the_stage(recon_ws, tmp_path):
+    ws, _ = recon_ws
+    bad = tmp_path / "ws"
+    for sub in ("calib", "scene", "objects"):
+        shutil.copytree(ws / sub, bad / sub)
+    (bad / "calib" / "handeye.json").unlink()
+    with pytest.raises(WorldConfigError, match="calibrate-handeye"):
+        from_workspace(bad)
+    shutil.copy(ws / "calib" / "handeye.json", bad / "calib" / "handeye.json")
+    (bad / "scene" / "gaussians.ply").unlink()
+    with pytest.raises(WorldConfigError, match="m2m train-scene"):
+        from_workspace(bad)
+    shutil.copy(ws / "scene" / "gaussians.ply", bad / "scene" / "gaussians.ply")
+    shutil.rmtree(bad / "objects")
+    with pytest.raises(WorldConfigError, match="m2m objects"):
+        from_workspace(bad)
+    assert not (bad / "world" / "world.yaml").exists()
+
+
+def test_compose_cli_builds_the_world_from_the_workspace(recon_ws, tmp_path, capsys):
+    ws, _ = recon_ws
+    cli_ws = tmp_path / "ws"
+    for sub in ("calib", "scene", "objects"):
+        shutil.copytree(ws / sub, cli_ws / sub)
+    assert main(["compose", "-w", str(cli_ws)]) == 0
+    assert (cli_ws / "world" / "world.yaml").is_file() and (cli_ws / "world" / "world.ply").is_file()
+    assert "button/cap: median Gaussian-to-mesh distance" in capsys.readouterr().out
+    # an existing world.yaml is kept (edits survive); --rebuild makes it again from the reconstruction
+    assert main(["world", "move", "-w", str(cli_ws), "--name", "banana", "--by", "0,-0.02,0"]) == 0
+    y = load_world(cli_ws).object("banana").placement.translation[1]
+    assert main(["compose", "-w", str(cli_ws)]) == 0
+    assert load_world(cli_ws).object("banana").placement.translation[1] == pytest.approx(y)
+    assert main(["compose", "-w", str(cli_ws), "--rebuild"]) == 0
+    assert load_world(cli_ws).object("banana").placement.translation[1] == pytest.approx(y + 0.02)
+    capsys.readouterr()
+    assert main(["compose", "-w", str(tmp_path / "nowhere")]) == 2
+    assert "not found" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_reconstructed_world_twin_grasps_and_presses(recon_ws):
+    """The Genesis twin of the reconstructed world: the banana is lifted, the split button presses."""
+    from mirage2matter.sim.tasks import parse_task, run_task
+    from mirage2matter.sim.twin import Twin, TwinOptions
+
+    ws, _ = recon_ws
+    cfg = load_world(ws)
+    with Twin.build(cfg, TwinOptions(render=False)) as twin:
+        results = {}
+        for task in ("grasp banana", "press button"):
+            twin.reset(seed=1)
+            r = run_task(twin, parse_task(task, cfg))
+            results[task] = (r.success, r.reason)
+        print(results)
+        assert all(ok for ok, _ in results.values()), results
