@@ -249,7 +249,10 @@ def process_object(
         # a user mesh (any scale, any pose) against the reconstruction: two closed surfaces, which
         # pins the scale far better than the visible-only Gaussians do
         surface = trimesh.sample.sample_surface(recon, 20000, seed=0)[0]
-        alignment = align_points_to_mesh(surface, mesh_input)
+        coarse = align_points_to_mesh(surface, mesh_input)
+        # then the Gaussians themselves (interior ones are gone), from that start
+        alignment = align_points_to_mesh(means, mesh_input, init=coarse.sim3_points_to_mesh)
+        alignment.start = f"reconstruction ({coarse.start}), then Gaussians"
     else:
         alignment = align_points_to_mesh(means, mesh_input, keypoints=keypoints)
     sim3_mesh_to_base = alignment.sim3_points_to_mesh.inverse()
