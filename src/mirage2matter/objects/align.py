@@ -28,7 +28,7 @@ from ..geometry.sim3 import Sim3
 from ..geometry.umeyama import umeyama
 from .errors import ObjectsError
 
-__all__ = ["Alignment", "align_points_to_mesh", "distance_to_mesh", "object_frame", "pca_keypoints"]
+__all__ = ["Alignment", "align_points_to_mesh", "distance_to_mesh", "object_frame", "pca_keypoints", "signed_distance"]
 
 
 @dataclass
@@ -105,8 +105,21 @@ def distance_to_mesh(points: np.ndarray, mesh) -> np.ndarray:
     """Unsigned distance [N] of ``points`` [N,3] to the surface of ``mesh`` (exact, per triangle)."""
     import trimesh
 
-    _, dist, _ = trimesh.proximity.closest_point(mesh, np.asarray(points, np.float64))
-    return np.asarray(dist)
+    pts = np.asarray(points, np.float64)
+    # in chunks: trimesh's candidate search grows with points x nearby triangles
+    return np.concatenate(
+        [trimesh.proximity.closest_point(mesh, pts[k : k + 4096])[1] for k in range(0, len(pts), 4096)] or [np.zeros(0)]
+    )
+
+
+def signed_distance(mesh, points: np.ndarray) -> np.ndarray:
+    """Signed distance [N] of ``points`` [N,3] to a watertight ``mesh`` (> 0 inside), in chunks."""
+    import trimesh
+
+    pts = np.asarray(points, np.float64)
+    return np.concatenate(
+        [trimesh.proximity.signed_distance(mesh, pts[k : k + 4096]) for k in range(0, len(pts), 4096)] or [np.zeros(0)]
+    )
 
 
 def object_frame(mesh_base, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:

@@ -178,7 +178,7 @@ def process_object(
     from ..gaussians.ply import write_ply
     from ..gaussians.transform import apply_sim3
     from ..geometry.rotation import rotation_angle
-    from .align import align_points_to_mesh, distance_to_mesh, object_frame
+    from .align import align_points_to_mesh, distance_to_mesh, object_frame, signed_distance
     from .collision import convex_decomposition
     from .figure import side_by_side
     from .mesh import ensure_watertight, load_mesh, mass_properties, reconstruct_mesh
@@ -222,7 +222,7 @@ def process_object(
     if recon is not None:
         # Gaussians deep inside the object (the matting starts them throughout its volume) sit far
         # from the surface; drop them and let a short second round heal the surface they backed
-        depth_inside = trimesh.proximity.signed_distance(recon, g_base.means.detach().numpy().astype(np.float64))
+        depth_inside = signed_distance(recon, g_base.means.detach().numpy().astype(np.float64))
         inside = depth_inside >= config.prune_inside
         if inside.any():
             log(f"{name}: {int(inside.sum())} Gaussians inside the object dropped, short retraining")
