@@ -17,7 +17,9 @@ Reads what the earlier stages wrote and writes ``<ws>/world/``:
 - ``scene/gaussians.ply`` (``m2m train-scene``): the scene splat also holds the objects, so every scene Gaussian
   within ``crop_margin`` of an object's placed mesh is removed (else a grasped object leaves a copy behind), and
   the table hole under each object is filled with flat Gaussians coloured like the table around it (the
-  capture never saw the table under an object). Written to ``world/scene.ply``.
+  capture never saw the table under an object). Also removed: scene Gaussians within ``means_margin`` of the
+  object's own opaque Gaussians, which cover thin tips (a stem, a horn) that the reconstructed mesh may miss.
+  Written to ``world/scene.ply``.
 - ``world/reconstruction.json``: what was done (snaps, removed and filled Gaussians, button cut heights).
 """
 
@@ -62,6 +64,7 @@ class WorkspaceWorldOptions:
 
     buttons          object names that are press buttons besides those with "button" in their name
     crop_margin      m around each placed object mesh whose scene Gaussians are removed
+    means_margin     m around each object's own opaque Gaussians whose scene Gaussians are removed too
     fill_spacing     m between the flat Gaussians filling the table under each object (0: no fill)
     snap_to_table    rest each object's lowest collision vertex on the table (z = table_z)
     button_*         press button travel (m), press axis (button frame), spring (N/m), threshold (fraction)
@@ -71,6 +74,7 @@ class WorkspaceWorldOptions:
     robot: RobotConfig = field(default_factory=RobotConfig)
     buttons: tuple[str, ...] = ()
     crop_margin: float = 0.01
+    means_margin: float = 0.005
     fill_spacing: float = 0.003
     snap_to_table: bool = True
     table_z: float = 0.0
@@ -281,19 +285,41 @@ def crop_scene(
     margin: float = 0.01,
     fill_spacing: float = 0.003,
     table_z: float = 0.0,
+    placed_means: dict[str, np.ndarray] | None = None,
+    means_margin: float = 0.005,
 ) -> tuple[Gaussians, dict[str, dict[str, int]]]:
-    """The scene without the Gaussians within ``margin`` of any placed object mesh (base frame), plus flat
-    Gaussians on the table where an object stood, coloured from the table Gaussians just around the hole.
+    """The scene without the Gaussians within ``margin`` of any placed object mesh (base frame) or within
+    ``means_margin`` of the object's own opaque Gaussians (``placed_means[name]`` [M,3], base frame: they cover
+    thin tips a reconstructed mesh can miss), plus flat Gaussians on the table where an object stood, coloured
+    from the table Gaussians just around the hole.
 
     Returns (scene, {name: {"removed": n, "filled": n}})."""
+    from scipy.spatial import cKDTree
+
     X = scene.means.detach().cpu().numpy().astype(np.float64)
     keep = np.ones(len(X), dtype=bool)
     holes: dict[str, np.ndarray] = {}
     info: dict[str, dict[str, int]] = {}
     for name, mesh in placed_meshes.items():
         lo, hi = mesh.bounds[0] - margin, mesh.bounds[1] + margin
+        M = (placed_means or {}).get(name)
+        tree = None
+        if M is not None and len(M):
+            M = M[np.all((M >= lo - 0.02) & (M <= hi + 0.02), axis=1)]  # the object's, not its floaters
+            if len(M):
+                tree = cKDTree(M)
+                lo, hi = np.minimum(lo, M.min(axis=0) - means_margin), np.maximum(hi, M.max(axis=0) + means_margin)
+
+        def zone(P: np.ndarray, mesh=mesh, tree=tree) -> np.ndarray:
+            if not len(P):
+                return np.zeros(0, dtype=bool)
+            inside = trimesh.proximity.signed_distance(mesh, P) > -margin
+            if tree is not None:
+                inside |= tree.query(P, distance_upper_bound=means_margin)[0] < means_margin
+            return inside
+
         near = np.nonzero(np.all((X >= lo) & (X <= hi), axis=1))[0]
-        drop = near[trimesh.proximity.signed_distance(mesh, X[near]) > -margin] if len(near) else near
+        drop = near[zone(X[near])]
         keep[drop] = False
         info[name] = {"removed": int(len(drop)), "filled": 0}
         if fill_spacing > 0:  # grid points on the table inside the removed zone
@@ -301,13 +327,10 @@ def crop_scene(
             gy = np.arange(lo[1], hi[1] + 1e-9, fill_spacing)
             P = np.stack(np.meshgrid(gx, gy, indexing="ij"), axis=-1).reshape(-1, 2)
             P3 = np.concatenate([P, np.full((len(P), 1), table_z)], axis=1)
-            inside = trimesh.proximity.signed_distance(mesh, P3) > -margin
-            holes[name] = P[inside]
+            holes[name] = P[zone(P3)]
     out = scene.select(torch.from_numpy(keep))
     fills = [out]
     if holes:
-        from scipy.spatial import cKDTree
-
         from ..gaussians.sh import SH_C0
 
         Xk = X[keep]
@@ -362,6 +385,7 @@ def from_workspace(
     objects: list[ObjectConfig] = []
     articulated: list[ArticulatedConfig] = []
     placed: dict[str, trimesh.Trimesh] = {}
+    means: dict[str, np.ndarray] = {}
     for name in names:
         folder = (ws / "objects" / name).resolve()
         align = json.loads((folder / "align.json").read_text())
@@ -372,6 +396,7 @@ def from_workspace(
         collision = folder / "collision" if any((folder / "collision").glob("*.obj")) else None
         part = PartConfig(folder / "gaussians.ply", folder / "mesh.obj", collision)
         rec: dict[str, Any] = {"density": density}
+        placement_found = placement
         mesh = load_mesh(part.mesh)
         where = mesh.copy()  # where the reconstruction is in the scene: what to cut out of it
         where.apply_transform(placement.matrix)
@@ -382,13 +407,16 @@ def from_workspace(
             if abs(dz) > 0.005:
                 log(f"{name}: WARNING its reconstruction ends {1000 * -dz:+.1f} mm from the table; moved onto it "
                     f"(check objects/{name}/figure.png; `m2m objects` with more keyframes or iterations helps)")
-            if abs(dz) > 1e-4:  # cut out where it is and where it now stands (the space between is unseen object)
+            if abs(dz) > 0.002:  # cut out where it is and where it now stands (the space between is unseen object)
                 moved = mesh.copy()
                 moved.apply_transform(placement.matrix)
-                where = trimesh.util.concatenate([where, moved]).convex_hull if abs(dz) > 0.002 else where
+                where = trimesh.util.concatenate([where, moved]).convex_hull
         placed[name] = where
+        g_obj = read_ply(part.gaussians)
+        opaque = (g_obj.opacities > 0.5).cpu().numpy()
+        means[name] = placement_found.apply(g_obj.means.detach().cpu().numpy().astype(np.float64)[opaque])
         if is_button(name, opt):
-            pieces = split_button(mesh, load_collision_parts(part), read_ply(part.gaussians), opt.cap_fraction)
+            pieces = split_button(mesh, load_collision_parts(part), g_obj, opt.cap_fraction)
             out = world_dir / "assets" / name
             with atomic_dir(out) as tmp:
                 _write_part(tmp / "base", *pieces["base"])
@@ -428,7 +456,9 @@ def from_workspace(
         report["objects"][name] = rec
 
     log(f"scene: removing the objects' Gaussians from {scene_ply}")
-    scene, crop = crop_scene(read_ply(scene_ply), placed, opt.crop_margin, opt.fill_spacing, opt.table_z)
+    scene, crop = crop_scene(
+        read_ply(scene_ply), placed, opt.crop_margin, opt.fill_spacing, opt.table_z, means, opt.means_margin
+    )
     out_scene = world_dir / "scene.ply"
     write_ply(out_scene, scene)
     for name, c in crop.items():
