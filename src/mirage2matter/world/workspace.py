@@ -288,8 +288,8 @@ def crop_scene(
     placed_means: dict[str, np.ndarray] | None = None,
     means_margin: float = 0.005,
 ) -> tuple[Gaussians, dict[str, dict[str, int]]]:
-    """The scene without the Gaussians within ``margin`` of any placed object mesh (base frame) or within
-    ``means_margin`` of the object's own opaque Gaussians (``placed_means[name]`` [M,3], base frame: they cover
+    """The scene without the Gaussians within ``margin`` of any placed object mesh (base frame), under it, or
+    within ``means_margin`` of the object's own opaque Gaussians (``placed_means[name]`` [M,3], base frame: they cover
     thin tips a reconstructed mesh can miss), plus flat Gaussians on the table where an object stood, coloured
     from the table Gaussians just around the hole.
 
@@ -314,6 +314,9 @@ def crop_scene(
             if not len(P):
                 return np.zeros(0, dtype=bool)
             inside = trimesh.proximity.signed_distance(mesh, P) > -margin
+            # under the object: the capture never saw it (a reconstruction's hollow underside included)
+            up = np.tile([0.0, 0.0, 1.0], (len(P), 1))
+            inside |= (P[:, 2] > table_z - margin) & mesh.ray.intersects_any(P, up)
             if tree is not None:
                 inside |= tree.query(P, distance_upper_bound=means_margin)[0] < means_margin
             return inside
