@@ -156,7 +156,17 @@ def plan(
     a, b = q_start[:ARM_DOFS].copy(), np.asarray(q_goal, dtype=np.float64)[:ARM_DOFS].copy()
     allow = tuple(allow)
     with twin.restoring():
-        return _plan(twin, a, b, fingers, timeout, allow, seed)
+        for attempt in range(3):  # RRTConnect is randomised: a path refused by the dense check is planned again
+            try:
+                return _plan(twin, a, b, fingers, timeout, allow, seed + attempt)
+            except _CoarsePath as e:
+                if attempt == 2:
+                    raise PlanningError(str(e)) from None
+        raise AssertionError("unreachable")
+
+
+class _CoarsePath(PlanningError):
+    """A path OMPL accepted at its checking resolution that collides at ours."""
 
 
 def _plan(twin: Twin, a: np.ndarray, b: np.ndarray, fingers: np.ndarray, timeout: float, allow: tuple, seed: int):
@@ -186,7 +196,9 @@ def _plan(twin: Twin, a: np.ndarray, b: np.ndarray, fingers: np.ndarray, timeout
 
     ss.setStateValidityChecker(valid)
     si = ss.getSpaceInformation()
-    si.setStateValidityCheckingResolution(0.01)  # fraction of the space's extent (~0.2 rad here)
+    # fraction of the space's extent (~0.04 rad here, as segment_free): at 0.01 (~0.2 rad) an edge could
+    # pass through the button between two checked states
+    si.setStateValidityCheckingResolution(0.002)
     start, goal = space.allocState(), space.allocState()
     for i in range(ARM_DOFS):
         start[i], goal[i] = float(a[i]), float(b[i])
@@ -203,6 +215,10 @@ def _plan(twin: Twin, a: np.ndarray, b: np.ndarray, fingers: np.ndarray, timeout
     p = ss.getSolutionPath()
     path = [np.array([p.getState(k)[i] for i in range(ARM_DOFS)]) for k in range(p.getStateCount())]
     path = _shortcut(twin, path, fingers, allow, np.random.default_rng(seed))
+    # OMPL checks edges at its own resolution; accept the path only if every segment is free at ours
+    bad = [k for k in range(len(path) - 1) if not segment_free(twin, path[k], path[k + 1], fingers, allow, step=0.02)]
+    if bad:
+        raise _CoarsePath(f"the planned path's segment {bad[0]} collides when checked densely; try a longer timeout")
     return np.stack(path)
 
 
