@@ -158,6 +158,49 @@ def _result_from_reconstruction(rec: Any, total: int, names: list[str], model_di
 
 
 # ---- running ------------------------------------------------------------------------------------
+def extract_features(
+    db: Path, image_dir: Path, names: list[str], config: SfMConfig, max_side: int, single_camera: bool
+) -> None:
+    """SIFT features of ``names`` into database ``db``: one shared camera (``config``'s model and
+    params) or one camera per image (intrinsics set by the caller afterwards)."""
+    import pycolmap
+
+    eo = pycolmap.FeatureExtractionOptions()
+    eo.num_threads = config.num_threads
+    eo.sift.max_num_features = config.max_num_features
+    eo.max_image_size = max(16, round(max_side * config.downscale))
+    pycolmap.extract_features(
+        db,
+        image_dir,
+        image_names=names,
+        camera_mode=pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.PER_IMAGE,
+        **({"reader_options": _reader_options(config)} if single_camera else {}),
+        extraction_options=eo,
+        device=pycolmap.Device.cpu,
+    )
+
+
+def match_features(db: Path, n_images: int, config: SfMConfig) -> str:
+    """Exhaustive or sequential matching (``config.matching``, "auto" by image count); returns the one used."""
+    import pycolmap
+
+    matching = config.matching
+    if matching == "auto":
+        matching = "exhaustive" if n_images < config.exhaustive_below else "sequential"
+    mo = pycolmap.FeatureMatchingOptions()
+    mo.num_threads = config.num_threads
+    if matching == "exhaustive":
+        pycolmap.match_exhaustive(db, matching_options=mo, device=pycolmap.Device.cpu)
+    else:
+        po = pycolmap.SequentialPairingOptions()
+        po.overlap = config.overlap
+        po.loop_detection = config.loop_detection
+        if config.loop_detection:
+            po.vocab_tree_path = str(config.vocab_tree_path)
+        pycolmap.match_sequential(db, matching_options=mo, pairing_options=po, device=pycolmap.Device.cpu)
+    return matching
+
+
 def _reader_options(config: SfMConfig) -> Any:
     import pycolmap
 
@@ -229,35 +272,9 @@ def run_sfm(
         with atomic_dir(out_dir) as tmp:
             t0 = time.perf_counter()
             db = tmp / "database.db"
-            eo = pycolmap.FeatureExtractionOptions()
-            eo.num_threads = config.num_threads
-            eo.sift.max_num_features = config.max_num_features
-            eo.max_image_size = max(16, round(max(width, height) * config.downscale))
-            pycolmap.extract_features(
-                db,
-                image_dir,
-                image_names=names,
-                camera_mode=pycolmap.CameraMode.SINGLE,
-                reader_options=_reader_options(config),
-                extraction_options=eo,
-                device=pycolmap.Device.cpu,
-            )
+            extract_features(db, image_dir, names, config, max(width, height), single_camera=True)
             t_features = time.perf_counter()
-
-            matching = config.matching
-            if matching == "auto":
-                matching = "exhaustive" if len(names) < config.exhaustive_below else "sequential"
-            mo = pycolmap.FeatureMatchingOptions()
-            mo.num_threads = config.num_threads
-            if matching == "exhaustive":
-                pycolmap.match_exhaustive(db, matching_options=mo, device=pycolmap.Device.cpu)
-            else:
-                po = pycolmap.SequentialPairingOptions()
-                po.overlap = config.overlap
-                po.loop_detection = config.loop_detection
-                if config.loop_detection:
-                    po.vocab_tree_path = str(config.vocab_tree_path)
-                pycolmap.match_sequential(db, matching_options=mo, pairing_options=po, device=pycolmap.Device.cpu)
+            matching = match_features(db, len(names), config)
             t_matching = time.perf_counter()
 
             opts = pycolmap.IncrementalPipelineOptions()

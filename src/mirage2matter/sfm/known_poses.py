@@ -18,7 +18,15 @@ from typing import Any
 from ..atomic import atomic_dir
 from ..geometry.camera import Camera
 from ..geometry.sim3 import invert_rigid
-from .colmap import SfMConfig, SfMError, SfMResult, _image_size, _result_from_reconstruction
+from .colmap import (
+    SfMConfig,
+    SfMError,
+    SfMResult,
+    _image_size,
+    _result_from_reconstruction,
+    extract_features,
+    match_features,
+)
 
 __all__ = ["colmap_camera_params", "triangulate_known_poses", "with_fixed_intrinsics"]
 
@@ -104,29 +112,9 @@ def triangulate_known_poses(
         with atomic_dir(out_dir) as tmp:
             t0 = time.perf_counter()
             db_path = tmp / "database.db"
-            eo = pycolmap.FeatureExtractionOptions()
-            eo.num_threads = config.num_threads
-            eo.sift.max_num_features = config.max_num_features
-            eo.max_image_size = max(16, round(max(max(c.width, c.height) for c in cams) * config.downscale))
-            pycolmap.extract_features(
-                db_path,
-                image_dir,
-                image_names=[c.name for c in cams],
-                camera_mode=pycolmap.CameraMode.PER_IMAGE,
-                extraction_options=eo,
-                device=pycolmap.Device.cpu,
-            )
-            mo = pycolmap.FeatureMatchingOptions()
-            mo.num_threads = config.num_threads
-            matching = config.matching
-            if matching == "auto":
-                matching = "exhaustive" if len(cams) < config.exhaustive_below else "sequential"
-            if matching == "exhaustive":
-                pycolmap.match_exhaustive(db_path, matching_options=mo, device=pycolmap.Device.cpu)
-            else:
-                po = pycolmap.SequentialPairingOptions()
-                po.overlap = config.overlap
-                pycolmap.match_sequential(db_path, matching_options=mo, pairing_options=po, device=pycolmap.Device.cpu)
+            names = [c.name for c in cams]
+            extract_features(db_path, image_dir, names, config, max(max(c.width, c.height) for c in cams), False)
+            matching = match_features(db_path, len(cams), config)
             t_matching = time.perf_counter()
 
             # A model holding the given cameras and poses, with the database's ids (the
