@@ -305,30 +305,37 @@ def run_sfm(
                     f"{config.min_registered_fraction:.0%}); capture more parallax / texture (walk around the scene, "
                     "avoid blur and blank surfaces) or use exhaustive matching"
                 )
-            summary = {
-                "image_dir": str(image_dir),
-                "config": asdict(config),
-                "matching_used": matching,
-                "registered": result.registered,
-                "total": result.total,
-                "unregistered": result.unregistered,
-                "models_found": len(models),
-                "num_points": int(result.points.shape[0]),
-                "mean_reprojection_error": result.mean_reprojection_error,
-                "seconds": {
-                    "features": t_features - t0,
-                    "matching": t_matching - t_features,
-                    "mapping": t_mapping - t_matching,
-                    "total": t_mapping - t0,
-                },
-                "cameras": [c.to_json() for c in result.cameras],
+            seconds = {
+                "features": t_features - t0,
+                "matching": t_matching - t_features,
+                "mapping": t_mapping - t_matching,
+                "total": t_mapping - t0,
             }
-            with open(tmp / "sfm.json", "w", encoding="utf-8") as f:
-                json.dump(summary, f, indent=1)
-                f.write("\n")
+            write_summary(tmp, result, image_dir, config, matching_used=matching, models_found=len(models),
+                          seconds=seconds)  # fmt: skip
     finally:
         pycolmap.logging.minloglevel = log_level
     return result
+
+
+def write_summary(folder: Path, result: SfMResult, image_dir: Path, config: SfMConfig, **extra: Any) -> None:
+    """``folder/sfm.json``: what every way of getting poses records (counts, reprojection error, the
+    cameras in our conventions) plus ``extra`` (source, timings, ...); read by :func:`load_sfm_summary`."""
+    summary = {
+        **{k: v for k, v in extra.items() if k == "source"},
+        "image_dir": str(image_dir),
+        "config": asdict(config),
+        "registered": result.registered,
+        "total": result.total,
+        "unregistered": result.unregistered,
+        "num_points": int(len(result.points)),
+        "mean_reprojection_error": result.mean_reprojection_error,
+        **{k: v for k, v in extra.items() if k != "source"},
+        "cameras": [c.to_json() for c in result.cameras],
+    }
+    with open(folder / "sfm.json", "w", encoding="utf-8") as f:
+        json.dump(summary, f, indent=1)
+        f.write("\n")
 
 
 def load_sfm_summary(out_dir: str | os.PathLike[str]) -> tuple[dict[str, Any], list[Camera]]:

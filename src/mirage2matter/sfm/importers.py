@@ -12,12 +12,11 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from dataclasses import asdict
 from pathlib import Path
 
 from ..atomic import atomic_dir
 from ..geometry.camera import CameraFormatError, load_transforms_json
-from .colmap import SfMConfig, SfMError, SfMResult, _result_from_reconstruction
+from .colmap import SfMConfig, SfMError, SfMResult, _result_from_reconstruction, write_summary
 from .known_poses import triangulate_known_poses
 
 __all__ = ["import_colmap_model", "import_transforms"]
@@ -100,18 +99,5 @@ def import_colmap_model(
         (tmp / "model").mkdir()
         rec.write(tmp / "model")
         result = _result_from_reconstruction(rec, len(names), names, sfm_dir / "model")
-        summary = {
-            "source": f"COLMAP model {model_dir}",
-            "image_dir": str(Path(capture_dir).resolve()),
-            "config": asdict(SfMConfig()),
-            "registered": result.registered,
-            "total": result.total,
-            "unregistered": [],
-            "num_points": int(len(result.points)),
-            "mean_reprojection_error": result.mean_reprojection_error,
-            "cameras": [c.to_json() for c in result.cameras],
-        }
-        with open(tmp / "sfm.json", "w", encoding="utf-8") as f:
-            json.dump(summary, f, indent=1)
-            f.write("\n")
+        write_summary(tmp, result, Path(capture_dir).resolve(), SfMConfig(), source=f"COLMAP model {model_dir}")
     return result

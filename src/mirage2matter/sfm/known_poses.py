@@ -7,13 +7,10 @@ incremental mapping, so the given poses and their world frame are kept exactly.
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from collections.abc import Sequence
-from dataclasses import asdict
 from pathlib import Path
-from typing import Any
 
 from ..atomic import atomic_dir
 from ..geometry.camera import Camera
@@ -26,6 +23,7 @@ from .colmap import (
     _result_from_reconstruction,
     extract_features,
     match_features,
+    write_summary,
 )
 
 __all__ = ["colmap_camera_params", "triangulate_known_poses", "with_fixed_intrinsics"]
@@ -163,23 +161,8 @@ def triangulate_known_poses(
             # keep the given cameras exactly (COLMAP's round trip is float-exact for K but not for names)
             result.cameras = [by_name[c.name] for c in result.cameras]
             result.seconds = t_tri - t0
-            summary: dict[str, Any] = {
-                "source": "known poses",
-                "image_dir": str(image_dir),
-                "config": asdict(config),
-                "matching_used": matching,
-                "registered": result.registered,
-                "total": result.total,
-                "unregistered": result.unregistered,
-                "num_points": int(len(result.points)),
-                "mean_reprojection_error": result.mean_reprojection_error,
-                "seconds": {"features_matching": t_matching - t0, "triangulation": t_tri - t_matching,
-                            "total": t_tri - t0},
-                "cameras": [c.to_json() for c in result.cameras],
-            }  # fmt: skip
-            with open(tmp / "sfm.json", "w", encoding="utf-8") as f:
-                json.dump(summary, f, indent=1)
-                f.write("\n")
+            seconds = {"features_matching": t_matching - t0, "triangulation": t_tri - t_matching, "total": t_tri - t0}
+            write_summary(tmp, result, image_dir, config, source="known poses", matching_used=matching, seconds=seconds)
     finally:
         pycolmap.logging.minloglevel = log_level
     return result
