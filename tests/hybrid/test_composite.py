@@ -172,3 +172,28 @@ def test_view_culling_changes_no_pixel() -> None:
     assert 0.02 < float(keep.float().mean()) < 0.5
     for a, b in zip(culled.render(view, K, W, H), plain.render(view, K, W, H), strict=True):
         np.testing.assert_allclose(a, b, atol=1e-6)
+
+
+def test_moving_camera_reuses_a_frame_only_while_nothing_moved() -> None:
+    scene = _blob((0.5, 0.0, -0.05), (0.3, 0.3, 0.3), n=800, radius=0.12, seed=8)
+    a = _blob((0, 0, 0.02), (0.9, 0.1, 0.1), seed=9)
+    world = SplatWorld(scene, [MovablePart("a", a)], SplatRenderOptions(backend="cpu"))
+    pose = np.eye(4)
+    pose[:3, 3] = (0.5, 0.0, 0.15)  # above the scene blob
+    world.set_poses({"a": pose})
+    view = _camera((0.0, 0.0, 0.5))
+    first = world.render_camera("wrist", view, K, W, H)
+    assert world.render_camera("wrist", view + 1e-7, K, W, H) is first  # an arm at rest: the same frame
+    jittered = pose.copy()
+    jittered[0, 3] += 1e-6  # a resting object's physics jitter is no move either
+    world.set_poses({"a": jittered})
+    assert world.render_camera("wrist", view, K, W, H) is first
+    moved = world.render_camera("wrist", _camera((0.0, 0.02, 0.5)), K, W, H)  # the camera moved
+    assert moved is not first and np.abs(moved[0] - first[0]).max() > 0.05
+    lifted = pose.copy()
+    lifted[1, 3] += 0.1
+    world.set_poses({"a": lifted})  # a part moved: the frame is redrawn and equals a plain render
+    again = world.render_camera("wrist", _camera((0.0, 0.02, 0.5)), K, W, H)
+    for x, y in zip(again, world.render(_camera((0.0, 0.02, 0.5)), K, W, H), strict=True):
+        np.testing.assert_array_equal(x, y)
+    assert np.abs(again[0] - moved[0]).max() > 0.05

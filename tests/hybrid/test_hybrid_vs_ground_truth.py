@@ -97,3 +97,33 @@ def test_hybrid_frame_matches_ground_truth_and_objects_hide_the_gripper(twin_wor
     assert hidden >= 0.9  # the banana in front of the gripper hides it
     assert iou_baseline < iou  # pasting the mask would draw the gripper over the banana
     np.testing.assert_array_equal(hybrid[shown], robot["rgb"][shown])
+
+
+def test_robot_only_cameras_draw_the_same_robot_layer(twin_world) -> None:
+    """datagen's twin draws only the robot (draw_scene=False: no plane/objects, mask from depth, no
+    segmentation pass); its layer must equal the full scene's robot pixels."""
+    from mirage2matter.sim.twin import Twin, TwinOptions
+
+    twin, _ = twin_world
+    lean = Twin.build(twin.cfg, TwinOptions(render=True, camera_sizes={"head": (SIZE, SIZE)}, draw_scene=False))
+    try:
+        for t in (twin, lean):
+            t.reset(seed=3, randomize=True)
+        full, robot = twin.render_robot("head"), lean.render_robot("head")
+        from scipy.ndimage import binary_dilation, binary_erosion
+
+        m_full, m_lean = full["robot_mask"], robot["robot_mask"]
+        print(f"\nrobot pixels: full {int(m_full.sum())}, robot-only {int(m_lean.sum())}, "
+              f"IoU {_iou(m_full, m_lean):.4f}")  # fmt: skip
+        assert m_full.sum() > 500
+        # Objects may hide robot pixels in the full render; otherwise the masks differ only at the outline
+        # (Genesis' segmentation pass and its depth / colour pass disagree by a pixel at some edges).
+        assert not (m_full & ~binary_dilation(m_lean, iterations=1)).any()
+        assert _iou(m_full, m_lean) >= 0.97
+        both = m_full & m_lean
+        inner = binary_erosion(both, iterations=1)  # outline pixels blend with what is behind (plane / black)
+        assert np.abs(full["rgb"][inner].astype(int) - robot["rgb"][inner]).max() <= 2
+        np.testing.assert_allclose(full["depth"][both], robot["depth"][both], atol=1e-4)
+        assert np.isinf(robot["depth"][~m_lean]).all()
+    finally:
+        lean.close()

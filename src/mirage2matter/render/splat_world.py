@@ -35,14 +35,18 @@ class SplatRenderOptions:
     """Speed / quality knobs of the per-frame splat renders.
 
     sh_degree    highest SH band rendered (view-dependent colour costs per Gaussian per view)
-    min_opacity  static-scene Gaussians fainter than this are dropped (they barely show)
+    min_opacity  Gaussians (scene and parts) fainter than this are dropped (alone they barely show; the
+                 object reconstructions hold many: half the banana's are below 0.03)
     backend      gaussians.render backend ("auto": CUDA if available, else the numba CPU rasterizer)
+    pose_tolerance  a part's Gaussians are re-posed only when its pose moved more than this (max abs entry
+                 of T_base_obj: metres / rotation entries ~ radians; 1e-5 is 0.01 mm, far below a pixel)
     """
 
     sh_degree: int = 3
     min_opacity: float = 0.0
     backend: str = "auto"
     cull: bool = True  # drop Gaussians that cannot reach the image before rendering (same pixels, less work)
+    pose_tolerance: float = 1e-5
 
 
 class SplatWorld:
@@ -51,14 +55,17 @@ class SplatWorld:
     def __init__(self, static: Gaussians | None, parts: list[MovablePart], options: SplatRenderOptions | None = None):
         self.options = options or SplatRenderOptions()
         degree = self.options.sh_degree
+
+        def lean(g: Gaussians) -> Gaussians:
+            g = g.detach()
+            if self.options.min_opacity > 0:
+                g = g.select(g.opacities >= self.options.min_opacity)
+            return g.with_sh_degree(min(degree, g.sh_degree))
+
         chunks: list[Gaussians] = []
         if static is not None and len(static):
-            static = static.detach()
-            if self.options.min_opacity > 0:
-                static = static.select(static.opacities >= self.options.min_opacity)
-            chunks.append(static.with_sh_degree(min(degree, static.sh_degree)))
-        self.parts = [MovablePart(p.name, p.local.detach().with_sh_degree(min(degree, p.local.sh_degree)), p.scale)
-                      for p in parts]  # fmt: skip
+            chunks.append(lean(static))
+        self.parts = [MovablePart(p.name, lean(p.local), p.scale) for p in parts]
         names = [p.name for p in self.parts]
         if len(set(names)) != len(names):
             raise ValueError(f"movable part names must be unique, got {names}")
@@ -71,7 +78,10 @@ class SplatWorld:
         if not chunks:
             raise ValueError("the splat world is empty: no scene Gaussians and no parts")
         self.gaussians = Gaussians.concat(chunks).map(lambda t: t.to(torch.float32).contiguous().clone())
+        self._radius = self._cull_radius(self.gaussians)  # [N], kept current by set_poses
         self.poses: dict[str, np.ndarray] = {}
+        self.version = 0  # bumped whenever a part is re-posed (what cached frames depend on)
+        self._last: dict[str, tuple] = {}
 
     def __len__(self) -> int:
         return len(self.gaussians)
@@ -83,8 +93,9 @@ class SplatWorld:
             if T is None:
                 continue
             T = np.asarray(T, np.float64)
-            if p.name in self.poses and np.array_equal(self.poses[p.name], T):
-                continue  # unchanged: keep the rows as they are
+            last = self.poses.get(p.name)
+            if last is not None and np.abs(last - T).max() <= self.options.pose_tolerance:
+                continue  # unchanged (resting objects jitter by micrometres in physics): keep the rows
             moved = apply_sim3(p.local, Sim3(p.scale, T[:3, :3], T[:3, 3]))
             sl = self._slices[p.name]
             g = self.gaussians
@@ -93,16 +104,31 @@ class SplatWorld:
                 g.quats[sl] = moved.quats
                 g.log_scales[sl] = moved.log_scales
                 g.sh[sl, : moved.sh.shape[1]] = moved.sh
+                self._radius[sl] = self._cull_radius(moved)
             self.poses[p.name] = T.copy()
+            self.version += 1
 
     def render(self, viewmat: np.ndarray, K: np.ndarray, width: int, height: int, background=(0.0, 0.0, 0.0)):
         """(rgb float32 [H,W,3] in [0,1], alpha [H,W], depth [H,W] camera-z m) as numpy."""
-        return self._render(self.gaussians, viewmat, K, width, height, background)
+        return self._render(self.gaussians, viewmat, K, width, height, background, self._radius)
+
+    def render_camera(self, name: str, viewmat, K, width: int, height: int, background=(0.0, 0.0, 0.0)):
+        """:meth:`render` for a camera that may move (the wrist camera): its last frame is returned again while
+        no part has been re-posed and the camera moved less than ``options.pose_tolerance`` (an arm at rest)."""
+        view = np.asarray(viewmat, np.float64)
+        key = (np.asarray(K, np.float64).tobytes(), int(width), int(height), tuple(background), self.version)
+        last = self._last.get(name)
+        if last is not None and last[0] == key and np.abs(last[1] - view).max() <= self.options.pose_tolerance:
+            return last[2]
+        out = self.render(view, K, width, height, background)
+        self._last[name] = (key, view.copy(), out)
+        return out
 
     # ---- static cameras: render what does not move once ----------------------------------------------------
     def reset_cache(self) -> None:
         """Forget the cached backgrounds (call when an episode starts: the parts' rest poses change)."""
         self._cache: dict[str, dict] = {}
+        self._last = {}
         self._rest: dict[str, np.ndarray] = {}
         self._moving: set[str] = set()
 
@@ -139,12 +165,12 @@ class SplatWorld:
         bg_rgb, bg_alpha, bg_depth = entry["layer"]
         if not self._moving:
             return bg_rgb, bg_alpha, bg_depth
-        rows = torch.zeros(len(self.gaussians), dtype=torch.bool)
-        for n in self._moving:
-            rows[self._slices[n]] = True
-        fg_rgb, fg_alpha, fg_depth = self._render(
-            self.gaussians.select(rows), viewmat, K, width, height, (0.0, 0.0, 0.0)
-        )
+        # the moving parts' rows are slices: views (no copy), with their cached cull radii
+        sls = [self._slices[n] for n in sorted(self._moving)]
+        fg = Gaussians.concat([self.gaussians.select(sl) for sl in sls]) if len(sls) > 1 else None
+        fg = fg if fg is not None else self.gaussians.select(sls[0])
+        radius = torch.cat([self._radius[sl] for sl in sls])
+        fg_rgb, fg_alpha, fg_depth = self._render(fg, viewmat, K, width, height, (0.0, 0.0, 0.0), radius)
         front = (fg_alpha > 0) & ((fg_depth < bg_depth) | (bg_alpha < 0.5))
         a = fg_alpha[..., None]
         rgb = np.where(front[..., None], fg_rgb + (1.0 - a) * bg_rgb, bg_rgb)
@@ -153,9 +179,15 @@ class SplatWorld:
         return np.clip(rgb, 0.0, 1.0), alpha, depth
 
     @staticmethod
-    def _in_view(g: Gaussians, viewmat, K, width: int, height: int) -> torch.Tensor:
+    def _cull_radius(g: Gaussians) -> torch.Tensor:
+        """[N] metres: past the renderers' cut-off (<= 3.33 sigma, alpha 1/255) along the longest axis."""
+        return 3.5 * torch.exp(g.log_scales.max(dim=1).values)
+
+    @staticmethod
+    def _in_view(g: Gaussians, viewmat, K, width: int, height: int, radius: torch.Tensor | None = None) -> torch.Tensor:
         """bool [N]: Gaussians whose 3-sigma extent can reach the image (a conservative frustum test, so the
-        render of the kept ones equals the render of all; near plane as the renderers')."""
+        render of the kept ones equals the render of all; near plane as the renderers'). ``radius`` [N]:
+        :meth:`_cull_radius` of ``g`` when the caller has it."""
         from ..gaussians.render.conventions import NEAR_PLANE
 
         V = torch.as_tensor(viewmat, dtype=g.means.dtype)
@@ -163,7 +195,7 @@ class SplatWorld:
         pc = g.means @ V[:3, :3].T + V[:3, 3]
         z = pc[:, 2]
         zc = z.clamp_min(NEAR_PLANE)
-        r = 3.5 * torch.exp(g.log_scales.max(dim=1).values)  # the renderers cut at <= 3.33 sigma (alpha 1/255)
+        r = SplatWorld._cull_radius(g) if radius is None else radius
         f = torch.maximum(Kt[0, 0], Kt[1, 1])
         # Projected radius in pixels, doubled: off-axis the projection stretches a footprint by up to
         # 1 + (x/z)^2 (the renderers clamp x/z at 1.3x the half field of view); + the low-pass filter's spread.
@@ -172,13 +204,13 @@ class SplatWorld:
         v = Kt[1, 1] * pc[:, 1] / zc + Kt[1, 2]
         return (z > NEAR_PLANE) & (u > -rp) & (u < width + rp) & (v > -rp) & (v < height + rp)
 
-    def _render(self, gaussians: Gaussians, viewmat, K, width, height, background):
+    def _render(self, gaussians: Gaussians, viewmat, K, width, height, background, radius=None):
         from ..gaussians.render import render
 
         if self.options.cull:
-            keep = self._in_view(gaussians, viewmat, K, width, height)
+            keep = self._in_view(gaussians, viewmat, K, width, height, radius)
             if not bool(keep.all()):
-                gaussians = gaussians.select(keep)
+                gaussians = gaussians.select(keep.nonzero().squeeze(1))  # indices: one scan, not one per tensor
 
         out = render(
             gaussians,

@@ -61,6 +61,8 @@ class TwinOptions:
     camera_sizes   {camera name: (width, height)} of the Genesis cameras (default: the world's sizes)
     workdir        where generated URDFs go (default: a temporary folder)
     settle_s       physics time to let objects settle after a reset
+    draw_scene     the cameras draw the plane, objects and buttons too (False: only the robot, whose mask is
+                   then where the depth is finite: no segmentation pass; what hybrid frames need)
     """
 
     backend: str = "cpu"
@@ -70,6 +72,7 @@ class TwinOptions:
     camera_sizes: dict[str, tuple[int, int]] = field(default_factory=dict)
     workdir: Path | None = None
     settle_s: float = 0.1
+    draw_scene: bool = True
 
 
 def _rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -220,7 +223,8 @@ class Twin:
             renderer=gs.renderers.Rasterizer(),
             vis_options=vis,
         )
-        self.plane = self.scene.add_entity(gs.morphs.Plane(pos=(0.0, 0.0, cfg.table_z)))
+        draw = opt.draw_scene or not opt.render
+        self.plane = self.scene.add_entity(gs.morphs.Plane(pos=(0.0, 0.0, cfg.table_z), visualization=draw))
         robot_file = cfg.robot.file
         if robot_file.lower().endswith(".urdf"):
             morph = gs.morphs.URDF(file=robot_file, fixed=True)
@@ -236,7 +240,7 @@ class Twin:
             ent = self.scene.add_entity(
                 gs.morphs.URDF(
                     file=str(path), pos=tuple(T[:3, 3]), quat=tuple(matrix_to_quat(R)), fixed=False, align=False,
-                    convexify=True, decompose_object_error_threshold=float("inf"),
+                    convexify=True, decompose_object_error_threshold=float("inf"), visualization=draw,
                 ),
                 material=gs.materials.Rigid(friction=o.friction),
             )  # fmt: skip
@@ -250,6 +254,7 @@ class Twin:
                 gs.morphs.URDF(
                     file=str(path), pos=tuple(T[:3, 3]), quat=tuple(matrix_to_quat(R)), fixed=True,
                     merge_fixed_links=False, convexify=True, decompose_robot_error_threshold=float("inf"),
+                    visualization=draw,
                 ),
                 material=gs.materials.Rigid(friction=a.friction),
             )  # fmt: skip
@@ -501,13 +506,13 @@ class Twin:
             )
         T_base_cam, *_ = self.camera(name)
         cam.set_pose(transform=T_base_cam @ GL_TO_CV)
-        rgb, depth, seg, _ = cam.render(rgb=True, depth=True, segmentation=True, force_render=True)
+        draw_scene = self.options.draw_scene
+        rgb, depth, seg, _ = cam.render(rgb=True, depth=True, segmentation=draw_scene, force_render=True)
         depth = np.array(depth, dtype=np.float32, copy=True)
         depth[depth >= 10.0] = np.inf
-        seg = np.asarray(seg)
-        robot_ids = [k for k, v in self.scene.segmentation_idx_dict.items() if v == self.robot.idx]
-        return {
-            "rgb": np.array(rgb, dtype=np.uint8, copy=True),
-            "depth": depth,
-            "robot_mask": np.isin(seg, robot_ids),
-        }
+        if draw_scene:
+            robot_ids = [k for k, v in self.scene.segmentation_idx_dict.items() if v == self.robot.idx]
+            mask = np.isin(np.asarray(seg), robot_ids)
+        else:
+            mask = np.isfinite(depth)  # the robot is all the cameras draw
+        return {"rgb": np.array(rgb, dtype=np.uint8, copy=True), "depth": depth, "robot_mask": mask}
