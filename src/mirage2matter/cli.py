@@ -501,7 +501,7 @@ def _cmd_align_scene(args: argparse.Namespace) -> int:
     from PIL import Image
 
     from .atomic import atomic_write
-    from .calib.align import align_scene, apply_to_cameras, default_T_base_board
+    from .calib.align import align_scene, default_T_base_board, save_alignment
     from .calib.board import BoardSpec
     from .sfm import load_sfm_summary
 
@@ -528,14 +528,7 @@ def _cmd_align_scene(args: argparse.Namespace) -> int:
     result = align_scene(cameras, images, points, board, T_base_board, icp=not args.no_icp, footprint_xy=footprint)
     sim = result.sim3_sfm_to_base
     calib = ws / "calib"
-    calib.mkdir(parents=True, exist_ok=True)
-    with atomic_write(calib / "sim3_sfm_to_base.json", "w", encoding="utf-8") as f:
-        json.dump({**result.to_json(), "T_base_board": T_base_board.tolist(), "board": board.to_json()}, f, indent=1)
-    cameras_base = apply_to_cameras(sim, cameras)
-    with atomic_write(calib / "cameras_base.json", "w", encoding="utf-8") as f:
-        json.dump([c.to_json() for c in cameras_base], f, indent=1)
-    with atomic_write(calib / "points_base.npy", "wb") as f:
-        np.save(f, sim.apply(points).astype(np.float32))
+    cameras_base = save_alignment(calib, result, T_base_board, board, cameras, points)
     overlay = _base_overlay(images, cameras_base, result.triangulation.frames_with_board, footprint)
     with atomic_write(calib / "overlay.png", "wb") as f:
         Image.fromarray(overlay).save(f, format="PNG")
@@ -626,9 +619,8 @@ def _cmd_head_view(args: argparse.Namespace) -> int:
     import numpy as np
     from PIL import Image
 
-    from .atomic import atomic_write
     from .calib.board import BoardSpec
-    from .calib.headview import check_head_view
+    from .calib.headview import check_head_view, save_head_view
     from .gaussians.ply import read_ply
     from .geometry.camera import Camera
 
@@ -654,11 +646,7 @@ def _cmd_head_view(args: argparse.Namespace) -> int:
     except ValueError as e:
         raise CliError(str(e)) from None
     out = Path(args.out) if args.out else ws / "calib" / "head_view.png"
-    sheet = check.render if photo is None else np.concatenate([check.render, photo], axis=1)
-    with atomic_write(out, "wb") as f:
-        Image.fromarray(sheet).save(f, format="PNG")
-    with atomic_write(out.with_suffix(".json"), "w", encoding="utf-8") as f:
-        json.dump(check.to_json(), f, indent=1)
+    save_head_view(out, check, photo)
     known, seen = check.corners_vs_known_px, check.corners_vs_photo_px
     parts = [] if check.psnr is None else [f"PSNR {check.psnr:.2f} dB vs the photo"]
     if known.get("n"):

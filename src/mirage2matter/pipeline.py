@@ -136,7 +136,7 @@ def _sfm(ws: Path, cfg: PipelineConfig, sample: Path) -> dict:
 def _align(ws: Path, cfg: PipelineConfig, sample: Path) -> dict:
     from PIL import Image
 
-    from .calib.align import align_scene, apply_to_cameras, default_T_base_board
+    from .calib.align import align_scene, default_T_base_board, save_alignment
     from .calib.board import BoardSpec
     from .calib.kinematics import RobotKinematics
     from .capture import load_keyframes
@@ -153,14 +153,7 @@ def _align(ws: Path, cfg: PipelineConfig, sample: Path) -> dict:
     images = [np.asarray(Image.open(ws / "capture" / c.name).convert("RGB")) for c in posed.cameras]
     footprint = RobotKinematics().base_footprint()
     result = align_scene(posed.cameras, images, posed.points, board, T_base_board, footprint_xy=footprint)
-    (ws / "calib").mkdir(exist_ok=True)
-    with atomic_write(ws / "calib" / "sim3_sfm_to_base.json", "w", encoding="utf-8") as f:
-        json.dump({**result.to_json(), "T_base_board": T_base_board.tolist(), "board": board.to_json()}, f, indent=1)
-    cams = apply_to_cameras(result.sim3_sfm_to_base, posed.cameras)
-    with atomic_write(ws / "calib" / "cameras_base.json", "w", encoding="utf-8") as f:
-        json.dump([c.to_json() for c in cams], f, indent=1)
-    with atomic_write(ws / "calib" / "points_base.npy", "wb") as f:
-        np.save(f, result.sim3_sfm_to_base.apply(posed.points).astype(np.float32))
+    cams = save_alignment(ws / "calib", result, T_base_board, board, posed.cameras, posed.points)
     out = {"scale": result.sim3_sfm_to_base.scale, "corner_rms_mm": result.corner_rms_mm}
     line = (f"SfM -> robot base: scale {result.sim3_sfm_to_base.scale:.5f}, board corners "
             f"{result.corner_rms_mm:.2f} mm RMS")  # fmt: skip
@@ -216,7 +209,7 @@ def _head_view(ws: Path, cfg: PipelineConfig, sample: Path) -> dict:
     from PIL import Image
 
     from .calib.board import BoardSpec
-    from .calib.headview import check_head_view
+    from .calib.headview import check_head_view, save_head_view
     from .gaussians.ply import read_ply
     from .geometry.camera import Camera
 
@@ -228,11 +221,7 @@ def _head_view(ws: Path, cfg: PipelineConfig, sample: Path) -> dict:
     cam = Camera(he["K"], he["T_base_headcam"], he["width"], he["height"], "head")
     check = check_head_view(read_ply(ws / "scene" / "gaussians.ply"), cam, photo, BoardSpec.from_json(al["board"]),
                             np.asarray(al["T_base_board"]))  # fmt: skip
-    sheet = check.render if photo is None else np.concatenate([check.render, photo], axis=1)
-    with atomic_write(ws / "calib" / "head_view.png", "wb") as f:
-        Image.fromarray(sheet).save(f, format="PNG")
-    with atomic_write(ws / "calib" / "head_view.json", "w", encoding="utf-8") as f:
-        json.dump(check.to_json(), f, indent=1)
+    save_head_view(ws / "calib" / "head_view.png", check, photo)
     parts = [] if check.psnr is None else [f"PSNR {check.psnr:.2f} dB vs the head photo"]
     if check.corners_vs_photo_px.get("n"):
         parts.append(f"board corners {check.corners_vs_photo_px['median']:.2f} px from the photo's (median)")

@@ -11,6 +11,7 @@ anchors so the plane cannot slide. Points map as ``x' = s R x + t``; poses as ``
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -190,3 +191,27 @@ def apply_to_cameras(sim3: Sim3, cameras: list[Camera]) -> list[Camera]:
         T = sim3.apply_pose(cam.T_world_cam)
         out.append(Camera(cam.K, T, cam.width, cam.height, cam.name, dict(cam.distortion or {})))
     return out
+
+
+def save_alignment(
+    calib_dir: Path, result: AlignResult, T_base_board: np.ndarray, board: BoardSpec, cameras: list[Camera],
+    points: np.ndarray,
+) -> list[Camera]:
+    """Write ``calib_dir``/{sim3_sfm_to_base.json, cameras_base.json, points_base.npy} (each atomically) from
+    ``result`` and the SfM-frame ``cameras`` / ``points`` [N,3]; returns the cameras in the base frame."""
+    import json
+
+    from ..atomic import atomic_write
+
+    calib_dir = Path(calib_dir)
+    calib_dir.mkdir(parents=True, exist_ok=True)
+    sim = result.sim3_sfm_to_base
+    with atomic_write(calib_dir / "sim3_sfm_to_base.json", "w", encoding="utf-8") as f:
+        json.dump({**result.to_json(), "T_base_board": np.asarray(T_base_board).tolist(), "board": board.to_json()},
+                  f, indent=1)  # fmt: skip
+    cameras_base = apply_to_cameras(sim, cameras)
+    with atomic_write(calib_dir / "cameras_base.json", "w", encoding="utf-8") as f:
+        json.dump([c.to_json() for c in cameras_base], f, indent=1)
+    with atomic_write(calib_dir / "points_base.npy", "wb") as f:
+        np.save(f, sim.apply(points).astype(np.float32))
+    return cameras_base

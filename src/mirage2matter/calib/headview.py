@@ -9,6 +9,7 @@ calibrated camera. A wrong scale, alignment or hand-eye shows up as pixels of of
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -99,3 +100,20 @@ def check_head_view(
             known = {i: uv[i] for i in range(len(pts)) if z[i] > 0}
             result.corners_vs_known_px = _offsets(seen, known)
     return result
+
+
+def save_head_view(out_png: Path, check: HeadViewCheck, photo: np.ndarray | None) -> None:
+    """``out_png``: the render (beside the photo when there is one) and ``out_png`` with .json: the check's
+    figures; each written atomically."""
+    import json
+
+    from PIL import Image
+
+    from ..atomic import atomic_write
+
+    out_png = Path(out_png)
+    sheet = check.render if photo is None else np.concatenate([check.render, photo], axis=1)
+    with atomic_write(out_png, "wb") as f:
+        Image.fromarray(sheet).save(f, format="PNG")
+    with atomic_write(out_png.with_suffix(".json"), "w", encoding="utf-8") as f:
+        json.dump(check.to_json(), f, indent=1)
