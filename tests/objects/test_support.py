@@ -54,3 +54,17 @@ def test_no_object_and_too_many_names_are_clear_errors():
         name_clusters(clusters, ["a", "b", "c", "d"])
     with pytest.raises(ObjectsError, match="within 10 cm"):
         name_clusters(clusters, ["x=5,5"])
+
+
+def test_sparse_low_specks_are_not_objects():
+    # SfM noise seen on the sample: a dozen points ~1 cm above the table, nearer the base than any object
+    pts, centres = _scene()
+    rng = np.random.default_rng(5)
+    speck = np.c_[np.array([0.05, 0.2]) + rng.normal(0, 0.02, (13, 2)), rng.uniform(0.007, 0.014, 13)]
+    pole = np.c_[np.array([0.0, -0.15]) + rng.normal(0, 0.003, (13, 2)), rng.uniform(0.01, 0.06, 13)]
+    _, with_speck = find_objects(np.concatenate([pts, speck]))
+    assert len(with_speck) == 3 and np.linalg.norm(with_speck[0].centroid[:2] - centres["near"]) < 0.01
+    _, with_pole = find_objects(np.concatenate([pts, pole]))  # as sparse, but tall: a thin object
+    assert len(with_pole) == 4
+    _, kept = find_objects(np.concatenate([pts, speck]), speck_fraction=0.0)
+    assert len(kept) == 4  # the rule is what drops it
