@@ -220,3 +220,14 @@ def test_init_gaussians_from_points():
     assert float(g.sh[:, 1:].abs().max()) == 0.0
     with pytest.raises(ValueError):
         init_gaussians_from_points(grid[:1], grid[:1])
+
+
+def test_opacity_regulariser_pushes_opacities_to_zero_or_one():
+    views = _photos(4)
+    hazy = []
+    for lam in (0.0, 0.5):
+        g, _ = train(views, views[:1], _init(400), _config(iterations=60, densify=False, lambda_opacity=lam),
+                     progress=False)  # fmt: skip
+        o = torch.sigmoid(g.logit_opacities)
+        hazy.append(float(((o > 0.1) & (o < 0.9)).float().mean()))
+    assert hazy[1] < 0.6 * hazy[0], hazy

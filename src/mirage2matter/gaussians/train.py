@@ -76,6 +76,9 @@ class TrainConfig:
     # weight of the mean rendered alpha outside a view's ``alpha_mask`` (object training: no
     # background may be carried by the Gaussians); 0 leaves scene training unchanged
     lambda_alpha: float = 0.0
+    # weight of mean o (1 - o) over the Gaussians' opacities o: pushes each to 0 or 1, so a surface is
+    # drawn by opaque Gaussians on it rather than a haze of faint ones around an opaque core; 0 = off
+    lambda_opacity: float = 0.0
 
     def refine_schedule(self) -> tuple[int, int, int]:
         """(start, stop, every) of densification, scaled to ``iterations`` unless given."""
@@ -266,6 +269,9 @@ def view_loss(
         outside = ~view.alpha_mask.to(dev)
         if bool(outside.any()):
             loss = loss + config.lambda_alpha * out.alpha[outside].mean()
+    if config.lambda_opacity > 0:
+        o = torch.sigmoid(g.logit_opacities)
+        loss = loss + config.lambda_opacity * (o * (1 - o)).mean()
     return loss, rgb
 
 

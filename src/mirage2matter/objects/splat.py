@@ -34,6 +34,10 @@ class SplatConfig:
     sh_degree: int = 2
     max_gaussians: int = 60000
     lambda_alpha: float = 1.0
+    # opacities pushed to 0 or 1 (TrainConfig.lambda_opacity): on the sample's 24-keyframe run the opaque
+    # Gaussians' median distance to the mesh fell 2.15 -> 1.99 mm (banana), 2.56 -> 2.07 mm (croissant) at the
+    # same held-out PSNR; 0.2 was no better and shrank the meshes more
+    lambda_opacity: float = 0.05
     lambda_dssim: float = 0.2
     dilate_px: int = 3
     crop_margin_px: int = 12
@@ -166,6 +170,7 @@ def train_object_gaussians(
         max_gaussians=config.max_gaussians,
         checkpoint_every=0,
         lambda_alpha=config.lambda_alpha,
+        lambda_opacity=config.lambda_opacity,
         lambda_dssim=config.lambda_dssim,
         seed=config.seed,
     )
