@@ -77,13 +77,18 @@ def mask_ious(ws: Path, name: str) -> list[float]:
     return out
 
 
-@pytest.fixture(scope="module")
-def small_ws(tmp_path_factory) -> Path:
+def _gt_workspace(tmp_path_factory, name: str, n_keyframes: int) -> Path:
+    """A workspace of the sample's keyframes with ground-truth poses (what the objects stage reads)."""
     if GT is None:
         pytest.fail(f"the shipped sample is missing: {SAMPLE}")
-    ws = tmp_path_factory.mktemp("objects_small")
-    ground_truth_workspace(ws, SAMPLE, n_keyframes=16)
+    ws = tmp_path_factory.mktemp(name)
+    ground_truth_workspace(ws, SAMPLE, n_keyframes=n_keyframes)
     return ws
+
+
+@pytest.fixture(scope="module")
+def small_ws(tmp_path_factory) -> Path:
+    return _gt_workspace(tmp_path_factory, "objects_small", 16)
 
 
 SMALL = dict(
@@ -152,10 +157,7 @@ def test_bad_inputs_are_clear_errors(small_ws, tmp_path):
 # ---- the issue's "must show", full quality --------------------------------------------------------
 @pytest.fixture(scope="module")
 def full_ws(tmp_path_factory) -> Path:
-    if GT is None:
-        pytest.fail(f"the shipped sample is missing: {SAMPLE}")
-    ws = tmp_path_factory.mktemp("objects_full")
-    ground_truth_workspace(ws, SAMPLE, n_keyframes=24)
+    ws = _gt_workspace(tmp_path_factory, "objects_full", 24)
     run_objects(ws, ObjectsConfig(names=["banana", "croissant", "button"]))
     return ws
 
