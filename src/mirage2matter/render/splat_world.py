@@ -81,7 +81,7 @@ class SplatWorld:
         self._radius = self._cull_radius(self.gaussians)  # [N], kept current by set_poses
         self.poses: dict[str, np.ndarray] = {}
         self.version = 0  # bumped whenever a part is re-posed (what cached frames depend on)
-        self._last: dict[str, tuple] = {}
+        self.reset_cache()
 
     def __len__(self) -> int:
         return len(self.gaussians)
@@ -128,7 +128,7 @@ class SplatWorld:
     def reset_cache(self) -> None:
         """Forget the cached backgrounds (call when an episode starts: the parts' rest poses change)."""
         self._cache: dict[str, dict] = {}
-        self._last = {}
+        self._last: dict[str, tuple] = {}  # render_camera's last frame per camera
         self._rest: dict[str, np.ndarray] = {}
         self._moving: set[str] = set()
 
@@ -141,8 +141,6 @@ class SplatWorld:
         background is then redrawn once without it). An approximation of the joint render at the
         moving parts' outlines (two layers instead of one sorted blend); exact elsewhere.
         """
-        if not hasattr(self, "_cache"):
-            self.reset_cache()
         for p in self.parts:
             pose = self.poses.get(p.name)
             if pose is None or p.name in self._moving:
@@ -167,8 +165,8 @@ class SplatWorld:
             return bg_rgb, bg_alpha, bg_depth
         # the moving parts' rows are slices: views (no copy), with their cached cull radii
         sls = [self._slices[n] for n in sorted(self._moving)]
-        fg = Gaussians.concat([self.gaussians.select(sl) for sl in sls]) if len(sls) > 1 else None
-        fg = fg if fg is not None else self.gaussians.select(sls[0])
+        pieces = [self.gaussians.select(sl) for sl in sls]
+        fg = pieces[0] if len(pieces) == 1 else Gaussians.concat(pieces)
         radius = torch.cat([self._radius[sl] for sl in sls])
         fg_rgb, fg_alpha, fg_depth = self._render(fg, viewmat, K, width, height, (0.0, 0.0, 0.0), radius)
         front = (fg_alpha > 0) & ((fg_depth < bg_depth) | (bg_alpha < 0.5))
