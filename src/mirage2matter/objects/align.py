@@ -7,9 +7,10 @@ Gaussians must share one frame. An initial similarity comes from keypoint corres
 sampled densely on the mesh surface refines each start; the best fit wins.
 
 What is aligned (``objects.stage``): a user mesh against the reconstruction's surface (two closed
-surfaces pin the scale well; the Gaussians cover only what the cameras saw, and a similarity fitted
-to them can shrink and tilt the mesh over its unseen underside), or against the opaque Gaussian
-means when the user gives keypoints; a reconstructed mesh, already in the Gaussians' frame, gets
+surfaces; the Gaussians cover only what the cameras saw, and a similarity fitted to them can shrink
+and tilt the mesh over its unseen underside), one fit per start, which the masks' outlines then
+choose among and refine (``objects.silhouette``); or against the opaque Gaussian means when the
+user gives keypoints; a reconstructed mesh, already in the Gaussians' frame, gets
 at most a small rigid correction.
 
 The object frame has its origin at the bottom centre of the object, z up (the support plane's
@@ -28,7 +29,15 @@ from ..geometry.sim3 import Sim3
 from ..geometry.umeyama import umeyama
 from .errors import ObjectsError
 
-__all__ = ["Alignment", "align_points_to_mesh", "distance_to_mesh", "object_frame", "pca_keypoints", "signed_distance"]
+__all__ = [
+    "Alignment",
+    "align_points_to_mesh",
+    "alignment_candidates",
+    "distance_to_mesh",
+    "object_frame",
+    "pca_keypoints",
+    "signed_distance",
+]
 
 
 @dataclass
@@ -69,7 +78,23 @@ def align_points_to_mesh(
     """Similarity taking ``points`` [N,3] (e.g. opaque Gaussian means) onto ``mesh``'s surface.
     ``keypoints`` = (in the points' frame [K,3], in the mesh's frame [K,3]), K >= 3: the user's
     correspondences as the start; ``init``: a known start (e.g. identity when both are already in
-    the base frame); otherwise the automatic PCA starts are all tried."""
+    the base frame); otherwise the automatic PCA starts are all tried and the best ICP fit wins."""
+    fits = alignment_candidates(points, mesh, keypoints, init, n_surface, with_scale, seed)
+    return min(fits, key=lambda a: a.rmse)
+
+
+def alignment_candidates(
+    points: np.ndarray,
+    mesh,
+    keypoints: tuple[np.ndarray, np.ndarray] | None = None,
+    init: Sim3 | None = None,
+    n_surface: int = 40000,
+    with_scale: bool = True,
+    seed: int = 0,
+) -> list[Alignment]:
+    """One ICP-refined fit per start (see ``align_points_to_mesh``): for a near-symmetric object
+    the half-turned copy can fit the points as well as the right pose, so a caller with other
+    evidence (the masks) chooses."""
     import trimesh
 
     pts = np.asarray(points, np.float64)
@@ -89,16 +114,14 @@ def align_points_to_mesh(
         for s0 in (1.0, -1.0):
             for s1 in (1.0, -1.0):
                 starts.append((f"pca{s0:+.0f}{s1:+.0f}", umeyama(pca_keypoints(pts, (s0, s1)), kp_surface, with_scale)))
-    best: Alignment | None = None
-    for label, init in starts:
+    fits = []
+    for label, start in starts:
         # coarse (keep 70%: the points' centroid sits above the mesh's, which has an underside) then fine
-        r = scaled_icp(pts, surface, init=init, with_scale=with_scale, trim_fraction=0.7, max_iterations=60)
+        r = scaled_icp(pts, surface, init=start, with_scale=with_scale, trim_fraction=0.7, max_iterations=60)
         r = scaled_icp(pts, surface, init=r.sim3, with_scale=with_scale, trim_fraction=0.9, max_iterations=60)
         rmse = r.rmse / r.sim3.scale  # in the points' units, comparable across starts
-        if best is None or rmse < best.rmse:
-            best = Alignment(r.sim3, rmse, r.inlier_fraction, label)
-    assert best is not None
-    return best
+        fits.append(Alignment(r.sim3, rmse, r.inlier_fraction, label))
+    return fits
 
 
 def distance_to_mesh(points: np.ndarray, mesh) -> np.ndarray:

@@ -178,10 +178,18 @@ def process_object(
     from ..gaussians.ply import write_ply
     from ..gaussians.transform import apply_sim3
     from ..geometry.rotation import rotation_angle
-    from .align import align_points_to_mesh, distance_to_mesh, object_frame, signed_distance
+    from .align import (
+        Alignment,
+        align_points_to_mesh,
+        alignment_candidates,
+        distance_to_mesh,
+        object_frame,
+        signed_distance,
+    )
     from .collision import convex_decomposition
     from .figure import side_by_side
     from .mesh import ensure_watertight, load_mesh, mass_properties, reconstruct_mesh
+    from .silhouette import SilhouetteCost, refine_by_silhouettes
     from .splat import train_object_gaussians
 
     name = target.name
@@ -246,13 +254,23 @@ def process_object(
         if np.linalg.norm(moved.translation) > 0.003 or np.degrees(rotation_angle(moved.rotation)) > 2.0:
             alignment.sim3_points_to_mesh, alignment.start = Sim3.identity(), "identity (ICP moved too far)"
     elif recon is not None and keypoints is None:
-        # a user mesh (any scale, any pose) against the reconstruction: two closed surfaces, which
-        # pins the scale far better than the visible-only Gaussians do
+        # a user mesh (any scale, any pose): ICP against the reconstruction (two closed surfaces)
+        # from each PCA start; the masks' outlines choose among the fits (a banana fits its
+        # half-turned copy about as well in 3D) and refine the winner (the carved surface is biased)
+        log(f"{name}: user mesh against the reconstruction, then the masks' outlines")
         surface = trimesh.sample.sample_surface(recon, 20000, seed=0)[0]
-        coarse = align_points_to_mesh(surface, mesh_input)
-        # then the Gaussians themselves (interior ones are gone), from that start
-        alignment = align_points_to_mesh(means, mesh_input, init=coarse.sim3_points_to_mesh)
-        alignment.start = f"reconstruction ({coarse.start}), then Gaussians"
+        fits = alignment_candidates(surface, mesh_input)
+        outline_cost = SilhouetteCost(mesh_input, cameras, masks)
+        costs = [outline_cost(f.sim3_points_to_mesh.inverse()) for f in fits]
+        chosen = fits[int(np.argmin(costs))]
+        sim3_mesh_to_base, cost = refine_by_silhouettes(outline_cost, chosen.sim3_points_to_mesh.inverse())
+        alignment = Alignment(
+            sim3_mesh_to_base.inverse(),
+            chosen.rmse,
+            chosen.inlier_fraction,
+            f"reconstruction ({chosen.start}; outline cost {min(costs):.3f} of {[round(c, 3) for c in costs]}), "
+            f"refined on the masks' outlines to {cost:.3f}",
+        )
     else:
         alignment = align_points_to_mesh(means, mesh_input, keypoints=keypoints)
     sim3_mesh_to_base = alignment.sim3_points_to_mesh.inverse()
