@@ -27,5 +27,6 @@ def test_success_rates_over_50_episodes(sim_ws):
             rates[text] = r["success_rate"]
     finally:
         twin.close()
+    print("\nsuccess rates over 50 episodes:", rates)
     low = {t: r for t, r in rates.items() if r < RATES[t]}
     assert not low, f"below target: {low} (all: {rates})"
