@@ -146,7 +146,7 @@ class SplatWorld:
             if pose is None or p.name in self._moving:
                 continue
             rest = self._rest.setdefault(p.name, pose)
-            if np.abs(pose - rest).max() > 1e-6:
+            if np.abs(pose - rest).max() > self.options.pose_tolerance:
                 self._moving.add(p.name)
         key = (np.asarray(viewmat, np.float64).tobytes(), np.asarray(K, np.float64).tobytes(), width, height,
                tuple(background), frozenset(self._moving))  # fmt: skip
