@@ -53,7 +53,7 @@ class SilhouetteCost:
         for cam, m in zip(cameras, masks, strict=True):
             if m is None or not m.any():
                 continue
-            m8 = np.ascontiguousarray(m, np.uint8)
+            m8 = (np.asarray(m) > 0).astype(np.uint8)  # bool or 0/255
             # signed distance to the mask's outline in pixels (> 0 outside); the outline runs between
             # pixel centres, half a pixel from the first pixel on either side
             inside = cv2.distanceTransform(m8, cv2.DIST_L2, 5)
