@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 import trimesh
+from test_objects_sample import silhouette  # ground-truth masks: pixel coverage > 1/2, supersampled
 
 from mirage2matter.geometry.camera import Camera, look_at_pose
 from mirage2matter.geometry.rotation import axis_angle_to_matrix, rotation_angle
@@ -34,19 +34,6 @@ def orbit_cameras(n: int = 10) -> list[Camera]:
     return cams
 
 
-def masks_of(mesh: trimesh.Trimesh, cams: list[Camera]) -> list[np.ndarray]:
-    out = []
-    for cam in cams:
-        uv, _ = cam.project(mesh.vertices)
-        # pixel coverage > 1/2, 4x supersampled (OpenCV's fill also takes pixels the edge only touches)
-        big = np.zeros((4 * cam.height, 4 * cam.width), np.uint8)
-        for tri in np.round((uv[mesh.faces] * 4 - 0.5) * 16).astype(np.int32):
-            cv2.fillConvexPoly(big, tri, 1, shift=4)
-        small = cv2.resize(big.astype(np.float32), (cam.width, cam.height), interpolation=cv2.INTER_AREA)
-        out.append(small > 0.5)
-    return out
-
-
 @pytest.fixture(scope="module")
 def scene():
     mesh = club()
@@ -54,7 +41,7 @@ def scene():
     placed = mesh.copy()
     placed.apply_transform(truth.matrix)
     cams = orbit_cameras()
-    return mesh, truth, cams, masks_of(placed, cams)
+    return mesh, truth, cams, [silhouette(placed, cam) for cam in cams]
 
 
 def test_refine_recovers_a_perturbed_pose(scene):
