@@ -66,21 +66,9 @@ def pca_keypoints(points: np.ndarray, signs: Sequence[float] = (1.0, 1.0)) -> np
     return np.array(kp)
 
 
-def align_points_to_mesh(
-    points: np.ndarray,
-    mesh,
-    keypoints: tuple[np.ndarray, np.ndarray] | None = None,
-    init: Sim3 | None = None,
-    n_surface: int = 40000,
-    with_scale: bool = True,
-    seed: int = 0,
-) -> Alignment:
-    """Similarity taking ``points`` [N,3] (e.g. opaque Gaussian means) onto ``mesh``'s surface.
-    ``keypoints`` = (in the points' frame [K,3], in the mesh's frame [K,3]), K >= 3: the user's
-    correspondences as the start; ``init``: a known start (e.g. identity when both are already in
-    the base frame); otherwise the automatic PCA starts are all tried and the best ICP fit wins."""
-    fits = alignment_candidates(points, mesh, keypoints, init, n_surface, with_scale, seed)
-    return min(fits, key=lambda a: a.rmse)
+def align_points_to_mesh(points: np.ndarray, mesh, **options) -> Alignment:
+    """The best ICP fit (lowest RMSE) of ``alignment_candidates(points, mesh, **options)``."""
+    return min(alignment_candidates(points, mesh, **options), key=lambda a: a.rmse)
 
 
 def alignment_candidates(
@@ -92,9 +80,12 @@ def alignment_candidates(
     with_scale: bool = True,
     seed: int = 0,
 ) -> list[Alignment]:
-    """One ICP-refined fit per start (see ``align_points_to_mesh``): for a near-symmetric object
-    the half-turned copy can fit the points as well as the right pose, so a caller with other
-    evidence (the masks) chooses."""
+    """Similarities taking ``points`` [N,3] (e.g. opaque Gaussian means) onto ``mesh``'s surface, one
+    ICP-refined fit per start. ``keypoints`` = (in the points' frame [K,3], in the mesh's frame
+    [K,3]), K >= 3: the user's correspondences as the start; ``init``: a known start (e.g. identity
+    when both are already in the base frame); otherwise every automatic PCA start. For a
+    near-symmetric object the half-turned copy can fit the points as well as the right pose, so a
+    caller with other evidence (the masks) may choose instead of taking the lowest RMSE."""
     import trimesh
 
     pts = np.asarray(points, np.float64)
