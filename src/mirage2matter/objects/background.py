@@ -3,9 +3,11 @@
 A point of the table plane seen at pixel p of keyframe i is seen by keyframe j where the plane's
 homography H_j H_i^-1 sends p. The median over the other keyframes of those warped pixels is the
 bare table at p: an object hides a given table point from only some of the keyframes (those
-looking at it across the object), so the median outvotes them. Right next to an object's foot
-most keyframes are hidden and the median may show the object; the matting that uses this
-background tolerates that (see ``matting``). Shadows lie on the plane and are background too.
+looking at it across the object). Right next to an object's foot most keyframes are hidden and a
+plain median shows the object itself, so a pixel of the object's lower edge looks like its own
+background and the matting drops it; given the object's proxy (``hidden``: where it covers each
+keyframe), the keyframes that look through it do not vote. Shadows lie on the plane and are
+background too.
 """
 
 from __future__ import annotations
@@ -45,10 +47,13 @@ def table_background(
     roi: Roi,
     plane: Plane,
     min_views: int = 3,
+    hidden: Sequence[np.ndarray | None] | None = None,
 ) -> np.ndarray:
     """Background [h,w,3] float32 (NaN where fewer than ``min_views`` keyframes see the table point)
     of keyframe ``i`` inside ``roi``, from the other keyframes' ``images`` [H,W,3] float32 in [0,1]
-    warped through the support plane."""
+    warped through the support plane. ``hidden`` [H,W] bool per keyframe (None: nothing hidden) marks
+    where an object may stand between that keyframe and the table: those pixels vote only for table
+    points that fewer than ``min_views`` keyframes see unhidden (under the object's foot)."""
     import cv2
 
     x0, y0, x1, y1 = roi
@@ -56,17 +61,26 @@ def table_background(
     H_i = plane_homography(cameras[i], plane)
     to_roi = np.array([[1.0, 0, x0], [0, 1.0, y0], [0, 0, 1.0]])
     nan3 = (float("nan"),) * 3
-    warped = []
+    warped, covered = [], []
     for j, cam_j in enumerate(cameras):
         if j == i:
             continue
         H = plane_homography(cam_j, plane) @ np.linalg.inv(H_i) @ to_roi  # roi pixel -> pixel of j
-        wj = cv2.warpPerspective(images[j], H, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderValue=nan3)
-        warped.append(wj)
-    stack = np.stack(warped)
-    count = np.isfinite(stack[..., 0]).sum(0)
+        inverse = cv2.WARP_INVERSE_MAP
+        warped.append(cv2.warpPerspective(images[j], H, (w, h), flags=cv2.INTER_LINEAR | inverse, borderValue=nan3))
+        hid = None if hidden is None else hidden[j]
+        if hid is None:
+            covered.append(np.zeros((h, w), bool))
+        else:
+            hid_u8 = np.ascontiguousarray(hid, np.uint8)
+            covered.append(cv2.warpPerspective(hid_u8, H, (w, h), flags=cv2.INTER_NEAREST | inverse, borderValue=0) > 0)
+    stack = np.stack(warped)  # [V,h,w,3]
     out = np.full((h, w, 3), np.nan, np.float32)
-    ok = count >= min_views
+    ok = np.isfinite(stack[..., 0]).sum(0) >= min_views
     if ok.any():
         out[ok] = np.nanmedian(stack[:, ok], axis=0)
+    clear = np.where(np.stack(covered)[..., None], np.nan, stack)
+    ok_clear = np.isfinite(clear[..., 0]).sum(0) >= min_views
+    if ok_clear.any():
+        out[ok_clear] = np.nanmedian(clear[:, ok_clear], axis=0)
     return out

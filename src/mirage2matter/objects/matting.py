@@ -104,11 +104,12 @@ def matte_object(
             "capture more views around it"
         )
     proxy = proxy_points(cluster.points, plane, config.proxy_margin)
+    hidden = [proxy_mask(cam, proxy) for cam in cameras]  # where the object may hide the table
     views = []
     for i, roi in rois.items():
         x0, y0, x1, y1 = roi
         cam = crop_camera(cameras[i], roi)
-        bg = table_background(i, cameras, images, roi, plane)
+        bg = table_background(i, cameras, images, roi, plane, hidden=hidden)
         views.append(
             View(
                 image=torch.from_numpy(np.ascontiguousarray(images[i][y0:y1, x0:x1], dtype=np.float32)),

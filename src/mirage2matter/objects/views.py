@@ -34,12 +34,15 @@ def proxy_points(points: np.ndarray, plane: Plane, margin: float) -> np.ndarray:
     return grown[plane.height(grown) >= -1e-6]
 
 
-def proxy_mask(camera: Camera, proxy: np.ndarray, roi: tuple[int, int, int, int]) -> np.ndarray:
-    """The proxy's projection [h,w] bool inside ``roi`` (its convex hull, filled)."""
+def proxy_mask(camera: Camera, proxy: np.ndarray, roi: tuple[int, int, int, int] | None = None) -> np.ndarray:
+    """The proxy's projection [h,w] bool inside ``roi`` (default: the whole image; its convex hull,
+    filled). A proxy reaching behind the camera covers the whole roi."""
     import cv2
 
-    x0, y0, x1, y1 = roi
-    uv, _ = camera.project(proxy)
+    x0, y0, x1, y1 = roi or (0, 0, camera.width, camera.height)
+    uv, z = camera.project(proxy)
+    if (z <= 0).any():
+        return np.ones((y1 - y0, x1 - x0), bool)
     hull = cv2.convexHull(np.round((uv - 0.5 - [x0, y0]) * 16).astype(np.int32))
     m = np.zeros((y1 - y0, x1 - x0), np.uint8)
     cv2.fillConvexPoly(m, hull, 1, lineType=cv2.LINE_8, shift=4)
