@@ -102,6 +102,24 @@ def test_grabcut_follows_the_edge_from_a_rough_alpha():
     assert fill_holes(ring).all()
 
 
+def test_grabcut_keeps_what_the_matting_is_sure_of():
+    """An object whose lower part has the table's colour: GrabCut's colour model gives it to the
+    table, but the 3D matting is sure of it (alpha 0.9) and the mask keeps it."""
+    rng = np.random.default_rng(0)
+    img = np.clip(rng.normal((150, 100, 60), 8, (80, 100, 3)), 0, 255).astype(np.uint8)  # wood-ish
+    img[20:45, 30:70] = (60, 40, 30)  # the object's dark top
+    alpha = np.zeros((80, 100), np.float32)
+    alpha[20:60, 30:70] = 0.9  # its lower flank (rows 45-60) looks like the table
+    truth = alpha > 0.5
+    m = refine_grabcut(img, alpha)
+    assert m[45:60, 30:70].mean() > 0.95
+    assert (m & truth).sum() / (m | truth).sum() > 0.95
+    soft = refine_grabcut(
+        img, np.where(truth, 0.7, 0.0).astype(np.float32) + np.pad(np.ones((25, 40)), ((20, 35), (30, 30))) * 0.2
+    )
+    assert soft[50:60, 30:70].mean() < 0.5  # where the matting is unsure, the image's edges win
+
+
 def test_sam2_without_package_or_checkpoint_says_what_to_do(tmp_path):
     cams = _cams()
     target = Target("cup", _cluster("cup", [0, 0, 0]), None)

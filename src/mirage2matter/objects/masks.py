@@ -94,7 +94,9 @@ def refine_grabcut(image_u8: np.ndarray, alpha: np.ndarray, sure: float = 0.8, e
     bgd, fgd = np.zeros((1, 65)), np.zeros((1, 65))
     bgr = np.ascontiguousarray(image_u8[..., ::-1])
     cv2.grabCut(bgr, tri, None, bgd, fgd, 5, cv2.GC_INIT_WITH_MASK)
-    return fill_holes((tri == cv2.GC_FGD) | (tri == cv2.GC_PR_FGD))
+    # GrabCut moves the matte's soft edge to the image's edges; where the 3D matting is sure it
+    # does not overrule it (an object the colour of the table loses its lower flanks otherwise)
+    return fill_holes((tri == cv2.GC_FGD) | (tri == cv2.GC_PR_FGD) | (alpha > sure))
 
 
 @dataclass
