@@ -53,7 +53,9 @@ class ObjectsConfig:
     voxel: float = 0.0015
     skip_fraction: float = 0.08
     grabcut: bool = True
-    prune_inside: float = 0.003  # metres: Gaussians deeper inside the reconstruction are dropped
+    # metres the 3DGS depth may lie in front of the surface without carving it (see reconstruct_mesh)
+    depth_margin: float = 0.0005
+    prune_inside: float = 0.002  # metres: Gaussians deeper inside the reconstruction are dropped
     collision_threshold: float = 0.05
     collision_max_parts: int = 16
     figure_views: int = 3
@@ -225,6 +227,7 @@ def process_object(
             skip_fraction=config.skip_fraction,
             name=name,
             depths=depths,
+            depth_margin=config.depth_margin,
         )
 
     if recon is not None:
