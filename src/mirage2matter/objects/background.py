@@ -75,12 +75,12 @@ def table_background(
             hid_u8 = np.ascontiguousarray(hid, np.uint8)
             covered.append(cv2.warpPerspective(hid_u8, H, (w, h), flags=cv2.INTER_NEAREST | inverse, borderValue=0) > 0)
     stack = np.stack(warped)  # [V,h,w,3]
-    out = np.full((h, w, 3), np.nan, np.float32)
-    ok = np.isfinite(stack[..., 0]).sum(0) >= min_views
-    if ok.any():
-        out[ok] = np.nanmedian(stack[:, ok], axis=0)
     clear = np.where(np.stack(covered)[..., None], np.nan, stack)
+    out = np.full((h, w, 3), np.nan, np.float32)
     ok_clear = np.isfinite(clear[..., 0]).sum(0) >= min_views
     if ok_clear.any():
         out[ok_clear] = np.nanmedian(clear[:, ok_clear], axis=0)
+    under = ~ok_clear & (np.isfinite(stack[..., 0]).sum(0) >= min_views)  # hidden from (nearly) all
+    if under.any():
+        out[under] = np.nanmedian(stack[:, under], axis=0)
     return out
