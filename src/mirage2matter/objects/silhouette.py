@@ -23,6 +23,7 @@ import numpy as np
 from ..geometry.camera import Camera
 from ..geometry.rotation import rotvec_to_matrix
 from ..geometry.sim3 import Sim3
+from .carve import signed_distance_image
 
 __all__ = ["SilhouetteCost", "refine_by_silhouettes"]
 
@@ -41,8 +42,6 @@ class SilhouetteCost:
         tau: float = 1.0,
         max_faces: int = 6000,
     ):
-        import cv2
-
         mesh = _decimated(mesh, max_faces)
         self.vertices = np.asarray(mesh.vertices, np.float64)  # [V,3] in the mesh's frame
         self.faces = np.asarray(mesh.faces, np.int64)  # [F,3]
@@ -54,12 +53,8 @@ class SilhouetteCost:
             if m is None or not m.any():
                 continue
             m8 = (np.asarray(m) > 0).astype(np.uint8)  # bool or 0/255
-            # signed distance to the mask's outline in pixels (> 0 outside); the outline runs between
-            # pixel centres, half a pixel from the first pixel on either side
-            inside = cv2.distanceTransform(m8, cv2.DIST_L2, 5)
-            outside = cv2.distanceTransform(1 - m8, cv2.DIST_L2, 5)
-            sdf = np.where(m8 > 0, 0.5 - inside, outside - 0.5).astype(np.float32)
-            self.views.append((cam, sdf, _mask_outline(m8)))
+            # signed distance to the mask's outline in pixels, > 0 outside (the carving's, negated)
+            self.views.append((cam, -signed_distance_image(m8), _mask_outline(m8)))
         if not self.views:
             raise ValueError("no keyframe has a non-empty mask")
 
