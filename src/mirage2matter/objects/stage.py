@@ -263,7 +263,7 @@ def process_object(
         log(f"{name}: user mesh against the reconstruction, then the masks' outlines")
         surface = trimesh.sample.sample_surface(recon, 20000, seed=0)[0]
         fits = alignment_candidates(surface, mesh_input)
-        outline_cost = SilhouetteCost(mesh_input, cameras, masks)
+        outline_cost = SilhouetteCost(mesh_input, cameras, masks, plane=target.plane)  # it rests on the table
         costs = [outline_cost(f.sim3_points_to_mesh.inverse()) for f in fits]
         chosen = fits[int(np.argmin(costs))]
         sim3_mesh_to_base, cost = refine_by_silhouettes(outline_cost, chosen.sim3_points_to_mesh.inverse())
