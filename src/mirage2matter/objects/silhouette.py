@@ -13,11 +13,12 @@ where the interpolated vertex normal is perpendicular to the view ray (Hertzmann
 silhouettes), sampled a few times per pixel; the points that project inside the silhouette (folds)
 are dropped. Unlike the polygonal contour (edges between front and back faces), which jumps from
 edge to edge, it moves continuously with the pose, and so does the cost: a derivative-free search
-converges to the same pose from different starts.
+stops in fewer and shallower local minima.
 
-Masks grow at the object's foot (its contact shadow looks like neither table nor background), which
-pulls the outline down and the fit into the table by a degree or so. Given the support plane, a
-second term keeps the mesh's lowest point on it: the object rests on the table.
+Masks grow at the object's foot (its contact shadow, on the table right beside it, where the
+matting's background is least known), which pulls the outline fit into the table and rolls it
+towards the shadow (a banana: 1 deg or so). Given the support plane, a second term keeps the mesh's
+lowest point on it: the object rests on the table.
 """
 
 from __future__ import annotations
