@@ -56,6 +56,7 @@ class ObjectsConfig:
     # metres the 3DGS depth may lie in front of the surface without carving it (see reconstruct_mesh)
     depth_margin: float = 0.0005
     prune_inside: float = 0.002  # metres: Gaussians deeper inside the reconstruction are dropped
+    prune_rounds: int = 2  # drop + short retraining, repeated (the retraining moves some inwards again)
     collision_threshold: float = 0.05
     collision_max_parts: int = 16
     figure_views: int = 3
@@ -232,16 +233,26 @@ def process_object(
 
     if recon is not None:
         # Gaussians deep inside the object (the matting starts them throughout its volume) sit far
-        # from the surface; drop them and let a short second round heal the surface they backed
-        depth_inside = signed_distance(recon, g_base.means.detach().numpy().astype(np.float64))
-        inside = depth_inside >= config.prune_inside
-        if inside.any():
-            log(f"{name}: {int(inside.sum())} Gaussians inside the object dropped, short retraining")
+        # from the surface; drop them and let a short second round heal the surface they backed. The
+        # healing densifies and moves Gaussians too, some of them inwards again: a second pass
+        first_round, pruned = splat_metrics, 0
+        for _ in range(config.prune_rounds):
+            means_base = g_base.means.detach().numpy().astype(np.float64)
+            inside = signed_distance(recon, means_base) >= config.prune_inside
+            if not inside.any():
+                break
+            opaque = (torch.sigmoid(g_base.logit_opacities) > 0.5).numpy()
+            log(
+                f"{name}: {int(inside.sum())} Gaussians inside the object dropped "
+                f"({int((inside & opaque).sum())} of {int(opaque.sum())} opaque), short retraining"
+            )
             heal = replace(config.splat, iterations=max(1, config.splat.iterations // 4), min_opacity_init=0.0)
-            g_base, healed = train_object_gaussians(
+            g_base, splat_metrics = train_object_gaussians(
                 g_base.select(torch.from_numpy(~inside)), cameras, images, masks, heal, name, progress
             )
-            splat_metrics = {**healed, "pruned_inside": int(inside.sum()), "first_round": splat_metrics}
+            pruned += int(inside.sum())
+        if pruned:
+            splat_metrics = {**splat_metrics, "pruned_inside": pruned, "first_round": first_round}
 
     log(f"{name}: alignment")
     opaque = (torch.sigmoid(g_base.logit_opacities) > 0.5).numpy()
