@@ -89,7 +89,7 @@ def test_masks_must_not_be_empty(scene):
 
 def test_contact_with_the_table_resists_a_shadowed_foot():
     # masks that also hold a contact shadow on one side (the object flattened onto the table, shifted
-    # 3-4 mm) pull the outline fit down and into a roll; the support plane keeps its lowest point on
+    # 3-4 mm) pull the outline fit towards it and into a roll; the support plane keeps its lowest point on
     # the table, which takes most of the roll away
     mesh = bent_tube()
     R = axis_angle_to_matrix(np.array([0.0, 0.0, 1.0]), 0.4)
@@ -112,4 +112,4 @@ def test_contact_with_the_table_resists_a_shadowed_foot():
             assert abs(lowest) < 0.0003
     # resting on the table, only the roll the round tube hides from the outline is left (1.6 deg here)
     assert errors["resting"] < 2.5, errors
-    assert errors["free"] > 4.0, errors  # sunk and rolled towards the shadow (7.0 deg here)
+    assert errors["free"] > 4.0, errors  # rolled towards the shadow (7.0 deg here)
