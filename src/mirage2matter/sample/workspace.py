@@ -9,7 +9,8 @@
     <ws>/calib/ground_truth_workspace.json   how it was made (a rerun with the same settings is skipped)
 
 The points come from COLMAP features and matches triangulated with the known poses
-(``pycolmap.triangulate_points``), so they carry the real pipeline's noise, not the mesh's.
+(``sfm.known_poses.triangulate_known_poses``), so they carry the real pipeline's noise, not the
+mesh's, and are the same every run.
 It is a fast fixture for the object and world stages and lets the real upstream stages (which
 write the same files) be swapped in.
 """
@@ -26,6 +27,8 @@ import numpy as np
 
 from ..atomic import atomic_dir, atomic_write
 from ..geometry.camera import Camera
+from ..sfm.colmap import SfMConfig
+from ..sfm.known_poses import triangulate_known_poses
 from ..video import read_video_frames
 from .inspect import BUNDLED_SAMPLE
 
@@ -39,64 +42,6 @@ def keyframe_indices(n_frames: int, n_keyframes: int) -> list[int]:
     if n_keyframes < 2 or n_keyframes > n_frames:
         raise ValueError(f"need 2 <= n_keyframes <= {n_frames} (the video's frame count), got {n_keyframes}")
     return sorted({int(round(v)) for v in np.linspace(0, n_frames - 1, n_keyframes)})
-
-
-def _triangulate(image_dir: Path, cameras: list[Camera], work: Path, overlap: int, max_features: int) -> np.ndarray:
-    """COLMAP SIFT features + sequential matching of the images, triangulated with the given poses.
-    Returns points [M,3] float64 in the cameras' world frame."""
-    import pycolmap
-
-    db = work / "database.db"
-    names = [c.name for c in cameras]
-    eo = pycolmap.FeatureExtractionOptions()
-    eo.num_threads = min(2, os.cpu_count() or 1)
-    eo.sift.max_num_features = max_features
-    level = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = 1  # glog WARNING: no per-image chatter
-    try:
-        pycolmap.extract_features(
-            db,
-            image_dir,
-            image_names=names,
-            camera_mode=pycolmap.CameraMode.SINGLE,
-            reader_options=pycolmap.ImageReaderOptions(camera_model="PINHOLE"),
-            extraction_options=eo,
-            device=pycolmap.Device.cpu,
-        )
-        mo = pycolmap.FeatureMatchingOptions()
-        mo.num_threads = eo.num_threads
-        po = pycolmap.SequentialPairingOptions()
-        po.overlap = overlap
-        po.loop_detection = False
-        pycolmap.match_sequential(db, matching_options=mo, pairing_options=po, device=pycolmap.Device.cpu)
-
-        # The known camera, written into the database too so that both agree.
-        cam0 = cameras[0]
-        database = pycolmap.Database.open(str(db))
-        try:
-            camera_id = database.read_all_cameras()[0].camera_id
-            cam = pycolmap.Camera(
-                model="PINHOLE",
-                width=cam0.width,
-                height=cam0.height,
-                params=[cam0.fx, cam0.fy, cam0.cx, cam0.cy],  # COLMAP also puts pixel centres at +0.5
-                camera_id=camera_id,
-            )
-            database.update_camera(cam)
-            db_images = {im.name: im for im in database.read_all_images()}
-        finally:
-            database.close()
-        rec = pycolmap.Reconstruction()
-        rec.add_camera_with_trivial_rig(cam)
-        for c in cameras:
-            V = c.viewmat
-            image = pycolmap.Image(name=c.name, camera_id=camera_id, image_id=db_images[c.name].image_id)
-            rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(V[:3, :3]), V[:3, 3]))
-        (work / "tri").mkdir()
-        out = pycolmap.triangulate_points(rec, db, image_dir, work / "tri")
-    finally:
-        pycolmap.logging.minloglevel = level
-    return np.array([p.xyz for p in out.points3D.values()], dtype=np.float64).reshape(-1, 3)
 
 
 def ground_truth_workspace(
@@ -165,8 +110,10 @@ def ground_truth_workspace(
             json.dump(summary, f, indent=1)
             f.write("\n")
 
+    # the SfM stage's features, matching and triangulator (one thread, seeded: the same points every run)
+    sfm = SfMConfig(matching="sequential", overlap=match_overlap, max_num_features=max_features)
     with tempfile.TemporaryDirectory(prefix="m2m-gtws-") as work:
-        points = _triangulate(ws / "capture", cameras, Path(work), match_overlap, max_features)
+        points = triangulate_known_poses(cameras, ws / "capture", Path(work) / "sfm", sfm).points
     if len(points) < 100:
         raise ValueError(f"{sample}: only {len(points)} points triangulated from {len(cameras)} keyframes")
 
