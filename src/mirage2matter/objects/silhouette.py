@@ -60,6 +60,12 @@ class SilhouetteCost:
         mesh = _decimated(mesh, max_faces)
         self.vertices = np.asarray(mesh.vertices, np.float64)  # [V,3] in the mesh's frame
         self.faces = np.asarray(mesh.faces, np.int64)  # [F,3]
+        # area-weighted face and vertex normals in the mesh's frame: a similarity only rotates them
+        # (its scale multiplies all by s^2, which neither the signs nor the crossings below see)
+        V, F = self.vertices, self.faces
+        self.face_normals = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])  # [F,3]
+        self.vertex_normals = np.zeros_like(V)  # [V,3]
+        np.add.at(self.vertex_normals, F.ravel(), np.repeat(self.face_normals, 3, axis=0))
         self.tau = float(tau)
         self.samples_per_px = float(samples_per_px)
         self.plane, self.contact_weight, self.contact_scale = plane, float(contact_weight), float(contact_scale)
@@ -73,15 +79,19 @@ class SilhouetteCost:
         if not self.views:
             raise ValueError("no keyframe has a non-empty mask")
 
-    def outline(self, vertices_base: np.ndarray, camera: Camera, shape: tuple[int, int]) -> np.ndarray:
-        """Pixel positions [K,2] of the mesh's projected smooth outline in ``camera`` (vertices [V,3]
-        in its frame), ``samples_per_px`` per pixel along it."""
+    def outline(
+        self,
+        vertices_base: np.ndarray,
+        vertex_normals: np.ndarray,
+        face_normals: np.ndarray,
+        camera: Camera,
+        shape: tuple[int, int],
+    ) -> np.ndarray:
+        """Pixel positions [K,2] of the mesh's projected smooth outline in ``camera`` (vertices [V,3],
+        their normals [V,3] and the faces' [F,3] in its frame), ``samples_per_px`` per pixel along it."""
         import cv2
 
         V, F = vertices_base, self.faces
-        face_normals = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])  # area-weighted
-        vertex_normals = np.zeros_like(V)
-        np.add.at(vertex_normals, F.ravel(), np.repeat(face_normals, 3, axis=0))
         eye = camera.T_world_cam[:3, 3]
         facing = np.einsum("ij,ij->i", vertex_normals, eye - V)[F]  # [F,3] > 0: towards the camera
         front = facing > 0
@@ -125,9 +135,11 @@ class SilhouetteCost:
         from scipy.spatial import cKDTree
 
         V = sim3_mesh_to_base.apply(self.vertices)
+        R = sim3_mesh_to_base.rotation
+        vertex_normals, face_normals = self.vertex_normals @ R.T, self.face_normals @ R.T
         total = 0.0
         for cam, sdf, mask_outline in self.views:
-            uv = self.outline(V, cam, sdf.shape)
+            uv = self.outline(V, vertex_normals, face_normals, cam, sdf.shape)
             if len(uv) == 0:
                 return float("inf")
             to_mask = map_coordinates(sdf, [uv[:, 1] - 0.5, uv[:, 0] - 0.5], order=1, mode="nearest")
