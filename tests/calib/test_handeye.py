@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 from PIL import Image
 
+from fixtures import SAMPLE
 from mirage2matter.calib.board import BoardSpec
 from mirage2matter.calib.handeye import (
     METHODS,
@@ -20,8 +20,6 @@ from mirage2matter.calib.handeye import (
 )
 from mirage2matter.calib.kinematics import RobotKinematics
 from mirage2matter.cli import main
-
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
 
 
 def _pose(rng: np.random.Generator, angle_deg: float, shift: float) -> np.ndarray:
@@ -96,14 +94,15 @@ def test_sample_head_camera_within_tolerance(sample):
 
 def test_sample_with_noisy_robot_poses(sample):
     gt, board, K, T_true = sample
-    views = json.loads((SAMPLE / "handeye" / "joints.json").read_text())["views"]
-    kin = RobotKinematics(gt["handeye"].get("robot", "xml/franka_emika_panda/panda.xml"))
+    joints = json.loads((SAMPLE / "handeye" / "joints.json").read_text())
+    views, gt_link = joints["views"], joints["link"]
+    kin = RobotKinematics(gt["handeye"].get("robot"))  # default: the default robot's model
     obs = [detect_board_pose(np.asarray(Image.open(SAMPLE / "handeye" / v["image"]).convert("RGB")), board, K)
            for v in views]  # fmt: skip
     rng = np.random.default_rng(0)
     T_links = []
     for v in views:  # 0.05 deg / 0.3 mm of end-effector pose noise
-        T = kin.link_pose(v["joints"], "hand")
+        T = kin.link_pose(v["joints"], gt_link)
         axis = rng.normal(size=3)
         T[:3, :3] = cv2.Rodrigues(axis / np.linalg.norm(axis) * np.radians(0.05))[0] @ T[:3, :3]
         shift = rng.normal(size=3)

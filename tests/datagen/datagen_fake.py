@@ -14,7 +14,11 @@ import numpy as np
 from mirage2matter.datagen import Attempt
 from mirage2matter.export import DatasetSpec, EpisodeData
 
-SPEC = DatasetSpec(cameras={"head": (32, 48), "wrist": (32, 32)})
+# Any names do: the writers know no robot.
+SPEC = DatasetSpec(
+    state_names=tuple(f"q{i}" for i in range(9)), action_names=tuple(f"a{i}" for i in range(8)),
+    cameras={"head": (32, 48), "wrist": (32, 32)},
+)
 
 
 class FakeSource:

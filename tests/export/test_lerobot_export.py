@@ -21,8 +21,12 @@ from mirage2matter.export import (
     staging_dir_for,
     validate,
 )
+from mirage2matter.robots import DEFAULT_ROBOT, get_robot
 
-SPEC = DatasetSpec(cameras={"head": (48, 64), "wrist": (32, 32)})
+ROBOT = get_robot(DEFAULT_ROBOT)
+SPEC = DatasetSpec(
+    ROBOT.state_names, ROBOT.action_names, ROBOT.robot_type, cameras={"head": (48, 64), "wrist": (32, 32)}
+)
 
 
 def _frames(rng: np.random.Generator, t: int, h: int, w: int) -> np.ndarray:
@@ -83,6 +87,8 @@ def test_v30_layout_content_and_validation(tmp_path: Path) -> None:
     assert info["features"]["observation.images.head"]["shape"] == [48, 64, 3]
     assert info["features"]["observation.images.head"]["dtype"] == "video"
     assert info["features"]["observation.state"]["shape"] == [9]
+    assert info["features"]["observation.state"]["names"] == list(ROBOT.state_names)
+    assert info["robot_type"] == ROBOT.robot_type
 
     data = pq.read_table(out / "data" / "chunk-000" / "file-000.parquet")
     episodes = pq.read_table(out / "meta" / "episodes" / "chunk-000" / "file-000.parquet").to_pylist()

@@ -9,14 +9,11 @@ gripper, so the robot is only right if the compositing lets the banana hide it.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 pytestmark = pytest.mark.slow
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
 SIZE = 224
 
 
@@ -31,16 +28,13 @@ def _psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float
 
 
 @pytest.fixture(scope="module")
-def twin_world(tmp_path_factory):
-    if not (SAMPLE / "ground_truth.json").is_file():
-        pytest.skip("samples/tabletop is not in this checkout")
+def twin_world(sample_world_ws):
     from mirage2matter.gaussians.ply import read_ply
     from mirage2matter.render import MovablePart, SplatRenderOptions, SplatWorld
     from mirage2matter.sim.twin import Twin, TwinOptions
-    from mirage2matter.world.sample import sample_world
+    from mirage2matter.world import load_world
 
-    ws = tmp_path_factory.mktemp("ws")
-    world = sample_world(SAMPLE, ws)
+    world = load_world(sample_world_ws() / "world")
     twin = Twin.build(world, TwinOptions(render=True, camera_sizes={"head": (SIZE, SIZE)}))
     parts = [MovablePart(o.name, read_ply(o.part.gaussians), o.placement.scale) for o in world.objects]
     # Objects only: the ground truth has no splat scene either (its table is Genesis' plane).
@@ -59,7 +53,7 @@ def test_hybrid_frame_matches_ground_truth_and_objects_hide_the_gripper(twin_wor
     twin.reset(seed=0, randomize=False)
     T_base_cam, K, cw, ch = twin.camera("head")
     # Put the banana on the line from the head camera to the fingers, 35 % of the way from the fingers.
-    tcp = twin.T_base_link()[:3, :3] @ np.array([0, 0, 0.1034]) + twin.T_base_link()[:3, 3]
+    tcp = twin.T_base_link()[:3, :3] @ np.array([0, 0, twin.spec.tcp_offset]) + twin.T_base_link()[:3, 3]
     eye = T_base_cam[:3, 3]
     banana = twin.bodies["banana"].entity
     T_b = twin.object_poses()["banana"]

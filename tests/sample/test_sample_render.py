@@ -17,13 +17,15 @@ from PIL import Image
 
 from mirage2matter.geometry.camera import look_at_pose
 from mirage2matter.sample.render import (
-    PANDA_HOME,
+    ROBOT,
     RenderConfig,
     SampleRenderer,
     default_T_base_headcam,
     sample_handeye_configurations,
 )
 from mirage2matter.sample.types import PlacedAsset
+
+HOME = np.asarray(ROBOT.home)
 
 pytest.importorskip("genesis")
 
@@ -144,7 +146,7 @@ MARKER_VIEWS = [
 def test_projection_convention(renderer: SampleRenderer, view: int) -> None:
     """Marker centroids land within a pixel of K @ viewmat @ X (OpenCV axes, centres at +0.5),
     and the depth image holds planar depth."""
-    renderer.set_joints(PANDA_HOME)
+    renderer.set_joints(HOME)
     T_world_cam = MARKER_VIEWS[view]
     rgb, depth = renderer.render_rgbd(T_world_cam)
     assert rgb.shape == (renderer.size[1], renderer.size[0], 3) and rgb.dtype == np.uint8
@@ -167,7 +169,7 @@ def test_projection_convention(renderer: SampleRenderer, view: int) -> None:
 
 
 def test_render_is_deterministic(renderer: SampleRenderer) -> None:
-    renderer.set_joints(PANDA_HOME)
+    renderer.set_joints(HOME)
     a = renderer.render(MARKER_VIEWS[0])
     other = renderer.render(MARKER_VIEWS[1])
     b = renderer.render(MARKER_VIEWS[0])
@@ -184,7 +186,7 @@ def _board_view(renderer: SampleRenderer) -> np.ndarray:
     return look_at_pose(eye, centre, up=b)
 
 
-@pytest.mark.parametrize("q", [PANDA_HOME, np.array([0.5, -0.3, -0.3, -2.0, 0.4, 2.1, 0.3])])
+@pytest.mark.parametrize("q", [HOME, np.array([0.5, -0.3, -0.3, -2.0, 0.4, 2.1, 0.3])])
 def test_held_board_follows_the_hand(renderer: SampleRenderer, q: np.ndarray) -> None:
     """The board is drawn at T_base_hand @ T_hand_board with its texture the right way round,
     and the arm is drawn where Genesis' forward kinematics puts it."""
@@ -260,7 +262,7 @@ def test_handeye_configurations(renderer: SampleRenderer) -> None:
 
 def test_board_arm_intersection_check(renderer: SampleRenderer) -> None:
     """The board does not collide in Genesis; the sampler's own check sees a board through the arm."""
-    renderer.set_joints(PANDA_HOME)
+    renderer.set_joints(HOME)
     assert not renderer.board_intersects_arm()
     mount = renderer.T_hand_board
     try:

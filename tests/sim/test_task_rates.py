@@ -18,7 +18,7 @@ RATES = {
 def test_success_rates_over_50_episodes(sim_ws):
     from mirage2matter.sim.twin import Twin, TwinOptions
 
-    cfg = load_world(sim_ws)
+    cfg = load_world(sim_ws / "world")
     twin = Twin.build(cfg, TwinOptions(render=False))
     try:
         rates = {}

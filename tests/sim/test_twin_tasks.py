@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from mirage2matter.sim.planning import PlanningError, collision_free, ik, plan, segment_free, time_parameterize
-from mirage2matter.sim.tasks import TCP_OFFSET, TaskError, TaskSpec, _topdown, parse_task, run_task
+from mirage2matter.sim.tasks import GraspTask, TaskError, parse_task, run_task, topdown
 from mirage2matter.world import load_world
 from mirage2matter.world.compose import WorldGaussians
 
@@ -18,7 +18,8 @@ from mirage2matter.world.compose import WorldGaussians
 def twin(sim_ws):
     from mirage2matter.sim.twin import Twin, TwinOptions
 
-    tw = Twin.build(load_world(sim_ws), TwinOptions(render=True, camera_sizes={"head": (96, 72), "wrist": (64, 48)}))
+    options = TwinOptions(render=True, camera_sizes={"head": (96, 72), "wrist": (64, 48)})
+    tw = Twin.build(load_world(sim_ws / "world"), options)
     yield tw
     tw.close()
 
@@ -144,7 +145,7 @@ def test_push_and_pull(twin):
 
 def test_unknown_target_raises(twin):
     with pytest.raises(TaskError, match="no object named 'kiwi'"):
-        run_task(twin, TaskSpec("grasp", "kiwi"))
+        run_task(twin, GraspTask("kiwi"))
 
 
 def test_plan_around_an_obstacle(twin):
@@ -153,15 +154,16 @@ def test_plan_around_an_obstacle(twin):
     bx, by = twin.object_poses()["button"][:2, 3]
     q0 = twin.robot_state()
     axis = np.array([0.0, -1.0])
-    qa = ik(twin, _topdown(np.array([bx, by - 0.12, 0.03]), axis), q0)
-    qb = ik(twin, _topdown(np.array([bx, by + 0.12, 0.03]), axis), np.concatenate([qa, q0[7:]]))
+    tcp = twin.spec.tcp_offset
+    qa = ik(twin, topdown(np.array([bx, by - 0.12, 0.03]), axis, tcp), q0)
+    qb = ik(twin, topdown(np.array([bx, by + 0.12, 0.03]), axis, tcp), np.concatenate([qa, q0[7:]]))
     fingers = q0[7:]
     assert not segment_free(twin, qa, qb, fingers)
     t0 = time.perf_counter()
     path = plan(twin, np.concatenate([qa, fingers]), qb, timeout=10.0)
     assert time.perf_counter() - t0 < 10.0
     assert len(path) >= 3 and np.allclose(path[0], qa) and np.allclose(path[-1], qb)
-    dense = time_parameterize(path, 0.01, 0.5)
+    dense = time_parameterize(path, 0.01, 0.5, robot=twin.spec)
     with twin.restoring():
         for q in dense[::2]:
             assert collision_free(twin, np.concatenate([q, fingers])), "the planned path collides"
@@ -170,14 +172,14 @@ def test_plan_around_an_obstacle(twin):
         heights = []
         for q in dense[::5]:
             twin.robot.set_qpos(np.concatenate([q, fingers]))
-            heights.append(twin.T_base_link()[2, 3] - TCP_OFFSET)
+            heights.append(twin.T_base_link()[2, 3] - tcp)
     assert max(heights) > 0.055
 
 
 def test_unreachable_target_fails_fast(twin):
     twin.reset(seed=0, randomize=False)
     q0 = twin.robot_state()
-    T_far = _topdown(np.array([1.6, 0.0, 0.2]), np.array([0.0, 1.0]))
+    T_far = topdown(np.array([1.6, 0.0, 0.2]), np.array([0.0, 1.0]), twin.spec.tcp_offset)
     t0 = time.perf_counter()
     with pytest.raises(PlanningError, match="beyond its reach"):
         ik(twin, T_far, q0)

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import M2MError
 from ..geometry.camera import opencv_K
 from ..geometry.rotation import rotation_angle
 from ..geometry.sim3 import invert_rigid
@@ -26,7 +27,7 @@ from .board import BoardSpec
 METHODS = ("tsai", "park", "horaud", "andreff", "daniilidis")
 
 
-class HandEyeError(ValueError):
+class HandEyeError(M2MError, ValueError):
     """Unusable hand-eye data; the message says what to change."""
 
 
@@ -229,7 +230,8 @@ def calibrate_from_files(
     Returns the result and its JSON (with the images used and those skipped)."""
     from PIL import Image
 
-    from .kinematics import DEFAULT_ROBOT, RobotKinematics
+    from ..robots import DEFAULT_ROBOT, get_robot
+    from .kinematics import RobotKinematics
 
     joints_file, images_dir = Path(joints_file), Path(images_dir)
     try:
@@ -243,8 +245,9 @@ def calibrate_from_files(
             f"{images_dir} holds {len(images)} images but {joints_file} lists {len(views)} joint sets; "
             "give one joint set per image"
         )
-    kin = RobotKinematics(robot or spec.get("robot", DEFAULT_ROBOT))
-    link = link or spec.get("link", "hand")
+    default = get_robot(DEFAULT_ROBOT)
+    kin = RobotKinematics(robot or spec.get("robot", default.model))
+    link = link or spec.get("link", default.ee_link)
     used, skipped, T_links, observations = [], [], [], []
     for view in views:
         name = Path(view["image"]).name

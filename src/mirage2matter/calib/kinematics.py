@@ -11,7 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-DEFAULT_ROBOT = "xml/franka_emika_panda/panda.xml"  # Genesis' bundled Franka Panda
+from ..robots import DEFAULT_ROBOT, get_robot
+
+_DEFAULT = get_robot(DEFAULT_ROBOT)
 
 
 def resolve_robot_path(robot: str | os.PathLike) -> Path:
@@ -28,17 +30,20 @@ def resolve_robot_path(robot: str | os.PathLike) -> Path:
     if bundled is not None and bundled.is_file():
         return bundled
     raise FileNotFoundError(
-        f"robot model {robot} not found (neither a file nor in Genesis' bundled assets, e.g. {DEFAULT_ROBOT})"
+        f"robot model {robot} not found (neither a file nor in Genesis' bundled assets, e.g. {_DEFAULT.model})"
     )
 
 
 class RobotKinematics:
-    """Link poses T_base_link [4,4] for joint vectors q; the model's world frame is the robot base."""
+    """Link poses T_base_link [4,4] for joint vectors q; the model's world frame is the robot base.
 
-    def __init__(self, robot: str | os.PathLike = DEFAULT_ROBOT) -> None:
+    ``robot``: a model file (or a path in Genesis' bundled assets); default: the default robot's model.
+    """
+
+    def __init__(self, robot: str | os.PathLike | None = None) -> None:
         import mujoco
 
-        self.path = resolve_robot_path(robot)
+        self.path = resolve_robot_path(_DEFAULT.model if robot is None else robot)
         try:
             self._model = mujoco.MjModel.from_xml_path(str(self.path))
         except ValueError as e:
@@ -50,8 +55,9 @@ class RobotKinematics:
     def n_joints(self) -> int:
         return self._model.nq
 
-    def link_pose(self, q: np.ndarray, link: str = "hand") -> np.ndarray:
-        """T_base_link [4,4] at joint positions q [n] (n <= n_joints; the rest stay at 0)."""
+    def link_pose(self, q: np.ndarray, link: str = _DEFAULT.ee_link) -> np.ndarray:
+        """T_base_link [4,4] at joint positions q [n] (n <= n_joints; the rest stay at 0); default link: the
+        default robot's end-effector link."""
         q = np.asarray(q, dtype=np.float64).ravel()
         if q.size > self._model.nq:
             raise ValueError(f"{q.size} joint values given, the model {self.path.name} has {self._model.nq}")

@@ -26,11 +26,12 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from ..errors import M2MError
 from ..export.spec import DatasetSpec, EpisodeData
 from ..export.staging import commit_attempt
 
 
-class RunnerError(RuntimeError):
+class RunnerError(M2MError, RuntimeError):
     """A worker failed (crashed, raised, or Ray could not be reached); the message says which and why."""
 
 

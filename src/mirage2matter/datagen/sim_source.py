@@ -12,47 +12,39 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields, is_dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..export.spec import PANDA_STATE_NAMES, DatasetSpec, EpisodeData
+from ..export.spec import DatasetSpec, EpisodeData
 from ..render.composite import ColorJitter, composite, to_uint8
 from ..render.splat_world import MovablePart, SplatRenderOptions, SplatWorld
+from ..sim.tasks import Task
+from ..world.config import WorldConfig
+from .config import Randomization
 from .robot_proxy import lowpoly_robot
 from .runner import Attempt
 
 CAMERAS = ("head", "wrist")
 
 
-@dataclass(frozen=True)
-class Randomization:
-    """Half-ranges of the per-episode jitter (0 disables one). Object start poses follow the world's
-    ``randomize`` region (world.yaml)."""
-
-    camera_deg: float = 0.5  # rotation of each camera mount about a random axis
-    camera_m: float = 0.005  # translation of each camera mount
-    brightness: float = 0.06
-    contrast: float = 0.08
-    gain: float = 0.05  # per-channel light colour
-    objects: bool = True  # random object start poses (False: the world's placements)
-
-
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SimSourceConfig:
-    """What an episode is: the world, the task, the frames.
+    """What an episode is: the world, the task, the frames. Picklable (it travels to worker processes and Ray
+    actors as it is: the world and the task are parsed once, in the parent).
 
-    world     a workspace, its world/ folder or a world.yaml
-    task      instruction text for ``sim.tasks.parse_task`` ("grasp banana", "press button", ...)
-    size      (width, height) of every camera's frames
-    fps       control and video rate
-    cameras   which world cameras become videos
+    world          the loaded world (the worker copies it before changing anything)
+    task           the task object (``sim.tasks.parse_task``)
+    size           (width, height) of every camera's frames
+    fps            control and video rate
+    cameras        which world cameras become videos
+    randomization  per-episode jitter
     """
 
-    world: str
-    task: str
+    world: WorldConfig
+    task: Task
     size: tuple[int, int] = (224, 224)
     fps: int = 10
     cameras: tuple[str, ...] = CAMERAS
@@ -70,16 +62,25 @@ class SimSourceConfig:
     reuse_hand_camera_robot: bool = True
 
     def spec(self) -> DatasetSpec:
+        """The dataset's spec: the frames, and the state / action names and type of the world's robot."""
         w, h = self.size
+        robot = self.world.robot.spec
         return DatasetSpec(
+            state_names=robot.state_names,
+            action_names=robot.action_names,
+            robot_type=robot.robot_type,
             fps=self.fps,
             cameras={c: (h, w) for c in self.cameras},
-            state_names=PANDA_STATE_NAMES,
-            action_names=PANDA_STATE_NAMES[:7] + ("gripper",),
         )
 
     def to_json(self) -> dict[str, Any]:
-        return {**asdict(self), "size": list(self.size), "cameras": list(self.cameras)}
+        """The task and every frame setting, not the world (fingerprinted by its content, see ``generate``)."""
+        out: dict[str, Any] = {"task": self.task.to_json()}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name not in ("world", "task"):
+                out[f.name] = asdict(v) if is_dataclass(v) else v
+        return {**out, "size": list(self.size), "cameras": list(self.cameras)}
 
 
 def render_K(K: np.ndarray, width: int, height: int, out_w: int, out_h: int) -> np.ndarray:
@@ -102,19 +103,17 @@ class SimEpisodeSource:
 
     def __init__(self, cfg: SimSourceConfig):
         from ..gaussians.ply import read_ply
-        from ..sim.tasks import parse_task
         from ..sim.twin import Twin, TwinOptions
-        from ..world.config import load_world
 
         self.cfg = cfg
         self.spec = cfg.spec()
         t0 = time.perf_counter()
-        world = load_world(cfg.world)
+        world = cfg.world.copy()  # the render robot and the per-episode camera jitter change it
         missing = [c for c in cfg.cameras if c not in world.cameras]
         if missing:
             raise ValueError(f"the world has no calibrated camera {missing}; cameras: {sorted(world.cameras)} "
                              "(run `m2m calibrate-handeye` / `m2m compose` first)")  # fmt: skip
-        self.task = parse_task(cfg.task, world)
+        self.task = cfg.task
         if cfg.robot_render_faces and world.robot.file.lower().endswith(".xml"):
             world.robot.file = str(lowpoly_robot(world.robot.file, robot_cache_dir(), cfg.robot_render_faces))
         w, h = cfg.size
@@ -236,13 +235,3 @@ def robot_cache_dir() -> Path:
     import os
 
     return Path(os.environ.get("M2M_CACHE", Path.home() / ".cache" / "mirage2matter")) / "robots"
-
-
-def world_fingerprint(world: str | Path) -> dict[str, Any]:
-    """The world file's content hash (a changed world is a different dataset)."""
-    import hashlib
-
-    from ..world.config import world_yaml_path
-
-    p = world_yaml_path(world)
-    return {"world_yaml": str(p.resolve()), "world_sha1": hashlib.sha1(p.read_bytes()).hexdigest()}

@@ -2,7 +2,8 @@
 
 from .lerobot import FORMATS, write_dataset
 from .spec import DatasetSpec, EpisodeData, VideoOptions, video_key
-from .staging import StagedEpisode, Staging, StagingError, commit_attempt, consolidate, staging_dir_for
+from .staged import StagedEpisode
+from .staging import Staging, StagingError, commit_attempt, consolidate, staging_dir_for
 from .validate import validate
 
 __all__ = [

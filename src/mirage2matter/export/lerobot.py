@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from .spec import INDEX_FEATURES, DatasetSpec
-from .staging import StagedEpisode
+from .staged import StagedEpisode
 from .stats import aggregate, from_json, to_json, vector_stats
 from .video import concat_videos
 
@@ -119,7 +119,7 @@ def _tasks_parquet(path: Path, tasks: dict[str, int]) -> None:
     import pyarrow.parquet as pq
 
     names = list(tasks)
-    pandas_meta = {
+    df_meta = {
         "index_columns": ["task"],
         "column_indexes": [
             {
@@ -144,7 +144,7 @@ def _tasks_parquet(path: Path, tasks: dict[str, int]) -> None:
         "pandas_version": "2.2.0",
     }
     schema = pa.schema([("task_index", pa.int64()), ("task", pa.string())],
-                       metadata={b"pandas": json.dumps(pandas_meta).encode()})  # fmt: skip
+                       metadata={b"pandas": json.dumps(df_meta).encode()})  # fmt: skip
     table = pa.table({"task_index": [tasks[n] for n in names], "task": names}, schema=schema)
     path.parent.mkdir(parents=True, exist_ok=True)
     pq.write_table(table, path)

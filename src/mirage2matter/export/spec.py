@@ -2,7 +2,9 @@
 
 One ``DatasetSpec`` describes every episode of a dataset; the LeRobot writers turn it into the
 ``features`` of ``meta/info.json``. Feature keys follow LeRobot: ``observation.images.<camera>``
-(video), ``observation.state``, ``action`` and the bookkeeping columns.
+(video), ``observation.state``, ``action`` and the bookkeeping columns. It knows no robot: the state /
+action names and LeRobot's ``robot_type`` come from the caller (``datagen`` takes them from the world's
+``RobotSpec``).
 """
 
 from __future__ import annotations
@@ -21,8 +23,6 @@ INDEX_FEATURES: dict[str, str] = {
     "task_index": "int64",
 }
 
-PANDA_STATE_NAMES = tuple(f"joint{i}" for i in range(1, 8)) + ("finger_left", "finger_right")
-
 
 @dataclass(frozen=True)
 class VideoOptions:
@@ -38,17 +38,19 @@ class VideoOptions:
 
 @dataclass(frozen=True)
 class DatasetSpec:
-    """fps          control / video rate (frames per second, an integer as LeRobot wants)
-    cameras      camera name -> (height, width); each becomes ``observation.images.<name>``
-    state_names  names of ``observation.state``'s entries (joint positions + gripper)
+    """state_names  names of ``observation.state``'s entries (joint positions + gripper)
     action_names names of ``action``'s entries
+    robot_type   LeRobot's ``robot_type`` (None: not recorded)
+    fps          control / video rate (frames per second, an integer as LeRobot wants)
+    cameras      camera name -> (height, width); each becomes ``observation.images.<name>``
+    video        H.264 encoding of the camera videos
     """
 
+    state_names: tuple[str, ...]
+    action_names: tuple[str, ...]
+    robot_type: str | None = None
     fps: int = 10
     cameras: dict[str, tuple[int, int]] = field(default_factory=lambda: {"head": (224, 224), "wrist": (224, 224)})
-    state_names: tuple[str, ...] = PANDA_STATE_NAMES
-    action_names: tuple[str, ...] = PANDA_STATE_NAMES[:7] + ("gripper",)
-    robot_type: str = "franka_panda"
     video: VideoOptions = VideoOptions()
 
     def __post_init__(self) -> None:
@@ -112,7 +114,7 @@ class DatasetSpec:
             cameras={k: (int(v[0]), int(v[1])) for k, v in d["cameras"].items()},
             state_names=tuple(d["state_names"]),
             action_names=tuple(d["action_names"]),
-            robot_type=d.get("robot_type", "franka_panda"),
+            robot_type=d.get("robot_type"),
             video=VideoOptions(**d.get("video", {})),
         )
 

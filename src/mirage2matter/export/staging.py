@@ -23,50 +23,28 @@ import os
 import re
 import shutil
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..atomic import atomic_dir, atomic_write
+from ..errors import M2MError
 from .spec import DatasetSpec, EpisodeData, video_key
+from .staged import StagedEpisode
 from .stats import to_json
 from .video import decoded_image_stats, encode_video
 
 _ATTEMPT_RE = re.compile(r"attempt-(\d{6})\Z")
 
 
-class StagingError(RuntimeError):
+class StagingError(M2MError, RuntimeError):
     """The staging area belongs to a different run, or another run holds it."""
 
 
 def staging_dir_for(out_dir: Path) -> Path:
     out_dir = Path(out_dir)
     return out_dir.parent / f".{out_dir.name}.staging"
-
-
-@dataclass
-class StagedEpisode:
-    """A committed successful attempt: its folder and result.json."""
-
-    dir: Path
-    result: dict[str, Any]
-
-    @property
-    def task(self) -> str:
-        return self.result["task"]
-
-    @property
-    def length(self) -> int:
-        return int(self.result["length"])
-
-    @property
-    def frames_path(self) -> Path:
-        return self.dir / "frames.parquet"
-
-    def video_path(self, key: str) -> Path:
-        return self.dir / f"{key}.mp4"
 
 
 class Staging:

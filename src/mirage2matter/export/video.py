@@ -9,11 +9,12 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_path
+from ..errors import M2MError
 from .spec import VideoOptions
 from .stats import ImageStatsAccumulator
 
 
-class DatasetVideoError(ValueError):
+class DatasetVideoError(M2MError, ValueError):
     """A video that cannot be written or joined; the message names the file."""
 
 

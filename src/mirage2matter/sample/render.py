@@ -33,11 +33,11 @@ import trimesh
 from mirage2matter.geometry.camera import GL_TO_CV, look_at_pose
 from mirage2matter.geometry.rotation import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix, rotation_angle
 from mirage2matter.geometry.sim3 import invert_rigid
+from mirage2matter.robots import DEFAULT_ROBOT, get_robot
 from mirage2matter.sample.types import PlacedAsset
 
 __all__ = [
-    "PANDA_MJCF",
-    "PANDA_HOME",
+    "ROBOT",
     "DirectionalLight",
     "HandeyeCheck",
     "RenderConfig",
@@ -50,9 +50,7 @@ __all__ = [
     "sample_handeye_configurations",
 ]
 
-PANDA_MJCF = "xml/franka_emika_panda/panda.xml"  # bundled with genesis-world
-# Arm joints of the Panda's usual "ready" pose; set_joints adds the fingers.
-PANDA_HOME = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+ROBOT = get_robot(DEFAULT_ROBOT)  # the sample's robot (model bundled with genesis-world); home, links, gripper
 # Hand-frame depth (along the approach axis z) of the board edge held by the fingers. The fingertip
 # pads span z ~ 0.094..0.111 m in the Panda hand frame, so the board is gripped over ~1.1 cm.
 BOARD_GRIP_EDGE_Z = 0.10
@@ -299,7 +297,7 @@ class SampleRenderer:
         self._board_entity = None
         self.T_hand_board: np.ndarray | None = None
         if with_robot:
-            self.robot = self._scene.add_entity(gs.morphs.MJCF(file=PANDA_MJCF, pos=(0.0, 0.0, 0.0)))
+            self.robot = self._scene.add_entity(gs.morphs.MJCF(file=ROBOT.model, pos=(0.0, 0.0, 0.0)))
             self._register("robot", self.robot)
         if held_board is not None:
             self._board_entity = add_mesh(held_board, len(assets))
@@ -308,10 +306,12 @@ class SampleRenderer:
             )
             self.board_corners_obj, self.board_axes_obj = board_face(held_board.mesh, _face_normal_obj(held_board))
             # Fingers just touching the board (visual only: the board does not collide).
-            self.finger_q = float(np.clip(0.5 * _board_thickness(held_board) - _PAD_INSET, 0.0, 0.04))
+            self.finger_q = float(
+                np.clip(0.5 * _board_thickness(held_board) - _PAD_INSET, ROBOT.gripper_closed, ROBOT.gripper_open)
+            )
         else:
             self.board_corners_obj = self.board_axes_obj = None
-            self.finger_q = 0.04
+            self.finger_q = ROBOT.gripper_open
 
         self._cam = self._scene.add_camera(
             res=(cfg.width, cfg.height),
@@ -327,7 +327,7 @@ class SampleRenderer:
             raise RuntimeError(f"Genesis intrinsics {self._cam.intrinsics} differ from ours {self.K}")
         self._seg_lut: np.ndarray | None = None
         if self.robot is not None:
-            self.set_joints(PANDA_HOME)
+            self.set_joints(ROBOT.home)
 
     def _register(self, name: str, entity: object) -> None:
         if name in self._entities:
@@ -414,7 +414,12 @@ class SampleRenderer:
     @property
     def robot_file(self) -> str:
         """The robot description, relative to Genesis' bundled assets."""
-        return PANDA_MJCF
+        return ROBOT.model
+
+    @property
+    def ee_link(self) -> str:
+        """The link holding the board (the hand)."""
+        return ROBOT.ee_link
 
     def _need_robot(self) -> object:
         if self.robot is None:
@@ -431,10 +436,10 @@ class SampleRenderer:
         """Set the arm [7] (fingers then grip the board, or open) or arm + fingers [9]; re-place the board."""
         robot = self._need_robot()
         q = np.asarray(q, dtype=np.float64).reshape(-1)
-        if q.shape == (7,):
-            q = np.concatenate([q, [self.finger_q, self.finger_q]])
-        if q.shape != (9,):
-            raise ValueError(f"q must have 7 or 9 values, got {q.shape}")
+        if q.shape == (ROBOT.n_arm,):
+            q = np.concatenate([q, [self.finger_q] * (ROBOT.n_dofs - ROBOT.n_arm)])
+        if q.shape != (ROBOT.n_dofs,):
+            raise ValueError(f"q must have {ROBOT.n_arm} or {ROBOT.n_dofs} values, got {q.shape}")
         robot.set_qpos(q)
         if self._board_entity is not None:
             pos, quat = _pos_quat(self.T_base_board)
@@ -445,9 +450,10 @@ class SampleRenderer:
         """Current joint positions [9] (arm then fingers)."""
         return np.asarray(self._need_robot().get_qpos(), dtype=np.float64)
 
-    def T_base_link(self, name: str = "hand") -> np.ndarray:
-        """[4,4] pose of a Panda link ("link0".."link7", "hand", "left_finger", ...) from Genesis FK."""
-        link = self._need_robot().get_link(name)
+    def T_base_link(self, name: str | None = None) -> np.ndarray:
+        """[4,4] pose of a robot link (default: the hand; the Panda's are "link0".."link7", "hand",
+        "left_finger", ...) from Genesis FK."""
+        link = self._need_robot().get_link(ROBOT.ee_link if name is None else name)
         q = np.asarray(link.get_quat(), dtype=np.float64)
         return _rigid(quat_to_matrix(q / np.linalg.norm(q)), np.asarray(link.get_pos(), dtype=np.float64))
 
@@ -456,7 +462,7 @@ class SampleRenderer:
         """[4,4] current pose of the held board's object frame: T_base_hand @ T_hand_board."""
         if self.T_hand_board is None:
             raise RuntimeError("this renderer holds no board")
-        return self.T_base_link("hand") @ self.T_hand_board
+        return self.T_base_link() @ self.T_hand_board
 
     def board_corners_base(self) -> np.ndarray:
         """[4,3] corners of the held board's printed face in the base frame (see :func:`board_face`)."""
@@ -482,7 +488,7 @@ class SampleRenderer:
         half_b = 0.5 * np.ptp(corners @ b)
         thickness = _board_thickness(self.board)
         for link in robot.links:
-            if link.name in ("left_finger", "right_finger") or link.n_verts == 0:
+            if link.name in ROBOT.finger_links or link.n_verts == 0:
                 continue
             X = np.asarray(link.get_verts(), dtype=np.float64)
             X_obj = (X - T[:3, 3]) @ T[:3, :3] - centre  # base -> board object frame, face centre origin
@@ -579,7 +585,7 @@ def check_handeye_configuration(
     facing = float(np.degrees(np.arccos(np.clip(n_base @ to_cam / np.linalg.norm(to_cam), -1.0, 1.0))))
     if facing > max_facing_deg:
         return HandeyeCheck(False, "not facing", facing)
-    if corners[:, 2].min() < min_height or renderer.T_base_link("hand")[2, 3] < min_height:
+    if corners[:, 2].min() < min_height or renderer.T_base_link()[2, 3] < min_height:
         return HandeyeCheck(False, "below table", facing)
     if renderer.self_collision():
         return HandeyeCheck(False, "self collision", facing)
@@ -629,12 +635,12 @@ def sample_handeye_configurations(
     K_inv = np.linalg.inv(renderer.K)
     T_base_headcam = np.asarray(T_base_headcam, dtype=np.float64)
     cam_centre = T_base_headcam[:3, 3]
-    hand = renderer.robot.get_link("hand")
+    hand = renderer.robot.get_link(ROBOT.ee_link)
     T_board_hand = invert_rigid(renderer.T_hand_board)
     axes_obj = renderer.board_axes_obj
     # Face centre -> object-frame origin, to place the face centre on the sampled ray.
     face_centre_obj = renderer.board_corners_obj.mean(axis=0)
-    q_home = np.concatenate([PANDA_HOME, [renderer.finger_q] * 2])
+    q_home = ROBOT.home_q(renderer.finger_q)
     if depth_range is None:
         diagonal = float(np.linalg.norm(renderer.board_corners_obj[2] - renderer.board_corners_obj[0]))
         span = renderer.K[1, 1] * diagonal / min(W, H)  # depth at which the diagonal fills the image
@@ -664,9 +670,9 @@ def sample_handeye_configurations(
             link=hand, pos=pos, quat=quat, init_qpos=q_home, max_samples=10, seed=int(rng.integers(2**31))
         )
         q = np.asarray(q, dtype=np.float64)
-        q[7:] = renderer.finger_q
+        q[ROBOT.n_arm :] = renderer.finger_q
         renderer.set_joints(q)
-        T_err = invert_rigid(renderer.T_base_link("hand")) @ (T_base_board @ T_board_hand)
+        T_err = invert_rigid(renderer.T_base_link()) @ (T_base_board @ T_board_hand)
         if np.linalg.norm(T_err[:3, 3]) > 2e-3 or rotation_angle(T_err[:3, :3]) > math.radians(1.0):
             continue
         if not check_handeye_configuration(renderer, T_base_headcam, **check_kwargs).ok:

@@ -1,7 +1,7 @@
 """Motion planning on a :class:`~mirage2matter.sim.twin.Twin`: inverse kinematics (Genesis' damped least
 squares, position + orientation), joint-space paths (the straight segment when it is collision-free, else
 OMPL 2.0.1 RRTConnect with the twin's collision checks as the validity checker, then shortcutting), and
-time parameterisation (minimum-jerk segments within joint velocity and acceleration limits).
+time parameterisation (minimum-jerk segments within the robot spec's joint velocity and acceleration limits).
 
 Collision checks set the robot's joints without stepping physics and ask Genesis for colliding geometry
 pairs (~0.2-2 ms each); callers save and restore the robot state around planning (``Twin.set_robot_state``).
@@ -15,8 +15,10 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from ..errors import M2MError
 from ..geometry.rotation import matrix_to_quat, rotation_angle
-from .twin import ARM_DOFS, Twin
+from ..robots import RobotSpec
+from .twin import Twin
 
 __all__ = [
     "PlanningError",
@@ -28,14 +30,8 @@ __all__ = [
     "time_parameterize",
 ]
 
-# Panda joint speed limits (rad/s); trajectories use a fraction of them.
-PANDA_VMAX = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
-PANDA_AMAX = np.array([15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0])
-# Distance (m) from the Panda shoulder (z = 0.333) beyond which no pose is reachable: link lengths + hand.
-PANDA_REACH = 0.316 + 0.384 + 0.088 + 0.107 + 0.11
 
-
-class PlanningError(RuntimeError):
+class PlanningError(M2MError, RuntimeError):
     """No path or no IK solution; the message says which target and why."""
 
 
@@ -51,14 +47,14 @@ def _allowed(pairs: Iterable[tuple[str, str]], allow: Iterable[str]) -> bool:
 
 
 def collision_free(twin: Twin, q: np.ndarray, allow: Iterable[str] = ()) -> bool:
-    """Whether the robot at ``q`` [9] touches nothing but the bodies named in ``allow``."""
+    """Whether the robot at ``q`` [n_dofs] touches nothing but the bodies named in ``allow``."""
     return _allowed(twin.colliding_pairs(q), allow)
 
 
 def segment_free(
     twin: Twin, q0: np.ndarray, q1: np.ndarray, fingers: np.ndarray, allow: Iterable[str] = (), step: float = 0.04
 ) -> bool:
-    """Whether the straight joint segment q0 -> q1 (arm [7]) is collision-free, checked every ``step`` rad."""
+    """Whether the straight joint segment q0 -> q1 (arm [n_arm]) is collision-free, checked every ``step`` rad."""
     n = max(1, math.ceil(float(np.abs(q1 - q0).max()) / step))
     allow = tuple(allow)
     for s in np.linspace(0.0, 1.0, n + 1)[1:]:
@@ -79,16 +75,16 @@ def ik(
     allow: Iterable[str] = (),
     seed: int = 0,
 ) -> np.ndarray:
-    """Arm joints [7] putting the end-effector link at ``T_base_ee`` [4,4] (position + orientation), near
-    ``q_init`` [9]. Raises :class:`PlanningError` (in well under a second) when the pose is out of reach, or
-    every solution found collides."""
+    """Arm joints [n_arm] putting the end-effector link at ``T_base_ee`` [4,4] (position + orientation), near
+    ``q_init`` [n_dofs]. Raises :class:`PlanningError` (in well under a second) when the pose is out of reach
+    (``RobotSpec.reach`` from its shoulder), or every solution found collides."""
     T_base_ee = np.asarray(T_base_ee, dtype=np.float64)
     pos = T_base_ee[:3, 3]
-    shoulder = np.array([0.0, 0.0, 0.333])
-    if np.linalg.norm(pos - shoulder) > PANDA_REACH:
+    shoulder, reach = np.asarray(twin.spec.shoulder, dtype=np.float64), twin.spec.reach
+    if np.linalg.norm(pos - shoulder) > reach:
         raise PlanningError(
             f"target {np.round(pos, 3).tolist()} is {np.linalg.norm(pos - shoulder):.2f} m from the robot's shoulder, "
-            f"beyond its reach ({PANDA_REACH:.2f} m); move the object closer to the robot"
+            f"beyond its reach ({reach:.2f} m); move the object closer to the robot"
         )
     with twin.restoring():
         return _ik(twin, pos, matrix_to_quat(np.ascontiguousarray(T_base_ee[:3, :3])), q_init, pos_tol, rot_tol_deg,
@@ -97,6 +93,7 @@ def ik(
 
 def _ik(twin, pos, quat, q_init, pos_tol, rot_tol_deg, attempts, check_collision, allow, seed) -> np.ndarray:
     q_init = np.asarray(q_init, dtype=np.float64)
+    n_arm = twin.spec.n_arm
     best = (math.inf, math.inf)
     collided = False
     for k in range(attempts):
@@ -110,11 +107,11 @@ def _ik(twin, pos, quat, q_init, pos_tol, rot_tol_deg, attempts, check_collision
         if pe > pos_tol or re > rot_tol_deg:
             best = min(best, (pe, re))
             continue
-        q_full = np.concatenate([q[:ARM_DOFS], q_init[ARM_DOFS:]])
+        q_full = np.concatenate([q[:n_arm], q_init[n_arm:]])
         if check_collision and not collision_free(twin, q_full, allow):
             collided = True
             continue
-        return q[:ARM_DOFS]
+        return q[:n_arm]
     if collided:
         raise PlanningError(f"every IK solution for the pose at {np.round(pos, 3).tolist()} collides")
     raise PlanningError(
@@ -145,15 +142,17 @@ def plan(
     allow: Iterable[str] = (),
     seed: int = 0,
 ) -> np.ndarray:
-    """Collision-free joint path [K,7] from ``q_start`` [9] (fingers held at its values) to ``q_goal`` [7 or 9].
+    """Collision-free joint path [K,n_arm] from ``q_start`` [n_dofs] (fingers held at its values) to ``q_goal``
+    [n_arm or n_dofs].
 
     The straight segment when it is free; else RRTConnect (OMPL) within ``timeout`` seconds, simplified and
     shortcut. Restores the robot's state afterwards. Raises :class:`PlanningError` when start or goal collide,
     or no path is found in time.
     """
     q_start = np.asarray(q_start, dtype=np.float64)
-    fingers = q_start[ARM_DOFS:]
-    a, b = q_start[:ARM_DOFS].copy(), np.asarray(q_goal, dtype=np.float64)[:ARM_DOFS].copy()
+    n_arm = twin.spec.n_arm
+    fingers = q_start[n_arm:]
+    a, b = q_start[:n_arm].copy(), np.asarray(q_goal, dtype=np.float64)[:n_arm].copy()
     allow = tuple(allow)
     with twin.restoring():
         for attempt in range(3):  # RRTConnect is randomised: a path refused by the dense check is planned again
@@ -181,17 +180,18 @@ def _plan(twin: Twin, a: np.ndarray, b: np.ndarray, fingers: np.ndarray, timeout
     if segment_free(twin, a, b, fingers, allow):
         return np.stack([a, b])
     ou.setLogLevel(ou.LogLevel.LOG_WARN)
+    n_arm = len(a)
     lo, hi = twin.joint_limits
-    space = ob.RealVectorStateSpace(ARM_DOFS)
-    bounds = ob.RealVectorBounds(ARM_DOFS)
-    for i in range(ARM_DOFS):
+    space = ob.RealVectorStateSpace(n_arm)
+    bounds = ob.RealVectorBounds(n_arm)
+    for i in range(n_arm):
         bounds.setLow(i, float(lo[i]))
         bounds.setHigh(i, float(hi[i]))
     space.setBounds(bounds)
     ss = og.SimpleSetup(space)
 
     def valid(state) -> bool:
-        q = np.array([state[i] for i in range(ARM_DOFS)])
+        q = np.array([state[i] for i in range(n_arm)])
         return collision_free(twin, np.concatenate([q, fingers]), allow)
 
     ss.setStateValidityChecker(valid)
@@ -200,7 +200,7 @@ def _plan(twin: Twin, a: np.ndarray, b: np.ndarray, fingers: np.ndarray, timeout
     # pass through the button between two checked states
     si.setStateValidityCheckingResolution(0.002)
     start, goal = space.allocState(), space.allocState()
-    for i in range(ARM_DOFS):
+    for i in range(n_arm):
         start[i], goal[i] = float(a[i]), float(b[i])
     ss.setStartAndGoalStates(start, goal)
     ss.setPlanner(og.RRTConnect(si))
@@ -213,7 +213,7 @@ def _plan(twin: Twin, a: np.ndarray, b: np.ndarray, fingers: np.ndarray, timeout
         )
     ss.simplifySolution(0.5)
     p = ss.getSolutionPath()
-    path = [np.array([p.getState(k)[i] for i in range(ARM_DOFS)]) for k in range(p.getStateCount())]
+    path = [np.array([p.getState(k)[i] for i in range(n_arm)]) for k in range(p.getStateCount())]
     path = _shortcut(twin, path, fingers, allow, np.random.default_rng(seed))
     # OMPL checks edges at its own resolution; accept the path only if every segment is free at ours
     bad = [k for k in range(len(path) - 1) if not segment_free(twin, path[k], path[k + 1], fingers, allow, step=0.02)]
@@ -225,7 +225,7 @@ def _plan(twin: Twin, a: np.ndarray, b: np.ndarray, fingers: np.ndarray, timeout
 def cartesian_path(
     twin: Twin, T_start: np.ndarray, T_goal: np.ndarray, q_init: np.ndarray, step: float = 0.01, **ik_kwargs
 ) -> np.ndarray:
-    """Joint waypoints [K,7] moving the end-effector along the straight line T_start -> T_goal (orientation
+    """Joint waypoints [K,n_arm] moving the end-effector along the straight line T_start -> T_goal (orientation
     slerped), every ``step`` metres; each IK seeded with the previous solution. Raises PlanningError."""
     from scipy.spatial.transform import Rotation, Slerp
 
@@ -235,18 +235,19 @@ def cartesian_path(
     n = max(1, math.ceil(max(dist / step, ang / math.radians(5.0))))
     slerp = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([T_start[:3, :3], T_goal[:3, :3]])))
     q = np.asarray(q_init, dtype=np.float64).copy()
+    n_arm = twin.spec.n_arm
     out = []
     with twin.restoring():
         for s in np.linspace(0.0, 1.0, n + 1)[1:]:
             T = np.eye(4)
             T[:3, :3] = slerp([s]).as_matrix()[0]
             T[:3, 3] = T_start[:3, 3] + s * (T_goal[:3, 3] - T_start[:3, 3])
-            q[:ARM_DOFS] = ik(twin, T, q, attempts=1, **ik_kwargs)
-            out.append(q[:ARM_DOFS].copy())
-    jumps = np.abs(np.diff(np.stack([np.asarray(q_init)[:ARM_DOFS], *out]), axis=0)).max()
+            q[:n_arm] = ik(twin, T, q, attempts=1, **ik_kwargs)
+            out.append(q[:n_arm].copy())
+    jumps = np.abs(np.diff(np.stack([np.asarray(q_init)[:n_arm], *out]), axis=0)).max()
     if jumps > 0.5:
         raise PlanningError(f"the straight-line motion needs a joint jump of {jumps:.2f} rad (near a singularity)")
-    return np.stack([np.asarray(q_init, dtype=np.float64)[:ARM_DOFS], *out])
+    return np.stack([np.asarray(q_init, dtype=np.float64)[:n_arm], *out])
 
 
 def _min_jerk(s: np.ndarray) -> np.ndarray:
@@ -254,16 +255,23 @@ def _min_jerk(s: np.ndarray) -> np.ndarray:
 
 
 def time_parameterize(
-    path: np.ndarray, dt: float, speed: float = 0.5, *, duration: float | None = None, through: bool = False
+    path: np.ndarray,
+    dt: float,
+    speed: float = 0.5,
+    *,
+    robot: RobotSpec,
+    duration: float | None = None,
+    through: bool = False,
 ) -> np.ndarray:
-    """Joint targets [T,7] every ``dt`` seconds along ``path`` [K,7].
+    """Joint targets [T,n_arm] every ``dt`` seconds along ``path`` [K,n_arm].
 
     Default: a minimum-jerk segment per path segment (rest at each waypoint), each as short as
-    ``speed`` x the Panda's joint velocity and acceleration limits allow. ``through``: one minimum-jerk profile
+    ``speed`` x ``robot``'s joint velocity and acceleration limits allow. ``through``: one minimum-jerk profile
     over the whole polyline's arc length (for dense Cartesian paths), lasting ``duration`` seconds if given.
     """
     path = np.asarray(path, dtype=np.float64)
-    vmax, amax = speed * PANDA_VMAX, speed * PANDA_AMAX
+    vmax = speed * np.asarray(robot.velocity_limit, dtype=np.float64)
+    amax = speed * np.asarray(robot.acceleration_limit, dtype=np.float64)
 
     def seg_time(d: np.ndarray) -> float:
         d = np.abs(d)

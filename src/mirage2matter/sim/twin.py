@@ -1,6 +1,7 @@
 """The Genesis twin of a world: robot at the origin, the table as the ground plane, objects as rigid bodies
 with convex collision parts at their placements, press buttons as a fixed base plus a sprung prismatic cap,
-and cameras at their calibrated mounts (head fixed in the base, wrist on the hand link).
+and cameras at their calibrated mounts (head fixed in the base, wrist on the hand link). Gains, force limits and
+the gripper come from the world's robot spec (``twin.spec``, see ``mirage2matter.robots``).
 
 Object bodies are generated URDFs (one link: the textured mesh as visual, the convex parts as collision,
 inertia from the watertight mesh) in the object frame scaled by the placement's scale, so a body's pose is
@@ -26,20 +27,11 @@ import trimesh
 
 from ..geometry.camera import GL_TO_CV
 from ..geometry.rotation import matrix_to_quat, quat_to_matrix
+from ..robots import RobotSpec
 from ..world.config import ArticulatedConfig, ObjectConfig, PartConfig, WorldConfig
 from ..world.validate import load_collision_parts, load_mesh, validate_world
 
-__all__ = ["ARM_DOFS", "FINGER_DOFS", "GRIPPER_OPEN", "Twin", "TwinOptions", "ensure_genesis"]
-
-ARM_DOFS = 7
-FINGER_DOFS = 2
-GRIPPER_OPEN = 0.04  # Panda finger joint (m per finger) fully open
-# Panda PD gains and force limits (Genesis' Franka examples, fingers 10x stiffer: with kp 100 a closing pair lags,
-# touches one side first and rolls a round object away); the fingers are force-controlled when squeezing.
-_KP = np.array([4500, 4500, 3500, 3500, 2000, 2000, 2000, 1000, 1000], dtype=np.float64)
-_KV = np.array([450, 450, 350, 350, 200, 200, 200, 40, 40], dtype=np.float64)
-_FORCE = np.array([87, 87, 87, 87, 12, 12, 12, 100, 100], dtype=np.float64)
-_FINGER_COUPLING = 3000.0  # N/m on the difference of the two finger joints when squeezing
+__all__ = ["Twin", "TwinOptions", "ensure_genesis"]
 
 
 def ensure_genesis(backend: str = "cpu") -> object:
@@ -186,6 +178,7 @@ class Twin:
 
     def __init__(self) -> None:  # use Twin.build
         self.cfg: WorldConfig
+        self.spec: RobotSpec  # the world's robot
         self.options: TwinOptions
         self.scene = None
         self.robot = None
@@ -200,6 +193,7 @@ class Twin:
         validate_world(cfg)
         self = cls()
         self.cfg, self.options = cfg, options or TwinOptions()
+        self.spec = spec = cfg.robot.spec
         opt = self.options
         gs = ensure_genesis(opt.backend)
         workdir = Path(opt.workdir) if opt.workdir else Path(tempfile.mkdtemp(prefix="m2m_twin_"))
@@ -272,21 +266,25 @@ class Twin:
         self.scene.build()
 
         robot = self.robot
-        if robot.n_dofs < ARM_DOFS + FINGER_DOFS:
-            raise ValueError(f"{robot_file}: the robot has {robot.n_dofs} dofs; expected a 7-dof arm + 2 fingers")
+        n_arm, n_fingers = spec.n_arm, len(spec.gripper_joints)
+        if robot.n_dofs < spec.n_dofs:
+            raise ValueError(
+                f"{robot_file}: the robot has {robot.n_dofs} dofs; expected a {n_arm}-dof arm + {n_fingers} fingers"
+            )
         self.ee_link = robot.get_link(cfg.robot.ee_link)
-        self.arm_dofs = np.arange(ARM_DOFS)
-        self.finger_dofs = np.arange(ARM_DOFS, ARM_DOFS + FINGER_DOFS)
-        robot.set_dofs_kp(_KP[: robot.n_dofs])
-        robot.set_dofs_kv(_KV[: robot.n_dofs])
-        robot.set_dofs_force_range(-_FORCE[: robot.n_dofs], _FORCE[: robot.n_dofs])
+        self.arm_dofs = np.arange(n_arm)
+        self.finger_dofs = np.arange(n_arm, spec.n_dofs)
+        kp, kv, force = (np.asarray(v, dtype=np.float64) for v in (spec.kp, spec.kv, spec.force_limit))
+        robot.set_dofs_kp(kp[: robot.n_dofs])
+        robot.set_dofs_kv(kv[: robot.n_dofs])
+        robot.set_dofs_force_range(-force[: robot.n_dofs], force[: robot.n_dofs])
         lo, hi = robot.get_dofs_limit()
         self.joint_limits = (np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64))
         for b in self.bodies.values():
             if b.kind == "press_button":
                 b.entity.set_dofs_stiffness(np.array([b.cfg.stiffness]))
         self._geom_owner = self._geom_owners()
-        self.home = np.concatenate([np.asarray(cfg.robot.home, dtype=np.float64), [GRIPPER_OPEN] * 2])
+        self.home = np.concatenate([np.asarray(cfg.robot.home, dtype=np.float64), [spec.gripper_open] * n_fingers])
         self._initial = {name: self._body_pose(b) for name, b in self.bodies.items()}
         self.reset(seed=0, randomize=False)
         return self
@@ -333,8 +331,8 @@ class Twin:
         return self.options.dt
 
     def robot_state(self) -> np.ndarray:
-        """[9] joint positions: 7 arm joints (rad) then 2 finger joints (m)."""
-        return np.asarray(self.robot.get_qpos(), dtype=np.float64)[: ARM_DOFS + FINGER_DOFS].copy()
+        """[n_dofs] joint positions: the arm joints (rad) then the finger joints (m); [9] for the Panda."""
+        return np.asarray(self.robot.get_qpos(), dtype=np.float64)[: self.spec.n_dofs].copy()
 
     def set_robot_state(self, q: np.ndarray) -> None:
         """Teleport the robot to ``q`` [9] (zero velocity) and hold it there."""
@@ -425,7 +423,7 @@ class Twin:
         q = self.robot_state()
         n = 0
         while n < round(max_s / self.dt):
-            self.step(q[:ARM_DOFS], q[ARM_DOFS])
+            self.step(q[: self.spec.n_arm], q[self.spec.n_arm])
             n += 1
             if n >= n_min and n % 5 == 0:
                 v = max((float(np.linalg.norm(np.asarray(e.get_vel()))) for e in free), default=0.0)
@@ -435,21 +433,19 @@ class Twin:
         return n * self.dt
 
     def step(self, q_target: np.ndarray, finger: float | None = None, finger_force: float | None = None) -> None:
-        """One physics step with the arm's PD target ``q_target`` [7]; fingers to position ``finger`` (m per
+        """One physics step with the arm's PD target ``q_target`` [n_arm]; fingers to position ``finger`` (m per
         finger), or squeezed with ``finger_force`` (N per finger, closing) when given."""
         robot = self.robot
         if finger_force is not None:
-            # The real Panda's fingers are geared together; Genesis loads them as two independent joints. A
-            # spring on their difference couples them, so the first finger to touch pushes the object to the
-            # middle instead of the pair squeezing it out sideways.
+            # A spring on the fingers' difference (RobotSpec.finger_coupling) stands in for the real gearing.
             f = abs(float(finger_force))
             ql, qr = np.asarray(robot.get_dofs_position(self.finger_dofs), dtype=np.float64)
-            e = _FINGER_COUPLING * (ql - qr)
+            e = self.spec.finger_coupling * (ql - qr)
             forces = -np.clip([f + e, f - e], 0.0, 2.0 * f)
             robot.control_dofs_position(np.asarray(q_target, dtype=np.float64), self.arm_dofs)
             robot.control_dofs_force(forces, self.finger_dofs)
         else:
-            q = np.concatenate([np.asarray(q_target, dtype=np.float64), [finger, finger]])
+            q = np.concatenate([np.asarray(q_target, dtype=np.float64), [finger] * len(self.finger_dofs)])
             robot.control_dofs_position(q)
         self.scene.step()
 

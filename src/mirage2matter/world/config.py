@@ -2,9 +2,9 @@
 articulated assets and lights, all in the robot-base frame (DESIGN.md sections 1 and 3, stage 7).
 
 Paths in the YAML are relative to the folder holding ``world.yaml`` (absolute paths are kept); the loaded
-config carries absolute paths. ``validate`` checks everything a simulation or a composition relies on (files
-exist, names unique, objects apart at start) and raises :class:`WorldConfigError` naming the field and what
-to do, before any simulator is built.
+config carries absolute paths. :func:`read_world` parses; ``world.io.load_world`` parses and validates
+(``world.validate``: files exist, names unique, objects apart at start), raising :class:`WorldConfigError`
+naming the field and what to do, before any simulator is built.
 
 Object frames: an object's mesh, collision parts and Gaussians share one object frame (for the sample: origin
 at the bottom centre, z up); ``placement`` (Sim3, object -> base) maps all of them into the base frame (paper
@@ -25,11 +25,11 @@ from typing import Any
 import numpy as np
 
 from ..atomic import atomic_write
+from ..errors import M2MError
 from ..geometry.sim3 import Sim3
+from ..robots import DEFAULT_ROBOT, RobotError, RobotSpec, get_robot
 
 __all__ = [
-    "DEFAULT_ROBOT",
-    "PANDA_HOME",
     "ArticulatedConfig",
     "CameraConfig",
     "LightConfig",
@@ -39,18 +39,16 @@ __all__ = [
     "RobotConfig",
     "WorldConfig",
     "WorldConfigError",
-    "load_world",
+    "read_world",
     "save_world",
     "world_yaml_path",
 ]
 
-DEFAULT_ROBOT = "xml/franka_emika_panda/panda.xml"  # Genesis' bundled Franka Panda (MJCF)
-PANDA_HOME = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
 _NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
 ARTICULATED_KINDS = ("press_button",)
 
 
-class WorldConfigError(ValueError):
+class WorldConfigError(M2MError, ValueError):
     """A world.yaml that cannot be used; the message names the field and what to do."""
 
 
@@ -119,15 +117,49 @@ def _check_keys(data: Any, allowed: set[str], where: str) -> dict:
     return data
 
 
+def _robot(data: Any, root: Path) -> RobotConfig:
+    """``robot:``; a world.yaml written before robots had names (file / ee_link / home only) is the default robot."""
+    r = _check_keys(data, {f.name for f in fields(RobotConfig)}, "robot")
+    try:
+        spec = get_robot(str(r.get("name", DEFAULT_ROBOT)))
+    except RobotError as e:
+        raise WorldConfigError(f"robot.name: {e}") from None
+    robot_file = str(r.get("file") or spec.model)
+    if not Path(robot_file).is_absolute() and (root / robot_file).is_file():  # beside world.yaml
+        robot_file = str((root / robot_file).resolve())
+    home = r.get("home") or spec.home
+    try:
+        home = tuple(float(v) for v in home)
+    except (TypeError, ValueError):
+        raise WorldConfigError(f"robot.home: expected {spec.n_arm} joint angles (rad), got {home!r}") from None
+    return RobotConfig(name=spec.name, file=robot_file, ee_link=str(r.get("ee_link") or spec.ee_link), home=home)
+
+
 # ---- the dataclasses -----------------------------------------------------------------------------
 @dataclass
 class RobotConfig:
-    """file: MJCF/URDF path, or a path inside Genesis' bundled assets (default: the Franka Panda).
-    ee_link: the link the gripper TCP hangs off; home: the arm's rest joints [7] (rad)."""
+    """The world's robot: a registered :class:`~mirage2matter.robots.RobotSpec` and what the world overrides.
 
-    file: str = DEFAULT_ROBOT
-    ee_link: str = "hand"
-    home: tuple[float, ...] = PANDA_HOME
+    name     the robot (``robots.get_robot``): joints, gains, limits, gripper; default ``robots.DEFAULT_ROBOT``
+    file     MJCF/URDF path, or a path inside Genesis' bundled assets (empty: the spec's model)
+    ee_link  the link the gripper TCP hangs off (empty: the spec's)
+    home     the arm's rest joints [n_arm] (rad) (empty: the spec's)
+    """
+
+    name: str = DEFAULT_ROBOT
+    file: str = ""
+    ee_link: str = ""
+    home: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        spec = get_robot(self.name)  # RobotError (an M2MError) for an unknown name
+        self.file = self.file or spec.model
+        self.ee_link = self.ee_link or spec.ee_link
+        self.home = tuple(float(v) for v in (self.home or spec.home))
+
+    @property
+    def spec(self) -> RobotSpec:
+        return get_robot(self.name)
 
 
 @dataclass
@@ -198,8 +230,14 @@ class LightConfig:
 
 @dataclass
 class RandomizeConfig:
-    """Where :meth:`Twin.reset` may put objects: xy box (base frame), yaw range (deg), gap between footprints
-    (m); articulated assets move too when ``articulated`` (yaw stays)."""
+    """Where :meth:`Twin.reset` may put objects.
+
+    x            range of the objects' x (m, base frame)
+    y            range of the objects' y (m, base frame)
+    yaw_deg      range of their turn about z (degrees)
+    min_gap      gap (m) kept between the objects' footprints
+    articulated  articulated assets (buttons) move too (their yaw stays)
+    """
 
     x: tuple[float, float] = (0.35, 0.62)
     y: tuple[float, float] = (-0.3, 0.3)
@@ -256,15 +294,7 @@ class WorldConfig:
         data = _check_keys(data, allowed | {"randomize"}, "world.yaml")
         if data.get("version", 1) != 1:
             raise WorldConfigError(f"world.yaml: version {data.get('version')!r} is not supported (expected 1)")
-        r = _check_keys(data.get("robot") or {}, {f.name for f in fields(RobotConfig)}, "robot")
-        robot_file = str(r.get("file", DEFAULT_ROBOT))
-        if not Path(robot_file).is_absolute() and (root / robot_file).is_file():  # beside world.yaml
-            robot_file = str((root / robot_file).resolve())
-        robot = RobotConfig(
-            file=robot_file,
-            ee_link=str(r.get("ee_link", "hand")),
-            home=tuple(float(v) for v in r.get("home", PANDA_HOME)),
-        )
+        robot = _robot(data.get("robot") or {}, root)
         cameras = {}
         for name, c in (data.get("cameras") or {}).items():
             where = f"cameras.{name}"
@@ -383,7 +413,12 @@ class WorldConfig:
 
         return {
             "version": 1,
-            "robot": {"file": self.robot.file, "ee_link": self.robot.ee_link, "home": list(self.robot.home)},
+            "robot": {
+                "name": self.robot.name,
+                "file": self.robot.file,
+                "ee_link": self.robot.ee_link,
+                "home": list(self.robot.home),
+            },
             "cameras": {
                 name: {
                     "mount": c.mount,
@@ -437,21 +472,17 @@ class WorldConfig:
 
 
 # ---- files ---------------------------------------------------------------------------------------
-def world_yaml_path(ws_or_yaml: str | os.PathLike) -> Path:
-    """``<ws>/world/world.yaml`` for a workspace, or the given YAML file itself."""
-    p = Path(ws_or_yaml)
-    if p.suffix in (".yaml", ".yml"):
-        return p
-    if (p / "world.yaml").is_file():
-        return p / "world.yaml"
-    return p / "world" / "world.yaml"
+def world_yaml_path(world: str | os.PathLike) -> Path:
+    """The world.yaml of a world folder, or the given YAML file itself."""
+    p = Path(world)
+    return p if p.suffix in (".yaml", ".yml") else p / "world.yaml"
 
 
-def load_world(ws_or_yaml: str | os.PathLike, validate: bool = True) -> WorldConfig:
-    """Read a world.yaml (a workspace, its world/ folder, or the file) and, by default, validate it."""
+def read_world(path: str | os.PathLike) -> WorldConfig:
+    """Parse the world.yaml file ``path`` (no checks of the files it names: ``world.io.load_world`` does those)."""
     import yaml
 
-    path = world_yaml_path(ws_or_yaml)
+    path = Path(path)
     if not path.is_file():
         raise WorldConfigError(f"{path} not found; create it with `m2m compose -w <workspace> --sample` or by hand")
     try:
@@ -459,14 +490,9 @@ def load_world(ws_or_yaml: str | os.PathLike, validate: bool = True) -> WorldCon
     except yaml.YAMLError as e:
         raise WorldConfigError(f"{path}: not valid YAML ({e})") from None
     try:
-        cfg = WorldConfig.from_dict(data or {}, path.parent)
-        if validate:
-            from .validate import validate_world
-
-            validate_world(cfg)
+        return WorldConfig.from_dict(data or {}, path.parent)
     except WorldConfigError as e:
         raise WorldConfigError(f"{path}: {e}") from None
-    return cfg
 
 
 def save_world(cfg: WorldConfig, path: str | os.PathLike | None = None) -> Path:

@@ -1,8 +1,9 @@
 """Checks on a :class:`WorldConfig` that must pass before anything is composed or simulated.
 
-Every failure is a :class:`WorldConfigError` naming the field and what to do: an unknown robot file, an
-object without a mesh, a missing file, duplicate names, a camera mounted on a link the robot lacks, objects
-that overlap (or sink into the table) at their start placements.
+Every failure is a :class:`WorldConfigError` naming the field and what to do: an unknown robot file, a model
+without the joints of the named robot (``robot.name``), a home of the wrong length, an object without a mesh,
+a missing file, duplicate names, a camera mounted on a link the robot lacks, objects that overlap (or sink into
+the table) at their start placements.
 """
 
 from __future__ import annotations
@@ -20,8 +21,8 @@ __all__ = ["check_overlaps", "load_collision_parts", "placed_parts", "validate_w
 OVERLAP_TOL = 0.002
 
 
-def _robot_links(file: str) -> list[str] | None:
-    """Body names of the robot model (MuJoCo loads MJCF and URDF in well under a second); None if unknown."""
+def _robot_model(file: str) -> tuple[list[str], list[str]]:
+    """(body names, joint names) of the robot model (MuJoCo loads MJCF and URDF in well under a second)."""
     import importlib.util
 
     from ..calib.kinematics import resolve_robot_path
@@ -41,7 +42,7 @@ def _robot_links(file: str) -> list[str] | None:
         model = mujoco.MjModel.from_xml_path(str(path))
     except Exception as e:  # noqa: BLE001 - any parse failure is the same user error
         raise WorldConfigError(f"robot.file: {path} cannot be loaded as a robot model ({e})") from None
-    return [model.body(i).name for i in range(model.nbody)]
+    return [model.body(i).name for i in range(model.nbody)], [model.joint(i).name for i in range(model.njnt)]
 
 
 def _check_part(p: PartConfig, where: str, need_gaussians: bool) -> None:
@@ -133,7 +134,16 @@ def check_overlaps(cfg: WorldConfig, tol: float = OVERLAP_TOL) -> None:
 
 def validate_world(cfg: WorldConfig, need_gaussians: bool = False, overlaps: bool = True) -> None:
     """Raise :class:`WorldConfigError` on the first problem; see the module docstring."""
-    links = _robot_links(cfg.robot.file)
+    links, joints = _robot_model(cfg.robot.file)
+    spec = cfg.robot.spec
+    missing = [j for j in (*spec.arm_joints, *spec.gripper_joints) if j not in joints]
+    if missing:
+        raise WorldConfigError(
+            f"robot.file: {cfg.robot.file} lacks the joints {missing} of robot {spec.name!r}; give the model of that "
+            "robot, or set robot.name to the robot this model is"
+        )
+    if len(cfg.robot.home) != spec.n_arm:
+        raise WorldConfigError(f"robot.home: {len(cfg.robot.home)} values for the {spec.n_arm} arm joints")
     if cfg.robot.ee_link not in links:
         raise WorldConfigError(f"robot.ee_link: {cfg.robot.ee_link!r} is not a link of {cfg.robot.file} ({links})")
     for name, cam in cfg.cameras.items():

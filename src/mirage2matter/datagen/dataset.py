@@ -1,7 +1,7 @@
 """Generating a dataset: attempts in workers -> staging -> one LeRobot dataset + summary + preview.
 
-``generate_dataset`` is the whole procedure for any episode source; ``generate`` (datagen/__init__)
-binds it to a workspace's simulated world. Output (DESIGN.md section 3):
+``generate_dataset`` is the whole procedure for any episode source; ``generate`` (datagen/simulated.py)
+binds it to a simulated world and a task. Output (DESIGN.md section 3):
 
     <out>/              a LeRobot dataset (v3.0 or v2.1)
     <out>/summary.json  requested / written / failed episodes, failure reasons, rates, timings
@@ -23,6 +23,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from ..errors import M2MError
 from ..export.lerobot import FORMATS
 from ..export.spec import DatasetSpec
 from ..export.staging import StagedEpisode, Staging, consolidate, staging_dir_for
@@ -30,7 +31,7 @@ from .preview import write_preview
 from .runner import RunStats, SourceFactory, run_attempts
 
 
-class GenerateError(RuntimeError):
+class GenerateError(M2MError, RuntimeError):
     """Generation cannot start or finish; the message says what to change."""
 
 

@@ -1,0 +1,162 @@
+"""``grasp <object>``: pick an object up from the table."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..planning import PlanningError, cartesian_path, collision_free, ik, time_parameterize
+from .base import Task, register_task
+from .motion import Executor, move_to, placed, topdown
+
+__all__ = ["GraspTask", "grasp_candidates", "yaw_choices"]
+
+
+@register_task
+@dataclass(frozen=True)
+class GraspTask(Task):
+    """**Task:** pick up ``target`` (a free object) and hold it.
+
+    The policy: a top-down antipodal grasp chosen on the object's mesh at its current pose
+    (:func:`grasp_candidates`), pre-grasp 10 cm above, straight approach, close with the robot's grasp force,
+    lift 10 cm, hold 1 s.
+
+    **Randomizations:** none of its own; the start poses are the twin's reset (``twin.reset(seed)``).
+
+    **Success:** the object is >= 5 cm above its start height at the start of the hold and never sinks below
+    that during the 1 s hold.
+    """
+
+    verb = "grasp"
+
+    @property
+    def instruction(self) -> str:
+        return f"pick up the {self.target.replace('_', ' ')}"
+
+    def run(self, ex: Executor) -> tuple[bool, str, dict[str, Any]]:
+        twin, spec, name = ex.twin, ex.spec, self.target
+        n_arm = spec.n_arm
+        points, com = placed(twin, name)
+        z0 = float(twin.object_poses()[name][2, 3])
+        q_now = twin.robot_state()
+        chosen = None
+        tried = 0
+        cands = grasp_candidates(points, com, twin.cfg.table_z, max_width=spec.max_grasp_width,
+                                 pad_half_width=spec.pad_half_width, min_height=spec.min_grasp_height)  # fmt: skip
+        for _score, tcp, yaw in cands[:12]:
+            for w in yaw_choices(yaw, spec.home_closing_yaw):
+                tried += 1
+                axis = np.array([math.cos(w), math.sin(w)])
+                T_grasp = topdown(tcp, axis, spec.tcp_offset)
+                T_pre = T_grasp.copy()
+                T_pre[2, 3] += 0.10
+                T_lift = T_grasp.copy()
+                T_lift[2, 3] += 0.10
+                try:  # the whole approach and lift must be feasible, or the next candidate
+                    q_pre = ik(twin, T_pre, q_now)
+                    down = cartesian_path(twin, T_pre, T_grasp, np.concatenate([q_pre, q_now[n_arm:]]),
+                                          check_collision=False)  # fmt: skip
+                    up = cartesian_path(twin, T_grasp, T_lift, np.concatenate([down[-1], q_now[n_arm:]]),
+                                        check_collision=False)  # fmt: skip
+                except PlanningError:
+                    continue
+                with twin.restoring():  # the open fingers may touch the target, nothing else
+                    if not collision_free(twin, np.concatenate([down[-1], q_now[n_arm:]]), allow=(name,)):
+                        continue
+                chosen = (tcp, w, q_pre, down, up)
+                break
+            if chosen:
+                break
+        if chosen is None:
+            return False, f"no reachable top-down grasp of {name} ({tried} tried)", {}
+        tcp, w, q_pre, down, up = chosen
+        opened, closed, force = spec.gripper_open, spec.gripper_closed, spec.grasp_force
+        move_to(ex, q_pre, opened, speed=0.6)
+        ex.follow(time_parameterize(down, twin.dt, through=True, duration=0.8, robot=spec), opened)
+        ex.hold(0.15, opened)  # let the arm's tracking error settle: a grasp off the widest height squeezes out
+        ex.close()
+        ex.follow(time_parameterize(up, twin.dt, through=True, duration=0.7, robot=spec), closed, force=force)
+        rise0 = float(twin.object_poses()[name][2, 3]) - z0
+        lowest = [rise0]
+
+        def watch() -> None:
+            lowest[0] = min(lowest[0], float(twin.object_poses()[name][2, 3]) - z0)
+
+        ex.watch = watch
+        ex.hold(1.0, closed, force=force)
+        ex.watch = None
+        info = {
+            "grasp_tcp": tcp.tolist(),
+            "grasp_yaw_deg": math.degrees(w),
+            "lift_m": rise0,
+            "min_lift_during_hold_m": lowest[0],
+        }
+        return (*self.success(info), info)
+
+    def success(self, info: dict[str, Any]) -> tuple[bool, str]:
+        """Lifted >= 5 cm and still >= 5 cm throughout the hold."""
+        name, rise0, lowest = self.target, info["lift_m"], info["min_lift_during_hold_m"]
+        if rise0 < 0.05:
+            return False, f"{name} rose only {100 * rise0:.1f} cm (needs 5 cm)"
+        if lowest < 0.05:
+            return False, f"{name} slipped during the 1 s hold (down to {100 * lowest:.1f} cm)"
+        return True, f"{name} lifted {100 * rise0:.1f} cm and held 1 s"
+
+
+def grasp_candidates(
+    points: np.ndarray,
+    com: np.ndarray,
+    table_z: float = 0.0,
+    *,
+    max_width: float,
+    pad_half_width: float,
+    min_height: float,
+) -> list[tuple[float, np.ndarray, float]]:
+    """Top-down antipodal grasps on a placed surface sample: [(score, tcp [3], yaw)], best (lowest) first.
+
+    For each yaw (closing axis u) and offset along the finger axis v from the centre of mass, the surface
+    points in the slab under the fingers (|v| <= ``pad_half_width``) must be one piece along u (no gap > 1 cm:
+    the fingers close on material, not across a hollow) spanning at most ``max_width``. The grasp centres on
+    that span at the height where the slab is widest (the contact normals are horizontal there, so closing does
+    not squeeze the object out), the TCP at least ``min_height`` over the table. Score: the centre of mass's
+    offset along v (it twists the object about the closing axis while lifting) dominates; the offset along u and
+    a wide span count a little.
+    """
+    out = []
+    rel = points[:, :2] - com[:2]
+    for yaw in np.radians(np.arange(0.0, 180.0, 10.0)):
+        u = np.array([math.cos(yaw), math.sin(yaw)])
+        v = np.array([-u[1], u[0]])
+        pu, pv = rel @ u, rel @ v
+        for off in np.arange(-0.06, 0.0601, 0.01):
+            slab = np.abs(pv - off) <= pad_half_width
+            if slab.sum() < 30:
+                continue
+            su = np.sort(pu[slab])
+            lo, hi = su[0], su[-1]
+            width = hi - lo
+            if width > max_width or np.diff(su).max() > 0.01:
+                continue
+            zs = points[slab, 2]
+            z_top = float(zs.max())
+            edges = np.arange(table_z, z_top + 0.003, 0.003)
+            bins = np.digitize(zs, edges)
+            spans = [np.ptp(pu[slab][bins == k]) if (bins == k).sum() >= 3 else 0.0 for k in range(1, len(edges) + 1)]
+            z_wide = float(edges[int(np.argmax(spans))] + 0.0015)
+            z = max(table_z + min_height, min(z_wide, z_top - 0.005))
+            centre = com[:2] + u * 0.5 * (lo + hi) + v * off
+            score = abs(off) + 0.2 * abs(0.5 * (lo + hi)) + 0.3 * max(0.0, width - 0.05)
+            out.append((float(score), np.array([centre[0], centre[1], z]), float(yaw)))
+    out.sort(key=lambda c: c[0])
+    return out
+
+
+def yaw_choices(yaw: float, home_yaw: float) -> list[float]:
+    """The two hand yaws giving the same grasp (the fingers are symmetric), the one closer to ``home_yaw`` (the
+    closing axis' yaw at home: the least wrist rotation) first."""
+    a, b = yaw, yaw + math.pi
+    key = lambda w: abs((w - home_yaw + math.pi) % (2 * math.pi) - math.pi)
+    return sorted([a, b], key=key)

@@ -1,0 +1,56 @@
+"""``datagen.generate`` takes a loaded world and a parsed task: its checks before any worker starts, and the
+world part of the dataset fingerprint (content, not a path). No simulator is built."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mirage2matter.datagen import GenerateConfig, GenerateError, generate, task_slug
+from mirage2matter.datagen.simulated import world_fingerprint
+from mirage2matter.geometry.sim3 import Sim3
+from mirage2matter.sim.tasks import GraspTask, PressTask
+from mirage2matter.world.config import CameraConfig, ObjectConfig, PartConfig, WorldConfig
+
+
+def _world(root, cameras=("head", "wrist")) -> WorldConfig:
+    cam = CameraConfig(mount="base", T_mount_cam=np.eye(4), K=np.eye(3), width=64, height=48)
+    obj = ObjectConfig("banana", PartConfig(None, None), Sim3.identity())
+    return WorldConfig(root=root, cameras={c: cam for c in cameras}, objects=[obj])
+
+
+def test_refused_before_any_worker(tmp_path):
+    cfg = GenerateConfig(episodes=1)
+    with pytest.raises(GenerateError, match="no calibrated camera wrist"):
+        generate(_world(tmp_path, cameras=("head",)), GraspTask("banana"), tmp_path / "ds", cfg, progress=False)
+    with pytest.raises(GenerateError, match="no object named 'kiwi'"):
+        generate(_world(tmp_path), GraspTask("kiwi"), tmp_path / "ds", cfg, progress=False)
+    with pytest.raises(GenerateError, match="no press button named 'banana'"):
+        generate(_world(tmp_path), PressTask("banana"), tmp_path / "ds", cfg, progress=False)
+    assert not (tmp_path / "ds").exists()
+
+
+def test_world_fingerprint_is_the_content(tmp_path):
+    a, b = _world(tmp_path / "a"), _world(tmp_path / "a")
+    assert world_fingerprint(a) == world_fingerprint(b)
+    b.table_z = 0.01
+    assert world_fingerprint(a) != world_fingerprint(b)
+
+
+def test_task_slug():
+    assert task_slug("push croissant --distance 0.1") == "push_croissant_distance_0_1"
+    assert task_slug("!!") == "dataset"
+
+
+def test_the_source_travels_to_workers_as_objects(tmp_path):
+    """Workers are spawned processes or Ray actors: the world and the task are pickled, never re-parsed."""
+    import pickle
+
+    from mirage2matter.datagen.sim_source import SimSourceConfig, SimSourceFactory
+    from mirage2matter.sim.tasks import PushTask
+
+    world, task = _world(tmp_path), PushTask("banana", direction=(0.0, 2.0))
+    back = pickle.loads(pickle.dumps(SimSourceFactory(SimSourceConfig(world=world, task=task)))).cfg
+    assert back.task == task and back.task.direction == (0.0, 1.0)
+    assert back.world.to_dict() == world.to_dict() and back.world.root == world.root
+    assert back.to_json()["task"] == task.to_json()
