@@ -29,7 +29,9 @@ class RenderBenchConfig:
     backend    "auto", "cpu", "cuda" (or "reference", only sensible for tiny scenes)
     views      orbit cameras per round; every round renders each once
     repeats    timed rounds (so views * repeats timed renders)
+    sh_degree  SH degree of the scene (0..3)
     warmup     untimed renders before timing (JIT compile, caches, CUDA set-up)
+    seed       scene and camera seed
     """
 
     gaussians: int = 100_000
@@ -42,14 +44,16 @@ class RenderBenchConfig:
     seed: int = 0
 
     def validate(self) -> None:
-        """Raise ValueError naming the field, before any expensive work starts."""
+        """Raise ConfigError naming the field, before any expensive work starts."""
+        from .configs import ConfigError
+
         minimum = {"gaussians": 1, "size": 1, "views": 1, "repeats": 1, "warmup": 0, "seed": 0}
         for name, lo in minimum.items():
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                raise ValueError(f"benchmark {name} must be an integer >= {lo}, got {v!r}")
+                raise ConfigError(f"benchmark {name} must be an integer >= {lo}, got {v!r}")
         if not (isinstance(self.sh_degree, int) and 0 <= self.sh_degree <= 3):
-            raise ValueError(f"benchmark sh_degree must be 0..3, got {self.sh_degree!r}")
+            raise ConfigError(f"benchmark sh_degree must be 0..3, got {self.sh_degree!r}")
 
 
 def _stderr(msg: str) -> None:

@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 
 from .atomic import atomic_path
+from .errors import M2MError
 
 
-class VideoError(ValueError):
+class VideoError(M2MError, ValueError):
     """A video that cannot be read or written; the message names the file."""
 
 

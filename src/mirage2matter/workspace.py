@@ -1,28 +1,39 @@
-"""A workspace folder and what the stages have left in it (DESIGN.md section 3).
+"""The workspace folder: every artifact path and the posed capture.
 
-Only paths and the one rule every later stage needs: which posed cameras and points to use. After
-``align-scene`` they are the SfM ones mapped into the robot-base frame by
-``calib/sim3_sfm_to_base.json`` (eq. ``pose_update``); before it, the SfM frame itself.
+One class owns the layout (DESIGN.md section 3); the stages (``stages/``) are the only other code that
+knows where things live in a workspace. Below them, libraries receive typed objects and folders.
+
+    m2m.yaml  pipeline.json  demo_summary.json
+    capture/   keyframes + keyframes.json
+    sfm/       sfm.json + model/ (COLMAP)
+    calib/     sim3_sfm_to_base.json, cameras_base.json, points_base.npy, colors_base.npy, overlay.png,
+               handeye.json, head_view.png + head_view.json
+    scene/     gaussians.ply, metrics.json, heldout.png (+ plan.json, checkpoint.pt while training)
+    objects/   <name>/ (masks/, mesh.obj, collision/, gaussians.ply, align.json, figure.png), summary.json
+    world/     world.yaml, world.ply, scene.ply, assets/, reconstruction.json, task_summary.json
+    datasets/  <task>/ (a LeRobot dataset)
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .geometry.camera import Camera
-from .geometry.sim3 import Sim3
+from .errors import M2MError
 
-__all__ = ["PosedCapture", "Workspace", "WorkspaceError", "fingerprint"]
+if TYPE_CHECKING:  # geometry imports torch; `m2m --help` must not
+    from .geometry.camera import Camera
+    from .geometry.sim3 import Sim3
+
+__all__ = ["PosedCapture", "Workspace", "WorkspaceError"]
 
 
-class WorkspaceError(RuntimeError):
+class WorkspaceError(M2MError, RuntimeError):
     """A stage's input is missing from the workspace; the message names the stage to run."""
 
 
@@ -45,77 +56,169 @@ class PosedCapture:
 
 @dataclass(frozen=True)
 class Workspace:
+    """Paths of one workspace folder (nothing is created until a stage writes)."""
+
     root: Path
 
     def __init__(self, root: str | os.PathLike[str]) -> None:
         object.__setattr__(self, "root", Path(root))
 
+    # ---- top level -----------------------------------------------------------------------------------
     @property
-    def capture(self) -> Path:
+    def config_file(self) -> Path:
+        return self.root / "m2m.yaml"
+
+    @property
+    def record_file(self) -> Path:
+        return self.root / "pipeline.json"
+
+    @property
+    def demo_summary(self) -> Path:
+        return self.root / "demo_summary.json"
+
+    # ---- capture, sfm ------------------------------------------------------------------------------
+    @property
+    def capture_dir(self) -> Path:
         return self.root / "capture"
 
     @property
-    def sfm(self) -> Path:
+    def keyframes_file(self) -> Path:
+        return self.capture_dir / "keyframes.json"
+
+    @property
+    def sfm_dir(self) -> Path:
         return self.root / "sfm"
 
     @property
-    def calib(self) -> Path:
+    def sfm_file(self) -> Path:
+        return self.sfm_dir / "sfm.json"
+
+    @property
+    def sfm_model(self) -> Path:
+        return self.sfm_dir / "model"
+
+    # ---- calib -----------------------------------------------------------------------------------
+    @property
+    def calib_dir(self) -> Path:
         return self.root / "calib"
 
     @property
-    def scene(self) -> Path:
+    def alignment_file(self) -> Path:
+        """sim3_sfm_to_base, the board and its pose, the fit's figures."""
+        return self.calib_dir / "sim3_sfm_to_base.json"
+
+    @property
+    def cameras_base_file(self) -> Path:
+        return self.calib_dir / "cameras_base.json"
+
+    @property
+    def points_base_file(self) -> Path:
+        return self.calib_dir / "points_base.npy"
+
+    @property
+    def colors_base_file(self) -> Path:
+        return self.calib_dir / "colors_base.npy"
+
+    @property
+    def overlay_png(self) -> Path:
+        return self.calib_dir / "overlay.png"
+
+    @property
+    def handeye_file(self) -> Path:
+        return self.calib_dir / "handeye.json"
+
+    @property
+    def head_view_png(self) -> Path:
+        return self.calib_dir / "head_view.png"
+
+    @property
+    def head_view_file(self) -> Path:
+        return self.calib_dir / "head_view.json"
+
+    # ---- scene, objects ------------------------------------------------------------------------------
+    @property
+    def scene_dir(self) -> Path:
         return self.root / "scene"
 
     @property
-    def objects(self) -> Path:
+    def scene_ply(self) -> Path:
+        return self.scene_dir / "gaussians.ply"
+
+    @property
+    def scene_metrics(self) -> Path:
+        return self.scene_dir / "metrics.json"
+
+    @property
+    def objects_dir(self) -> Path:
         return self.root / "objects"
 
     @property
-    def world(self) -> Path:
+    def objects_summary(self) -> Path:
+        return self.objects_dir / "summary.json"
+
+    def object_dir(self, name: str) -> Path:
+        return self.objects_dir / name
+
+    # ---- world, datasets ---------------------------------------------------------------------------
+    @property
+    def world_dir(self) -> Path:
         return self.root / "world"
 
     @property
-    def datasets(self) -> Path:
+    def world_yaml(self) -> Path:
+        return self.world_dir / "world.yaml"
+
+    @property
+    def task_summary(self) -> Path:
+        return self.world_dir / "task_summary.json"
+
+    @property
+    def datasets_dir(self) -> Path:
         return self.root / "datasets"
 
+    def dataset_dir(self, slug: str) -> Path:
+        return self.datasets_dir / slug
+
+    # ---- reading ---------------------------------------------------------------------------------
     def require(self, path: Path, stage: str) -> Path:
+        """``path``, or a WorkspaceError naming the command that writes it."""
         if not path.exists():
             raise WorkspaceError(f"{path} not found; run `m2m {stage} -w {self.root}` first")
         return path
 
-    def posed_capture(self, require_base: bool = False) -> PosedCapture:
-        """The keyframes' cameras and the SfM points, in the base frame when ``align-scene`` has
-        run (``require_base`` makes that mandatory), else in the SfM frame."""
+    def posed_capture(self, frame: str = "auto") -> PosedCapture:
+        """The keyframes' cameras and points. ``frame``: "base" (written by ``align-scene``; an error
+        before it), "sfm" (the SfM model's own frame) or "auto" (base when aligned, else sfm)."""
+        aligned = self.cameras_base_file.is_file() and self.points_base_file.is_file()
+        if frame == "base" or (frame == "auto" and aligned):
+            return self._posed_base()
+        return self._posed_sfm()
+
+    def _posed_sfm(self) -> PosedCapture:
         import pycolmap
 
         from .sfm import load_sfm_summary
 
-        self.require(self.sfm / "sfm.json", "sfm")
-        _, cameras = load_sfm_summary(self.sfm)
-        rec = pycolmap.Reconstruction(str(self.require(self.sfm / "model", "sfm")))
+        self.require(self.sfm_file, "sfm")
+        _, cameras = load_sfm_summary(self.sfm_dir)
+        rec = pycolmap.Reconstruction(str(self.require(self.sfm_model, "sfm")))
         pts = list(rec.points3D.values())
         points = np.array([p.xyz for p in pts], dtype=np.float64).reshape(-1, 3)
         colors = np.array([p.color for p in pts], dtype=np.uint8).reshape(-1, 3)
-        sim_path = self.calib / "sim3_sfm_to_base.json"
-        cameras = sorted(cameras, key=lambda c: c.name)
-        if not sim_path.is_file():
-            if require_base:
-                self.require(sim_path, "align-scene")
-            return PosedCapture(cameras, points, colors, self.capture, "sfm")
-        from .calib.align import apply_to_cameras
+        return PosedCapture(sorted(cameras, key=lambda c: c.name), points, colors, self.capture_dir, "sfm")
 
-        sim = Sim3.from_json(json.loads(sim_path.read_text())["sim3_sfm_to_base"])
-        return PosedCapture(apply_to_cameras(sim, cameras), sim.apply(points), colors, self.capture, "base", sim)
+    def _posed_base(self) -> PosedCapture:
+        from .geometry.camera import Camera
+        from .geometry.sim3 import Sim3
 
-
-def fingerprint(*parts: Any) -> str:
-    """A short stable hash of JSON-able ``parts`` and of the bytes of any ``Path`` among them
-    (the stage-skipping key: same inputs and config -> same fingerprint)."""
-    h = hashlib.sha256()
-    for p in parts:
-        if isinstance(p, Path):
-            h.update(p.read_bytes() if p.is_file() else b"<missing>")
-        else:
-            h.update(json.dumps(p, sort_keys=True, default=str).encode())
-        h.update(b"\0")
-    return h.hexdigest()[:16]
+        path = self.require(self.cameras_base_file, "align-scene")
+        cameras = [Camera.from_json(c, source=str(path)) for c in json.loads(path.read_text())]
+        points = np.load(self.require(self.points_base_file, "align-scene")).astype(np.float64).reshape(-1, 3)
+        if self.colors_base_file.is_file():
+            colors = np.load(self.colors_base_file).astype(np.uint8).reshape(-1, 3)
+        else:  # a workspace written before colours were kept, or by a test fixture
+            colors = np.full((len(points), 3), 128, np.uint8)
+        sim = None
+        if self.alignment_file.is_file():
+            sim = Sim3.from_json(json.loads(self.alignment_file.read_text())["sim3_sfm_to_base"])
+        return PosedCapture(sorted(cameras, key=lambda c: c.name), points, colors, self.capture_dir, "base", sim)

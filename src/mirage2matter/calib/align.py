@@ -11,10 +11,10 @@ anchors so the plane cannot slide. Points map as ``x' = s R x + t``; poses as ``
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
+from ..errors import M2MError
 from ..geometry.camera import Camera
 from ..geometry.icp import scaled_icp
 from ..geometry.sim3 import Sim3
@@ -22,7 +22,7 @@ from ..geometry.umeyama import umeyama
 from .board import BoardSpec
 
 
-class AlignError(ValueError):
+class AlignError(M2MError, ValueError):
     """The board could not tie SfM to the robot base; the message says what to do."""
 
 
@@ -193,25 +193,28 @@ def apply_to_cameras(sim3: Sim3, cameras: list[Camera]) -> list[Camera]:
     return out
 
 
-def save_alignment(
-    calib_dir: Path, result: AlignResult, T_base_board: np.ndarray, board: BoardSpec, cameras: list[Camera],
-    points: np.ndarray,
-) -> list[Camera]:
-    """Write ``calib_dir``/{sim3_sfm_to_base.json, cameras_base.json, points_base.npy} (each atomically) from
-    ``result`` and the SfM-frame ``cameras`` / ``points`` [N,3]; returns the cameras in the base frame."""
-    import json
+def draw_base_overlay(
+    images: list[np.ndarray], cameras_base: list[Camera], frames_with_board: list[str], footprint_xy=None
+) -> np.ndarray:
+    """The robot base footprint [P,2] (from the robot model, else a 10 cm circle at the origin) and the base
+    axes (x red, y green, z blue, 15 cm) drawn into a keyframe (uint8 [H,W,3]) that sees the board."""
+    import cv2
 
-    from ..atomic import atomic_write
+    k = next(i for i, c in enumerate(cameras_base) if c.name in frames_with_board)
+    cam, image = cameras_base[k], images[k].copy()
+    if footprint_xy is None:
+        t = np.linspace(0, 2 * np.pi, 64)
+        footprint_xy = 0.1 * np.c_[np.cos(t), np.sin(t)]
+    outline = np.c_[footprint_xy, np.zeros(len(footprint_xy))]
+    axes = np.array([[0, 0, 0], [0.15, 0, 0], [0, 0.15, 0], [0, 0, 0.15]], float)
 
-    calib_dir = Path(calib_dir)
-    calib_dir.mkdir(parents=True, exist_ok=True)
-    sim = result.sim3_sfm_to_base
-    with atomic_write(calib_dir / "sim3_sfm_to_base.json", "w", encoding="utf-8") as f:
-        json.dump({**result.to_json(), "T_base_board": np.asarray(T_base_board).tolist(), "board": board.to_json()},
-                  f, indent=1)  # fmt: skip
-    cameras_base = apply_to_cameras(sim, cameras)
-    with atomic_write(calib_dir / "cameras_base.json", "w", encoding="utf-8") as f:
-        json.dump([c.to_json() for c in cameras_base], f, indent=1)
-    with atomic_write(calib_dir / "points_base.npy", "wb") as f:
-        np.save(f, sim.apply(points).astype(np.float32))
-    return cameras_base
+    def px(points):
+        uv, depth = cam.project(points)
+        return [tuple(int(round(v)) for v in p - 0.5) for p in uv], depth
+
+    outline_px, _ = px(outline)
+    cv2.polylines(image, [np.asarray(outline_px, np.int32)], True, (255, 0, 255), 2, cv2.LINE_AA)
+    (o, x, y, z), _ = px(axes)
+    for end, colour in ((x, (255, 0, 0)), (y, (0, 255, 0)), (z, (0, 0, 255))):
+        cv2.line(image, o, end, colour, 2, cv2.LINE_AA)
+    return image

@@ -24,11 +24,16 @@ from typing import Any
 import cv2
 import numpy as np
 
-from mirage2matter.atomic import atomic_write
+from ..atomic import atomic_write
+from ..errors import M2MError
 
-__all__ = ["BoardSpec", "board_frame_to_board_image", "board_image_to_board_frame", "margin_pixels"]
+__all__ = ["BoardError", "BoardSpec", "board_frame_to_board_image", "board_image_to_board_frame", "margin_pixels"]
 
 _FIELDS = ("squares_x", "squares_y", "square", "marker", "dictionary")
+
+
+class BoardError(M2MError, ValueError):
+    """A board spec (or board file) that cannot be used; the message names the field or file."""
 
 
 def _dictionary_id(name: str) -> int:
@@ -36,7 +41,7 @@ def _dictionary_id(name: str) -> int:
     value = getattr(cv2.aruco, name, None) if isinstance(name, str) and name.startswith("DICT_") else None
     if not isinstance(value, int):
         known = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
-        raise ValueError(f"BoardSpec.dictionary {name!r} is not a cv2.aruco predefined dictionary; known: {known}")
+        raise BoardError(f"BoardSpec.dictionary {name!r} is not a cv2.aruco predefined dictionary; known: {known}")
     return value
 
 
@@ -59,24 +64,24 @@ class BoardSpec:
         for name in ("squares_x", "squares_y"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 2:
-                raise ValueError(f"BoardSpec.{name} must be an integer >= 2 (a board needs inner corners), got {v!r}")
+                raise BoardError(f"BoardSpec.{name} must be an integer >= 2 (a board needs inner corners), got {v!r}")
             object.__setattr__(self, name, int(v))
         for name in ("square", "marker"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | float | np.floating | np.integer):
-                raise ValueError(f"BoardSpec.{name} must be a number (metres), got {v!r}")
+                raise BoardError(f"BoardSpec.{name} must be a number (metres), got {v!r}")
             if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"BoardSpec.{name} must be finite and > 0 metres, got {v!r}")
+                raise BoardError(f"BoardSpec.{name} must be finite and > 0 metres, got {v!r}")
             object.__setattr__(self, name, float(v))
         if self.marker >= self.square:
-            raise ValueError(
+            raise BoardError(
                 f"BoardSpec.marker ({self.marker} m) must be smaller than BoardSpec.square ({self.square} m): "
                 "the marker sits inside a white square"
             )
         dict_size = int(cv2.aruco.getPredefinedDictionary(_dictionary_id(self.dictionary)).bytesList.shape[0])
         needed = self.n_markers
         if needed > dict_size:
-            raise ValueError(
+            raise BoardError(
                 f"a {self.squares_x} x {self.squares_y} board needs {needed} markers but {self.dictionary} "
                 f"has only {dict_size}"
             )
@@ -148,13 +153,13 @@ class BoardSpec:
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> BoardSpec:
         if not isinstance(data, dict):
-            raise ValueError(f"BoardSpec JSON must be an object, got {type(data).__name__}")
+            raise BoardError(f"BoardSpec JSON must be an object, got {type(data).__name__}")
         unknown = set(data) - set(_FIELDS)
         if unknown:
-            raise ValueError(f"BoardSpec JSON has unknown keys {sorted(unknown)}; expected {list(_FIELDS)}")
+            raise BoardError(f"BoardSpec JSON has unknown keys {sorted(unknown)}; expected {list(_FIELDS)}")
         missing = set(_FIELDS) - set(data)
         if missing:
-            raise ValueError(f"BoardSpec JSON lacks {sorted(missing)}; expected {list(_FIELDS)}")
+            raise BoardError(f"BoardSpec JSON lacks {sorted(missing)}; expected {list(_FIELDS)}")
         return cls(**{name: data[name] for name in _FIELDS})
 
     def save(self, path: str | os.PathLike) -> None:
@@ -171,11 +176,11 @@ class BoardSpec:
             try:
                 data = json.load(f)
             except json.JSONDecodeError as e:
-                raise ValueError(f"{path}: not valid JSON ({e})") from e
+                raise BoardError(f"{path}: not valid JSON ({e})") from e
         try:
             return cls.from_json(data)
         except ValueError as e:
-            raise ValueError(f"{path}: {e}") from e
+            raise BoardError(f"{path}: {e}") from e
 
 
 def _check_px_per_square(px_per_square: int) -> int:
@@ -233,7 +238,7 @@ def write_printable(spec: BoardSpec, pdf_path: str | os.PathLike, dpi: int = 300
 
     pdf_path = Path(pdf_path)
     if pdf_path.suffix.lower() != ".pdf":
-        raise ValueError(f"{pdf_path}: the printable board is written as .pdf (a .png and .json go beside it)")
+        raise BoardError(f"{pdf_path}: the printable board is written as .pdf (a .png and .json go beside it)")
     # Whole pixels per square at this dpi; the dpi written into the files is adjusted so that the
     # square prints at exactly its size.
     px_per_square = max(8, int(round(spec.square / 0.0254 * dpi)))

@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from ..atomic import atomic_dir
+from ..errors import M2MError
 from ..video import VideoError, read_video_frames
 
 __all__ = [
@@ -41,7 +42,7 @@ IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 ANALYSIS_SIZE = 640  # longest side of the grey copy that sharpness and flow are measured on
 
 
-class CaptureError(ValueError):
+class CaptureError(M2MError, ValueError):
     """Input that cannot give keyframes; the message names the source and what to do."""
 
 

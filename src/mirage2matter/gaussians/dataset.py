@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..errors import M2MError
 from ..geometry.camera import Camera
 from .train import View
 
@@ -33,7 +34,7 @@ __all__ = [
 ]
 
 
-class DatasetError(ValueError):
+class DatasetError(M2MError, ValueError):
     """Unusable images or cameras; the message names the file and what to do."""
 
 
@@ -174,7 +175,7 @@ def points_for_known_poses(
     Runs our SfM on the images in ``image_dir`` (all of them), fits the similarity that maps its
     camera centres onto the given ones (cameras matched by file basename) and maps its points with
     it. Returns (points_world [M,3] float64 in the given poses' frame, colors [M,3] uint8, info
-    with the pose comparison). ``work_dir / "sfm"`` receives the SfM output.
+    with the pose comparison). ``work_dir / "colmap"`` receives the SfM output.
     """
     from ..geometry.sim3 import Sim3
     from ..sfm.colmap import SfMConfig, compare_poses, run_sfm
@@ -183,7 +184,7 @@ def points_for_known_poses(
     if len(given) != len(cameras):
         raise DatasetError("camera names must have distinct basenames to be matched with the images")
     config = sfm_config or SfMConfig(downscale=sfm_downscale)
-    sfm = run_sfm(image_dir, Path(work_dir) / "sfm", config)
+    sfm = run_sfm(image_dir, Path(work_dir) / "colmap", config)
     estimated = {_basename(n): T for n, T in sfm.poses.items()}
     if len(set(estimated) & set(given)) < 3:
         raise DatasetError(

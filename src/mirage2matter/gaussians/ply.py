@@ -21,6 +21,7 @@ import plyfile
 import torch
 
 from ..atomic import atomic_write
+from ..errors import M2MError
 from .model import Gaussians
 from .sh import MAX_SH_DEGREE, num_sh_bases
 
@@ -37,7 +38,7 @@ _F_REST = re.compile(r"f_rest_(\d+)$")
 _REST_COUNTS = {3 * (num_sh_bases(d) - 1): d for d in range(MAX_SH_DEGREE + 1)}
 
 
-class PlyFormatError(ValueError):
+class PlyFormatError(M2MError, ValueError):
     """A file that cannot be read as 3DGS Gaussians; the message names the file and the problem."""
 
 

@@ -1,4 +1,4 @@
-"""Deterministic synthetic Gaussian scenes and cameras for benchmarks and renderer tests.
+"""The deterministic synthetic scene and cameras `m2m bench render` times (and renderer tests use).
 
 ``tabletop_scene`` imitates a trained 3DGS capture of a robot workspace in the robot-base frame
 (metres, z up, base at the origin): a tiled floor, three painted walls with a door, a window and
@@ -6,8 +6,7 @@ a picture, a cabinet, the robot's pedestal, a wooden table in front of the robot
 objects on it (banana, croissant, a push button, a can) next to a ChArUco-like board. Gaussians
 are flat discs lying in the surfaces (thin axis along the normal), sized to the budget so the
 surfaces are covered, coloured from procedural textures with lighting baked in, as training
-would produce. ``random_gaussians`` gives unstructured blobs; ``orbit_cameras`` gives views of
-the table.
+would produce. ``orbit_cameras`` gives views of the table.
 """
 
 from __future__ import annotations
@@ -633,28 +632,6 @@ def tabletop_scene(n: int, sh_degree: int = 3, seed: int = 0) -> Gaussians:
     mean = np.clip(np.concatenate(means), ROOM_MIN, ROOM_MAX)
     return _to_gaussians(
         mean, np.concatenate(quats), np.concatenate(scales), opac, np.concatenate(rgbs), _higher_sh(rng, n, sh_degree)
-    )
-
-
-def random_gaussians(n: int, sh_degree: int = 3, seed: int = 0, extent: float = 1.0) -> Gaussians:
-    """``n`` unstructured Gaussians with means uniform in [-extent, extent]^3 (float32, CPU).
-
-    Scales are anisotropic (per-axis log-normal around 3% of ``extent``), rotations uniform,
-    opacities uniform in (0.05, 0.99), colours uniform, higher SH bands small and random.
-    """
-    _check(n, sh_degree, 1)
-    if not extent > 0:
-        raise ValueError(f"extent must be positive, got {extent}")
-    rng = np.random.default_rng(seed)
-    means = rng.uniform(-extent, extent, (n, 3))
-    scales = 0.03 * extent * rng.lognormal(0.0, 0.6, (n, 3))
-    return _to_gaussians(
-        means,
-        _random_quats(rng, n),
-        scales,
-        rng.uniform(0.05, 0.99, n),
-        rng.random((n, 3)),
-        _higher_sh(rng, n, sh_degree),
     )
 
 

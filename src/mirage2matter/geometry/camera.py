@@ -8,7 +8,7 @@ centres at integer coordinates; shift cx, cy by -0.5 when handing K to them.)
 Importers: instant-ngp / nerfstudio ``transforms.json``, whose camera-to-world matrices use the
 OpenGL convention (x right, y up, z backward); they are converted once, here.
 
-This module imports nothing else from mirage2matter (geometry is the bottom of the stack).
+Geometry is the bottom of the stack: this module imports nothing else from mirage2matter but ``errors``.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import M2MError
 from .sim3 import invert_rigid
 
 __all__ = [
@@ -32,6 +33,7 @@ __all__ = [
     "GL_TO_CV",
     "camera_from_transforms_frame",
     "load_camera_json",
+    "load_intrinsics",
     "load_transforms_json",
     "look_at",
     "save_camera_json",
@@ -47,7 +49,7 @@ _DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 _INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y", *_DISTORTION_KEYS)
 
 
-class CameraFormatError(ValueError):
+class CameraFormatError(M2MError, ValueError):
     """Invalid camera data; the message names the source (file, frame) and the field."""
 
 
@@ -311,12 +313,29 @@ def load_camera_json(path: str | os.PathLike[str]) -> Camera:
     return Camera.from_json(_read_json(path), source=str(path))
 
 
+def load_intrinsics(path: str | os.PathLike[str], keys: tuple[str, ...] = ("camera", "head_camera")) -> Camera:
+    """A camera's intrinsics (pose: identity) from a JSON holding ``K`` (3x3), ``width``, ``height`` and
+    optionally ``distortion``, at the top level or under one of ``keys`` (e.g. a sample's
+    ground_truth.json holds the video camera under "camera", the head camera under "head_camera")."""
+    path = Path(path)
+    data = _read_json(path)
+    if isinstance(data, dict) and "K" not in data:
+        data = next((data[k] for k in keys if isinstance(data.get(k), dict)), data)
+    if not isinstance(data, dict) or not all(k in data for k in ("K", "width", "height")):
+        raise CameraFormatError(
+            f"{path}: need a JSON with K (3x3), width and height (or such an object under {' or '.join(keys)})"
+        )
+    cam = {k: data[k] for k in ("K", "width", "height")}
+    return Camera.from_json({**cam, "T_world_cam": np.eye(4).tolist(), "distortion": data.get("distortion") or {}},
+                            source=str(path))  # fmt: skip
+
+
 def save_camera_json(path: str | os.PathLike[str], cam: Camera) -> None:
     """Write ``cam.to_json()`` atomically (temporary file in the same directory, then rename)."""
     path = Path(path)
     if not path.parent.is_dir():
         raise FileNotFoundError(f"cannot write {path}: directory {path.parent} does not exist")
-    # A local temp+rename instead of mirage2matter.atomic: geometry imports nothing of ours.
+    # A local temp+rename instead of mirage2matter.atomic: geometry imports nothing of ours but errors.
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}")
     try:
         with open(tmp, "w", encoding="utf-8") as f:

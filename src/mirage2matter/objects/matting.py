@@ -31,15 +31,29 @@ __all__ = ["Matte", "MattingConfig", "matte_object", "render_alpha", "sample_in_
 
 @dataclass
 class MattingConfig:
+    """3D matting settings.
+
+    iterations       training steps of the matting Gaussians
+    init_gaussians   Gaussians seeded in the object's proxy
+    max_gaussians    cap on densification
+    sh_degree        SH degree of the matting Gaussians
+    proxy_margin     metres the proxy grows beyond the object's points and footprint
+    roi_margin       metres of context around the proxy in the crops
+    lambda_alpha     weight of the penalty on alpha outside the proxy's projection
+    alpha_threshold  rendered alpha above this is the object's mask
+    min_views        fewer keyframes that see the object is an error
+    seed             initialisation seed
+    """
+
     iterations: int = 1000
     init_gaussians: int = 20000
     max_gaussians: int = 60000
     sh_degree: int = 1
-    proxy_margin: float = 0.008  # metres the proxy grows beyond the object's points and footprint
-    roi_margin: float = 0.03  # metres of context around the proxy in the crops
+    proxy_margin: float = 0.008
+    roi_margin: float = 0.03
     lambda_alpha: float = 0.5
     alpha_threshold: float = 0.5
-    min_views: int = 6  # fewer keyframes that see the object: error
+    min_views: int = 6
     seed: int = 0
 
 

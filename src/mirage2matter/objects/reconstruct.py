@@ -1,6 +1,5 @@
-"""Pipeline stage ``objects`` (DESIGN.md section 3, stage 5): per object, masks -> object 3DGS ->
-mesh (masks + the 3DGS depth, or the user's) -> alignment -> one object frame, written to
-``<ws>/objects/<name>/``:
+"""One object, from masks to a simulator-ready asset (DESIGN.md section 3, stage 5): masks -> object 3DGS ->
+mesh (masks + the 3DGS depth, or the user's) -> alignment -> one object frame, written to an object folder:
 
     masks/<keyframe stem>.png   the object's mask per keyframe (255 = object)
     mesh.obj                    watertight mesh, object frame (origin at the bottom centre, z up)
@@ -10,24 +9,22 @@ mesh (masks + the 3DGS depth, or the user's) -> alignment -> one object frame, w
                                 mass properties, metrics
     figure.png                  Gaussians beside the mesh from the same keyframes
 
-Reads ``capture/`` (keyframes), ``calib/cameras_base.json`` and ``calib/points_base.npy``. Each
-object folder is built under a temporary name and swapped in complete; an object whose
-``align.json`` was written with the same settings is skipped, so a killed run resumes.
+Inputs are the base-frame keyframe cameras, images and SfM points; the folder is built under a temporary
+name and swapped in complete. The ``objects`` stage (``stages/objects.py``) runs this per object found.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import os
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..atomic import atomic_dir, atomic_write
+from ..atomic import atomic_dir
 from ..geometry.camera import Camera
 from ..geometry.sim3 import Sim3
 from .errors import ObjectsError
@@ -35,60 +32,76 @@ from .masks import FolderMasks, GeometricMasks, MaskProvider, Sam2Masks, Target,
 from .matting import MattingConfig, render_alpha, sample_in_hull
 from .splat import SplatConfig, mask_crop
 
-__all__ = ["ObjectsConfig", "load_workspace", "run_objects"]
+__all__ = ["ObjectsConfig", "load_keyframes_rgb", "process_object", "find_targets", "target_fingerprint"]
 
 
 @dataclass
 class ObjectsConfig:
-    names: list[str] = field(default_factory=list)  # "banana" or "banana=x,y"; empty: every object found
-    prompts: list[str] = field(default_factory=list)  # "name@frame:box=..." / "name@frame:points=..."
-    masks_dir: str | None = None
-    meshes: dict[str, str] = field(default_factory=dict)  # name -> user mesh file
-    keypoints: dict[str, list] = field(default_factory=dict)  # name -> [[mesh xyz, base xyz], ...]
-    sam2_checkpoint: str | None = None
-    density: dict[str, float] = field(default_factory=dict)  # kg/m^3 per name
+    """objects settings.
+
+    names                object names, nearest the robot base first ("banana", or "banana=x,y" for the object
+                         nearest that base-frame point); empty: every object found (object_0, object_1, ...)
+    prompts              NAME@KEYFRAME:box=x0,y0,x1,y1 or NAME@KEYFRAME:points=x,y;x,y (pixels in that keyframe)
+    masks                masks from a folder instead: MASKS/<name>/<keyframe stem>.png
+    mesh                 a user mesh (obj/stl/glb, any scale and pose) per object name, placed by the masks
+    keypoints            per object name, [[mesh xyz, base xyz], ...] correspondences for a user mesh's alignment
+    sam2_checkpoint      SAM2 masks with this local checkpoint (nothing is downloaded)
+    density              kg/m^3 per object name
+    default_density      kg/m^3 of objects not in ``density``
+    matting              the 3D matting that gives the geometric masks (object Gaussians against the table)
+    splat                the object-only 3DGS (masked loss)
+    voxel                carving voxel (m)
+    skip_fraction        fraction of the masks a voxel may fall outside of and still be kept (mask noise)
+    grabcut              refine the matting's masks with GrabCut
+    depth_margin         metres the 3DGS depth may lie in front of the surface without carving it
+    prune_inside         metres: Gaussians deeper inside the reconstruction are dropped
+    prune_rounds         drop + short retraining, repeated (the retraining moves some inwards again)
+    collision_threshold  CoACD concavity threshold of the convex collision parts
+    collision_max_parts  at most this many convex parts
+    figure_views         keyframes shown in figure.png
+    """
+
+    names: list[str] = field(default_factory=list)
+    prompts: list[str] = field(default_factory=list)
+    masks: Path | None = None
+    mesh: dict[str, Path] = field(default_factory=dict)
+    keypoints: dict[str, list[tuple[tuple[float, float, float], tuple[float, float, float]]]] = field(
+        default_factory=dict, metadata={"flag": False}
+    )
+    sam2_checkpoint: Path | None = None
+    density: dict[str, float] = field(default_factory=dict)
     default_density: float = 500.0
     matting: MattingConfig = field(default_factory=MattingConfig)
     splat: SplatConfig = field(default_factory=SplatConfig)
     voxel: float = 0.0015
     skip_fraction: float = 0.08
     grabcut: bool = True
-    # metres the 3DGS depth may lie in front of the surface without carving it (see reconstruct_mesh)
-    depth_margin: float = 0.0005
-    prune_inside: float = 0.002  # metres: Gaussians deeper inside the reconstruction are dropped
-    prune_rounds: int = 2  # drop + short retraining, repeated (the retraining moves some inwards again)
+    depth_margin: float = 0.0005  # see reconstruct_mesh
+    prune_inside: float = 0.002
+    prune_rounds: int = 2
     collision_threshold: float = 0.05
     collision_max_parts: int = 16
     figure_views: int = 3
 
 
-def _fingerprint(config: ObjectsConfig, name: str, inputs: dict[str, Any]) -> str:
-    blob = json.dumps({"config": asdict(config), "name": name, "inputs": inputs}, sort_keys=True, default=str)
-    return hashlib.sha256(blob.encode()).hexdigest()[:16]
-
-
-def load_workspace(ws: Path) -> tuple[list[Camera], list[np.ndarray], np.ndarray]:
-    """(cameras in the base frame, keyframes [H,W,3] float32 in [0,1], points_base [M,3])."""
+def load_keyframes_rgb(cameras: list[Camera], image_dir: Path) -> list[np.ndarray]:
+    """The keyframe of each camera (``image_dir / basename(name)``), [H,W,3] float32 in [0,1]."""
     import cv2
 
-    cams_path, pts_path = ws / "calib" / "cameras_base.json", ws / "calib" / "points_base.npy"
-    for p in (cams_path, pts_path):
-        if not p.is_file():
-            raise ObjectsError(f"{p} not found; run `m2m align-scene -w {ws}` first (it writes the base-frame calib)")
-    cameras = [Camera.from_json(c, source=str(cams_path)) for c in json.loads(cams_path.read_text())]
     images = []
     for cam in cameras:
-        path = ws / "capture" / os.path.basename(cam.name)
+        path = Path(image_dir) / Path(cam.name).name
         bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if bgr is None:
             raise ObjectsError(f"{path}: keyframe of camera {cam.name!r} missing or unreadable; rerun `m2m capture`")
         if bgr.shape[:2] != (cam.height, cam.width):
             raise ObjectsError(f"{path}: is {bgr.shape[1]}x{bgr.shape[0]}, its camera {cam.width}x{cam.height}")
         images.append(bgr[..., ::-1].astype(np.float32) / 255.0)
-    return cameras, images, np.load(pts_path).astype(np.float64)
+    return images
 
 
-def _targets(config: ObjectsConfig, cameras, points) -> tuple[Any, list[Target]]:
+def find_targets(config: ObjectsConfig, cameras, points) -> tuple[Any, list[Target]]:
+    """(support plane, the objects to reconstruct) from the base-frame points [M,3], named by the config."""
     from .support import find_objects, name_clusters
 
     plane, clusters = find_objects(points)
@@ -109,8 +122,8 @@ def _targets(config: ObjectsConfig, cameras, points) -> tuple[Any, list[Target]]
 
 
 def _provider(config: ObjectsConfig, progress: bool) -> MaskProvider:
-    if config.masks_dir:
-        return FolderMasks(Path(config.masks_dir), config.matting.min_views)
+    if config.masks:
+        return FolderMasks(Path(config.masks), config.matting.min_views)
     if config.sam2_checkpoint:
         return Sam2Masks(Path(config.sam2_checkpoint), min_views=config.matting.min_views)
     return GeometricMasks(config.matting, config.grabcut, progress)
@@ -196,7 +209,7 @@ def process_object(
     from .splat import train_object_gaussians
 
     name = target.name
-    user_mesh = config.meshes.get(name)
+    user_mesh = config.mesh.get(name)
     mesh_input = None
     if user_mesh:  # check it before the long work
         log(f"{name}: mesh from {user_mesh}")
@@ -348,42 +361,9 @@ def process_object(
 
 
 def target_fingerprint(config: ObjectsConfig, target: Target) -> str:
+    """The object's resume key: the config and the object's points (a changed cluster is another object)."""
+    from ..configs import to_dict
+    from ..fingerprint import fingerprint
+
     pts = None if target.cluster is None else np.round(target.cluster.points, 4).tobytes()
-    return _fingerprint(config, target.name, {"points": hashlib.sha256(pts or b"").hexdigest()})
-
-
-def run_objects(
-    ws: str | os.PathLike[str],
-    config: ObjectsConfig | None = None,
-    log: Callable[[str], None] = lambda s: None,
-    progress: bool = False,
-) -> dict[str, Any]:
-    """Run the object stage on workspace ``ws``; returns {name: summary} (also in objects/summary.json)."""
-    ws = Path(ws)
-    config = config or ObjectsConfig()
-    cameras, images, points = load_workspace(ws)
-    _, targets = _targets(config, cameras, points)
-    unknown = set(config.meshes) - {t.name for t in targets}
-    if unknown:
-        raise ObjectsError(
-            f"--mesh for {', '.join(sorted(unknown))}: no such object (objects: {[t.name for t in targets]})"
-        )
-    out: dict[str, Any] = {}
-    for target in targets:
-        folder = ws / "objects" / target.name
-        done = folder / "align.json"
-        if done.is_file():
-            previous = json.loads(done.read_text())
-            if previous.get("fingerprint") == target_fingerprint(config, target):
-                log(f"{target.name}: up to date, skipped")
-                out[target.name] = previous
-                continue
-        out[target.name] = process_object(target, config, cameras, images, folder, log, progress)
-    with atomic_write(ws / "objects" / "summary.json", "w", encoding="utf-8") as f:
-        json.dump(
-            {k: {kk: v[kk] for kk in ("sim3_obj_to_base", "mesh", "gaussians") if kk in v} for k, v in out.items()},
-            f,
-            indent=1,
-            default=str,
-        )
-    return out
+    return fingerprint(to_dict(config), target.name, hashlib.sha256(pts or b"").hexdigest())

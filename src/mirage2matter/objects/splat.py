@@ -30,18 +30,33 @@ __all__ = ["SplatConfig", "heldout_views", "mask_crop", "object_metrics", "train
 
 @dataclass
 class SplatConfig:
+    """Object 3DGS settings.
+
+    iterations        training steps
+    sh_degree         SH degree of the object's Gaussians
+    max_gaussians     cap on densification
+    lambda_alpha      weight of the penalty on alpha outside the (dilated) mask
+    lambda_opacity    pushes opacities to 0 or 1
+    lambda_dssim      weight of D-SSIM against L1
+    dilate_px         pixels the mask is dilated by before alpha outside it is penalised
+    crop_margin_px    pixels of context around the mask in the training crops
+    min_opacity_init  matting Gaussians fainter than this are dropped first
+    holdout_every     every n-th keyframe that sees the object is held out for evaluation
+    seed              initialisation and sampling seed
+    """
+
     iterations: int = 1500
     sh_degree: int = 2
     max_gaussians: int = 60000
     lambda_alpha: float = 1.0
-    # opacities pushed to 0 or 1 (TrainConfig.lambda_opacity): on the sample's 24-keyframe run the opaque
-    # Gaussians' median distance to the mesh fell 2.15 -> 1.99 mm (banana), 2.56 -> 2.07 mm (croissant) at the
-    # same held-out PSNR; 0.2 was no better and shrank the meshes more
+    # lambda_opacity (TrainConfig.lambda_opacity): on the sample's 24-keyframe run the opaque Gaussians' median
+    # distance to the mesh fell 2.15 -> 1.99 mm (banana), 2.56 -> 2.07 mm (croissant) at the same held-out PSNR;
+    # 0.2 was no better and shrank the meshes more
     lambda_opacity: float = 0.05
     lambda_dssim: float = 0.2
     dilate_px: int = 3
     crop_margin_px: int = 12
-    min_opacity_init: float = 0.05  # matting Gaussians fainter than this are dropped first
+    min_opacity_init: float = 0.05
     holdout_every: int = 8
     seed: int = 0
 

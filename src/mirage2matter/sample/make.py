@@ -28,6 +28,8 @@ import numpy as np
 
 from ..atomic import atomic_dir
 from ..calib.board import BoardSpec
+from ..errors import M2MError
+from .inspect import BUNDLED_SAMPLE
 from .trajectory import OrbitConfig, orbit_poses
 
 GROUND_TRUTH_VERSION = 1
@@ -58,7 +60,7 @@ class SampleConfig:
         return replace(full, orbit=replace(full.orbit, duration_s=4.0, fps=5.0), handeye_views=6)
 
 
-class SampleError(ValueError):
+class SampleError(M2MError, ValueError):
     """Bad output location or failed generation; the message says what to do."""
 
 
@@ -108,6 +110,8 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
         assets = build_assets(seed=config.seed, board=board)
         board.save(tmp / "board.json")
         config.handeye_board.save(tmp / "handeye" / "board.json")
+        # the pipeline settings of the sample layout (inputs by relative path), as `m2m demo --sample` reads them
+        shutil.copyfile(BUNDLED_SAMPLE / "m2m.yaml", tmp / "m2m.yaml")
         ground_truth_assets = [a for a in assets if a.category in ("board", "object", "button")]
         mesh_paths = export_assets(ground_truth_assets, tmp / "gt")
         log(f"assets: {len(assets)} meshes, ground truth for {', '.join(mesh_paths)}")
@@ -157,13 +161,13 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
                     {
                         "image": f"images/{name}",
                         "joints": [float(v) for v in q],
-                        "T_base_hand": robot_renderer.T_base_link("hand").tolist(),
+                        "T_base_hand": robot_renderer.T_base_link().tolist(),
                     }
                 )
             # the renderer mounts the slab's object frame; the ground truth is the ChArUco board frame
             T_hand_board = robot_renderer.T_hand_board @ np.asarray(held_board.meta["T_obj_board"])
         (tmp / "handeye" / "joints.json").write_text(
-            json.dumps({"robot": robot_renderer.robot_file, "link": "hand", "views": records}, indent=1)
+            json.dumps({"robot": robot_renderer.robot_file, "link": robot_renderer.ee_link, "views": records}, indent=1)
         )
         log(f"hand-eye: {len(records)} views of the held board from the head camera")
 

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..atomic import atomic_dir
+from ..errors import M2MError
 from ..geometry.camera import Camera
 from ..geometry.rotation import rotation_angle
 from ..geometry.umeyama import umeyama
@@ -33,7 +34,7 @@ IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 MIN_IMAGES = 3
 
 
-class SfMError(RuntimeError):
+class SfMError(M2MError, RuntimeError):
     """SfM that cannot run or did not reconstruct enough; the message says what to do."""
 
 

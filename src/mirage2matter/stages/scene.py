@@ -1,11 +1,11 @@
-"""The ``train-scene`` stage: scene 3DGS from the workspace's posed keyframes (DESIGN.md §3 stage 4).
+"""Stage ``scene`` (``m2m train-scene``): scene 3DGS from the workspace's posed keyframes (DESIGN.md §3 stage 4).
 
-Cameras and SfM points come from :meth:`Workspace.posed_capture` (robot-base frame after
-``align-scene``), so the trained Gaussians live in the frame the simulator uses. Outputs in
-``<ws>/scene/``: ``gaussians.ply``, ``metrics.json`` (held-out PSNR / SSIM, curve, timings),
-``heldout.png`` (held-out keyframes: photo above render), ``checkpoint.pt`` + ``plan.json`` for
-resuming. Same inputs and config as a finished run: skipped. Interrupted: resumed from the last
-checkpoint (``plan.json`` pins the planned schedule so the resumed run is the same run).
+Cameras and SfM points come from :meth:`Workspace.posed_capture` (robot-base frame after ``align-scene``),
+so the trained Gaussians live in the frame the simulator uses. Outputs in ``<ws>/scene/``:
+``gaussians.ply``, ``metrics.json`` (held-out PSNR / SSIM, curve, timings), ``heldout.png`` (held-out
+keyframes: photo above render), ``checkpoint.pt`` + ``plan.json`` while training. Interrupted: resumed
+from the last checkpoint (``plan.json`` pins the planned schedule, keyed by the stage's fingerprint, so the
+resumed run is the same run).
 """
 
 from __future__ import annotations
@@ -14,18 +14,19 @@ import json
 import time
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
-from .atomic import atomic_write
-from .workspace import Workspace, WorkspaceError, fingerprint
+from ..atomic import atomic_write
+from ..workspace import Workspace, WorkspaceError
+from .base import Input, Log, stage_fingerprint
 
-__all__ = ["SceneConfig", "train_scene"]
+__all__ = ["Config", "inputs", "outputs", "run"]
 
 
 @dataclass
-class SceneConfig:
+class Config:
     """train-scene settings.
 
     minutes         training-time budget; the iteration count is planned from a measured step
@@ -35,6 +36,8 @@ class SceneConfig:
     max_gaussians   cap on densification
     sh_degree       final SH degree (raised during training)
     backend         "auto" (cuda with gsplat, else the numba cpu rasterizer), "cpu", "cuda"
+    seed            initialisation and sampling seed
+    checkpoint_every  iterations between checkpoints a killed run resumes from (0: none)
     """
 
     minutes: float = 10.0
@@ -43,27 +46,27 @@ class SceneConfig:
     holdout_every: int = 8
     max_gaussians: int = 200_000
     sh_degree: int = 3
-    backend: str = "auto"
+    backend: Literal["auto", "cpu", "cuda"] = "auto"
     seed: int = 0
     checkpoint_every: int = 200
 
     def validate(self) -> None:
         if self.iterations < 0 or (self.iterations == 0 and not self.minutes > 0):
-            raise ValueError("train-scene: give a positive --minutes budget or --iterations")
+            raise WorkspaceError("train-scene: give a positive --minutes budget or --iterations")
         if self.downscale < 1 or self.holdout_every < 0 or self.max_gaussians < 1000:
-            raise ValueError(
+            raise WorkspaceError(
                 f"train-scene: downscale >= 1, holdout_every >= 0 and max_gaussians >= 1000, got {self.downscale}, "
                 f"{self.holdout_every}, {self.max_gaussians}"
             )
         if not 0 <= self.sh_degree <= 3:
-            raise ValueError(f"train-scene: sh_degree must be 0..3, got {self.sh_degree}")
+            raise WorkspaceError(f"train-scene: sh_degree must be 0..3, got {self.sh_degree}")
 
 
 def _heldout_sheet(g, views, config, backend: str, max_views: int = 4) -> np.ndarray:
     """Held-out photos (top row) above their renders (bottom row), uint8."""
     import torch
 
-    from .gaussians.render import render
+    from ..gaussians.render import render
 
     tops, bottoms = [], []
     bg = torch.tensor(config.background, dtype=torch.float32)
@@ -76,37 +79,30 @@ def _heldout_sheet(g, views, config, backend: str, max_views: int = 4) -> np.nda
     return (grid * 255 + 0.5).astype(np.uint8)
 
 
-def train_scene(ws: Workspace | str | Path, config: SceneConfig | None = None, force: bool = False,
-                progress: bool = True, log=print) -> dict[str, Any]:  # fmt: skip
-    """Train the scene Gaussians of workspace ``ws``; returns the metrics written to
-    ``scene/metrics.json`` (``skipped: True`` when an identical finished run is already there)."""
+
+def inputs(ws: Workspace, cfg: Config) -> list[Input]:
+    # after align-scene the base-frame cameras; before it, the SfM frame
+    out = [Input(ws.sfm_file, made_by="sfm")]
+    return out + [Input(p) for p in (ws.cameras_base_file, ws.points_base_file) if p.is_file()]
+
+
+def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
+    """Train the scene Gaussians; writes and returns the metrics of ``scene/metrics.json``."""
     from PIL import Image
 
-    from .gaussians.budget import budgeted_config, estimate_step_seconds
-    from .gaussians.dataset import build_views
-    from .gaussians.ply import write_ply
-    from .gaussians.render import resolve_backend
-    from .gaussians.train import TrainConfig, init_gaussians_from_points, train
+    from ..gaussians.budget import budgeted_config, estimate_step_seconds
+    from ..gaussians.dataset import build_views
+    from ..gaussians.ply import write_ply
+    from ..gaussians.render import resolve_backend
+    from ..gaussians.train import TrainConfig, init_gaussians_from_points, train
+    from . import get_stage
 
-    ws = ws if isinstance(ws, Workspace) else Workspace(ws)
-    config = config or SceneConfig()
-    config.validate()
     posed = ws.posed_capture()
     if len(posed.points) < 100:
-        raise WorkspaceError(f"{ws.sfm}: only {len(posed.points)} SfM points; rerun sfm with more keyframes / texture")
-    key = fingerprint(
-        asdict(config),
-        ws.sfm / "sfm.json",
-        ws.calib / "sim3_sfm_to_base.json",
-        [c.name for c in posed.cameras],
-    )
-    out = ws.scene
-    metrics_path = out / "metrics.json"
-    if not force and metrics_path.is_file():
-        old = json.loads(metrics_path.read_text())
-        if old.get("fingerprint") == key and (out / "gaussians.ply").is_file():
-            log(f"scene: up to date ({metrics_path}); pass --force to retrain")
-            return {**old, "skipped": True}
+        raise WorkspaceError(f"{ws.sfm_dir}: only {len(posed.points)} SfM points; rerun sfm with more keyframes / "
+                             "texture")  # fmt: skip
+    key = stage_fingerprint(get_stage("scene"), ws, config)
+    out = ws.scene_dir
     out.mkdir(parents=True, exist_ok=True)
     backend = resolve_backend(config.backend)
 
@@ -118,8 +114,8 @@ def train_scene(ws: Workspace | str | Path, config: SceneConfig | None = None, f
         checkpoint_every=config.checkpoint_every,
     )  # fmt: skip
 
-    # The plan (iterations and schedules) is made once per input fingerprint and pinned, so a resumed
-    # run continues the same schedule instead of re-planning from a different step time.
+    # The plan (iterations and schedules) is made once per fingerprint and pinned, so a resumed run
+    # continues the same schedule instead of re-planning from a different step time.
     plan_path, ckpt = out / "plan.json", out / "checkpoint.pt"
     plan = json.loads(plan_path.read_text()) if plan_path.is_file() else {}
     resume = plan.get("fingerprint") == key and ckpt.is_file()
@@ -144,10 +140,9 @@ def train_scene(ws: Workspace | str | Path, config: SceneConfig | None = None, f
         f"{views_train[0].width}x{views_train[0].height}, {len(init):,} initial Gaussians from SfM points, "
         f"{posed.frame} frame, {train_cfg.iterations} iterations planned ({backend})"
     )
-    g, metrics = train(views_train, views_eval, init, train_cfg, progress=progress, checkpoint_path=ckpt,
-                       resume=resume)  # fmt: skip
+    g, metrics = train(views_train, views_eval, init, train_cfg, progress=True, checkpoint_path=ckpt, resume=resume)
 
-    write_ply(out / "gaussians.ply", g)
+    write_ply(ws.scene_ply, g)
     if views_eval:
         sheet = _heldout_sheet(g, views_eval, train_cfg, backend)
         with atomic_write(out / "heldout.png", "wb") as f:
@@ -169,7 +164,17 @@ def train_scene(ws: Workspace | str | Path, config: SceneConfig | None = None, f
         "curve": metrics["curve"],
         "config": asdict(config),
     }
-    with atomic_write(metrics_path, "w", encoding="utf-8") as f:
+    with atomic_write(ws.scene_metrics, "w", encoding="utf-8") as f:
         json.dump(result, f, indent=1)
     ckpt.unlink(missing_ok=True)  # finished: the PLY and metrics are the result (checkpoints are ~3x the PLY)
-    return result
+    keys = ("psnr_heldout", "ssim_heldout", "iterations", "gaussians", "train_minutes", "frame")
+    return {
+        **{k: result[k] for k in keys},
+        "line": f"held-out PSNR {result['psnr_heldout']:.2f} dB / SSIM {result['ssim_heldout']:.3f} over "
+        f"{len(views_eval)} keyframes, {result['iterations']} iterations, {result['gaussians']:,} Gaussians "
+        f"({result['train_minutes']:.1f} min, {posed.frame} frame)",
+    }
+
+
+def outputs(ws: Workspace, cfg: Config) -> list[Path]:
+    return [ws.scene_ply, ws.scene_metrics]

@@ -80,7 +80,8 @@ def insert(
     friction: float = 1.0,
 ) -> WorldConfig:
     """Copy an asset (Gaussian PLY + mesh [+ its .mtl/texture] [+ collision folder]) into
-    ``<objects_dir>/<name>/`` (default ``<world>/../objects``) and add it at ``placement``; convex parts are
+    ``<objects_dir>/<name>/`` (default ``<world>/assets``: the world's own assets, apart from the objects stage's
+    reconstructions) and add it at ``placement``; convex parts are
     computed (CoACD) when no collision folder is given. Raises WorldConfigError on a taken name or an
     overlap with what is there."""
     from .sample import convex_parts
@@ -93,7 +94,7 @@ def insert(
             raise WorldConfigError(f"{what} {p} not found")
     read_ply(gaussians)  # fails early with the PLY's own message
     m = load_mesh(mesh)
-    dest = Path(objects_dir) if objects_dir is not None else cfg.root.parent / "objects"
+    dest = Path(objects_dir) if objects_dir is not None else cfg.root / "assets"
     final = dest / name
     with atomic_dir(final) as tmp:
         shutil.copy2(gaussians, tmp / "gaussians.ply")

@@ -1,26 +1,28 @@
-"""A world from the workspace's own reconstruction (no ground truth): ``from_workspace(ws)``.
+"""A world from a reconstruction (no ground truth): :func:`world_from_reconstruction`.
 
-Reads what the earlier stages wrote and writes ``<ws>/world/``:
+Inputs (typed, read by the ``world`` stage from what the earlier stages wrote):
 
-- ``calib/handeye.json`` (``m2m calibrate-handeye``): the head camera, ``T_base_headcam``, ``K`` and image size;
-  the wrist camera gets the default mount on the hand (``sample.default_wrist_camera``).
-- ``objects/<name>/{mesh.obj, collision/*.obj, gaussians.ply, align.json}`` (``m2m objects``): one free object
-  each, placed by ``align.json``'s ``sim3_obj_to_base`` (the same Sim3 for mesh and Gaussians), density from the
-  objects stage. Placements are snapped vertically so the lowest collision vertex rests on the table (the
-  reconstruction's bottom is a guess: the table hid it).
+- the head camera (``CameraConfig``, from the hand-eye calibration: ``T_base_headcam``, ``K`` and image size);
+  the wrist camera gets the robot's default mount on its end-effector link (``default_wrist_camera``).
+- object folders as the objects stage writes them (``{mesh.obj, collision/*.obj, gaussians.ply, align.json}``):
+  one free object each, placed by ``align.json``'s ``sim3_obj_to_base`` (the same Sim3 for mesh and
+  Gaussians), density from the objects stage. Placements are snapped vertically so the lowest collision
+  vertex rests on the table (the reconstruction's bottom is a guess: the table hid it).
 - An object named like a button (``"button" in name``, or listed in ``buttons``) becomes a press button: its one
   rigid reconstruction is cut at the height where the footprint narrows (the cap sits on a wider base; without
   such a step the top third is the cap). Below the cut is the fixed base, above it the cap on a sprung
   prismatic joint (travel 8 mm along -z by default). Meshes are cut and the cut closed with a fan, convex
   collision parts are clipped by the same plane (a clipped convex part stays convex), Gaussians go to the cap
-  when above the cut and over the cap's footprint. The parts go to ``world/assets/<name>/{base,cap}/``.
-- ``scene/gaussians.ply`` (``m2m train-scene``): the scene splat also holds the objects, so every scene Gaussian
-  within ``crop_margin`` of an object's placed mesh is removed (else a grasped object leaves a copy behind), and
-  the table hole under each object is filled with flat Gaussians coloured like the table around it (the
-  capture never saw the table under an object). Also removed: scene Gaussians within ``means_margin`` of the
-  object's own opaque Gaussians, which cover thin tips (a stem, a horn) that the reconstructed mesh may miss.
-  Written to ``world/scene.ply``.
-- ``world/reconstruction.json``: what was done (snaps, removed and filled Gaussians, button cut heights).
+  when above the cut and over the cap's footprint. The parts go to ``<world>/assets/<name>/{base,cap}/``.
+- the scene splat, which also holds the objects, so every scene Gaussian within ``crop_margin`` of an
+  object's placed mesh is removed (else a grasped object leaves a copy behind), and the table hole under
+  each object is filled with flat Gaussians coloured like the table around it (the capture never saw the
+  table under an object). Also removed: scene Gaussians within ``means_margin`` of the object's own opaque
+  Gaussians, which cover thin tips (a stem, a horn) that the reconstructed mesh may miss. Written to
+  ``<world>/scene.ply``.
+
+Also written: ``<world>/reconstruction.json`` (what was done: snaps, removed and filled Gaussians, button cut
+heights) and ``<world>/world.yaml``.
 """
 
 from __future__ import annotations
@@ -55,20 +57,27 @@ from .config import (
 from .sample import default_wrist_camera
 from .validate import load_collision_parts, load_mesh
 
-__all__ = ["WorkspaceWorldOptions", "crop_scene", "from_workspace", "is_button", "split_button"]
+__all__ = ["ReconstructionOptions", "crop_scene", "is_button", "split_button", "world_from_reconstruction"]
 
 
 @dataclass
-class WorkspaceWorldOptions:
-    """How :func:`from_workspace` turns a reconstruction into a world.
+class ReconstructionOptions:
+    """How :func:`world_from_reconstruction` turns a reconstruction into a world.
 
-    buttons          object names that are press buttons besides those with "button" in their name
-    crop_margin      m around each placed object mesh whose scene Gaussians are removed
-    means_margin     m around each object's own opaque Gaussians whose scene Gaussians are removed too
-    fill_spacing     m between the flat Gaussians filling the table under each object (0: no fill)
-    snap_to_table    rest each object's lowest collision vertex on the table (z = table_z)
-    button_*         press button travel (m), press axis (button frame), spring (N/m), threshold (fraction)
-    cap_fraction     height fraction of the cap when the button's footprint shows no step
+    robot             the robot at the base origin
+    buttons           object names that are press buttons besides those with "button" in their name
+    crop_margin       m around each placed object mesh whose scene Gaussians are removed
+    means_margin      m around each object's own opaque Gaussians whose scene Gaussians are removed too
+    fill_spacing      m between the flat Gaussians filling the table under each object (0: no fill)
+    snap_to_table     rest each object's lowest collision vertex on the table (z = table_z)
+    table_z           height of the table plane in the base frame (m)
+    friction          Coulomb friction of the objects and buttons
+    button_travel     press button travel (m)
+    button_axis       press direction in the button's frame
+    button_stiffness  the button's spring (N/m)
+    button_threshold  pressed beyond this fraction of the travel counts as pressed
+    cap_fraction      height fraction of the cap when the button's footprint shows no step
+    randomize         where the twin may put objects at reset
     """
 
     robot: RobotConfig = field(default_factory=RobotConfig)
@@ -87,55 +96,10 @@ class WorkspaceWorldOptions:
     randomize: RandomizeConfig = field(default_factory=RandomizeConfig)
 
 
-def is_button(name: str, options: WorkspaceWorldOptions | None = None) -> bool:
+def is_button(name: str, options: ReconstructionOptions | None = None) -> bool:
     """Whether reconstructed object ``name`` is treated as a press button."""
-    options = options or WorkspaceWorldOptions()
+    options = options or ReconstructionOptions()
     return "button" in name.lower() or name in options.buttons
-
-
-# ---- inputs ------------------------------------------------------------------------------------------
-def _need(path: Path, what: str, stage: str) -> Path:
-    if not path.exists():
-        raise WorldConfigError(f"{path} not found: {what}; run `{stage}` first")
-    return path
-
-
-def _head_camera(ws: Path) -> CameraConfig:
-    path = _need(
-        ws / "calib" / "handeye.json",
-        "the head camera's mount",
-        f"m2m calibrate-handeye --mount head ... -w {ws}",
-    )
-    data = json.loads(path.read_text())
-    missing = [k for k in ("T_base_headcam", "K", "width", "height") if k not in data]
-    if missing:
-        raise WorldConfigError(
-            f"{path}: no {', '.join(missing)} (a head-camera calibration records T_base_headcam, K and the image "
-            f"size); rerun `m2m calibrate-handeye --mount head ... -w {ws}`"
-        )
-    T = np.asarray(data["T_base_headcam"], dtype=np.float64)
-    K = np.asarray(data["K"], dtype=np.float64)
-    if T.shape != (4, 4) or K.shape != (3, 3):
-        raise WorldConfigError(f"{path}: T_base_headcam must be 4x4 and K 3x3")
-    return CameraConfig("base", T, K, int(data["width"]), int(data["height"]))
-
-
-def _object_names(ws: Path) -> list[str]:
-    folder = ws / "objects"
-    summary = folder / "summary.json"
-    if summary.is_file():
-        names = list(json.loads(summary.read_text()))
-    else:
-        names = sorted(p.parent.name for p in folder.glob("*/align.json"))
-    if not names:
-        raise WorldConfigError(
-            f"{folder}: no reconstructed objects (objects/<name>/align.json); run `m2m objects -w {ws}` first"
-        )
-    for name in names:
-        d = folder / name
-        for f in ("align.json", "mesh.obj", "gaussians.ply"):
-            _need(d / f, f"object {name!r} is incomplete", f"m2m objects -w {ws}")
-    return names
 
 
 # ---- geometry helpers --------------------------------------------------------------------------------
@@ -366,23 +330,21 @@ def crop_scene(
 
 
 # ---- the world ---------------------------------------------------------------------------------------
-def from_workspace(
-    ws: str | os.PathLike,
-    options: WorkspaceWorldOptions | None = None,
+def world_from_reconstruction(
+    world_dir: str | os.PathLike,
+    head: CameraConfig,
+    scene_ply: str | os.PathLike,
+    object_dirs: dict[str, Path],
+    options: ReconstructionOptions | None = None,
     log: Callable[[str], None] = lambda s: None,
 ) -> WorldConfig:
-    """Build ``<ws>/world/`` (world.yaml, scene.ply, button parts, reconstruction.json) from the workspace's
-    reconstruction; see the module docstring. Raises :class:`WorldConfigError` naming the stage to run when an
-    input is missing. Returns the (saved) config."""
-    ws = Path(ws)
-    opt = options or WorkspaceWorldOptions()
-    if not ws.is_dir():
-        raise WorldConfigError(f"workspace {ws} not found; run the pipeline stages first (`m2m demo` shows them)")
-    head = _head_camera(ws)
-    scene_ply = _need(ws / "scene" / "gaussians.ply", "the scene's Gaussians", f"m2m train-scene -w {ws}")
-    names = _object_names(ws)
-    world_dir = (ws / "world").resolve()
+    """Build ``world_dir`` (world.yaml, scene.ply, button parts, reconstruction.json) from the head camera, the
+    scene splat and the object folders ``{name: folder}`` (see the module docstring). Returns the saved config."""
+    opt = options or ReconstructionOptions()
+    world_dir = Path(world_dir).resolve()
     world_dir.mkdir(parents=True, exist_ok=True)
+    scene_ply = Path(scene_ply)
+    names = list(object_dirs)
     report: dict[str, Any] = {"options": asdict(opt), "objects": {}}
 
     objects: list[ObjectConfig] = []
@@ -390,10 +352,10 @@ def from_workspace(
     placed: dict[str, trimesh.Trimesh] = {}
     means: dict[str, np.ndarray] = {}
     for name in names:
-        folder = (ws / "objects" / name).resolve()
+        folder = Path(object_dirs[name]).resolve()
         align = json.loads((folder / "align.json").read_text())
         if "sim3_obj_to_base" not in align:
-            raise WorldConfigError(f"{folder / 'align.json'}: no sim3_obj_to_base; rerun `m2m objects -w {ws}`")
+            raise WorldConfigError(f"{folder / 'align.json'}: no sim3_obj_to_base; rerun the objects stage")
         placement = Sim3.from_json(align["sim3_obj_to_base"])
         density = float(align.get("mesh", {}).get("density", 500.0))
         collision = folder / "collision" if any((folder / "collision").glob("*.obj")) else None
@@ -482,7 +444,8 @@ def from_workspace(
         table_z=opt.table_z,
         randomize=opt.randomize,
     )
-    report["source"] = {"workspace": str(ws.resolve()), "scene": str(scene_ply.resolve()), "objects": names}
+    report["source"] = {"scene": str(scene_ply.resolve()), "objects": {n: str(Path(d).resolve()) for n, d in
+                                                                       object_dirs.items()}}
     with atomic_write(world_dir / "reconstruction.json", "w", encoding="utf-8") as f:
         json.dump(report, f, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
     save_world(cfg)

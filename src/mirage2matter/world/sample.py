@@ -1,12 +1,12 @@
-"""A world from the bundled sample's ground truth: the stand-in for ``m2m objects`` outputs.
+"""A world from the bundled sample's ground truth: the stand-in for a reconstruction.
 
-``sample_world(sample_dir, ws)`` writes, per object, what the objects stage will write
-(``objects/<name>/{gaussians.ply, mesh.obj (+ .mtl, .png), collision/*.obj}``) from the sample's ground-truth
-meshes: Gaussians are flat discs sampled on the textured surface (colour from the texture, disc normal along
-the surface normal), collision parts come from CoACD. Without a trained ``scene/gaussians.ply`` a stand-in
-scene is sampled the same way on the sample's table and board. Then ``world/world.yaml`` places every object
-at its ground-truth pose, the head camera at the sample's (or ``calib/handeye.json``'s) mount and a wrist
-camera on the hand.
+``sample_world(sample_dir, world_dir)`` writes, per object, what the objects stage writes
+(``<assets>/<name>/{gaussians.ply, mesh.obj (+ .mtl, .png), collision/*.obj}``, assets in ``world_dir/assets``
+unless given) from the sample's ground-truth meshes: Gaussians are flat discs sampled on the textured surface
+(colour from the texture, disc normal along the surface normal), collision parts come from CoACD. Without a
+trained scene splat (``scene_ply``) a stand-in scene is sampled the same way on the sample's table and board.
+Then ``world.yaml`` places every object at its ground-truth pose, the head camera at the sample's mount (or
+``T_base_headcam``, a calibrated one) and a wrist camera on the robot's hand.
 """
 
 from __future__ import annotations
@@ -23,9 +23,9 @@ import trimesh
 from ..atomic import atomic_dir
 from ..gaussians.model import Gaussians
 from ..gaussians.ply import write_ply
-from ..geometry.camera import look_at_pose
 from ..geometry.rotation import matrix_to_quat
 from ..geometry.sim3 import Sim3
+from ..robots import DEFAULT_ROBOT, RobotSpec, get_robot
 from .config import (
     ArticulatedConfig,
     CameraConfig,
@@ -33,6 +33,7 @@ from .config import (
     ObjectConfig,
     PartConfig,
     WorldConfig,
+    WorldConfigError,
     save_world,
 )
 
@@ -103,13 +104,19 @@ def convex_parts(mesh: trimesh.Trimesh, max_parts: int = 8, threshold: float = 0
     return [trimesh.Trimesh(v, f).convex_hull for v, f in parts]
 
 
-def default_wrist_camera(width: int = 640, height: int = 480, fov_deg: float = 70.0) -> CameraConfig:
-    """A camera on the Panda ``hand``: 7 cm off the approach axis, behind the fingers, looking at the point
-    between the fingertips 14 cm ahead (hand frame: z = approach, fingers close along y)."""
-    T = look_at_pose(eye=(0.07, 0.0, 0.0), target=(0.0, 0.0, 0.14), up=(1.0, 0.0, 0.0))
+def default_wrist_camera(
+    width: int | None = None, height: int | None = None, fov_deg: float | None = None, robot: RobotSpec | None = None
+) -> CameraConfig:
+    """The robot's wrist camera at its mount (``RobotSpec.wrist_camera``; default robot: ``robots.DEFAULT_ROBOT``,
+    whose camera sits on the hand, behind the fingers, looking between the fingertips); size and vertical field
+    of view default to the mount's."""
+    mount = (robot or get_robot(DEFAULT_ROBOT)).wrist_camera
+    width = mount.width if width is None else width
+    height = mount.height if height is None else height
+    fov_deg = mount.fov_deg if fov_deg is None else fov_deg
     f = 0.5 * height / math.tan(math.radians(0.5 * fov_deg))
     K = np.array([[f, 0, 0.5 * width], [0, f, 0.5 * height], [0, 0, 1.0]])
-    return CameraConfig(mount="hand", T_mount_cam=T, K=K, width=width, height=height)
+    return CameraConfig(mount=mount.link, T_mount_cam=mount.T_link_cam, K=K, width=width, height=height)
 
 
 def _write_part(mesh: trimesh.Trimesh, folder: Path, n_gaussians: int, seed: int, max_parts: int) -> PartConfig:
@@ -153,32 +160,34 @@ def _scene_stand_in(seed: int, density_per_m2: float) -> Gaussians:
 
 def sample_world(
     sample_dir: str | os.PathLike,
-    ws: str | os.PathLike,
+    world_dir: str | os.PathLike,
     *,
+    assets_dir: str | os.PathLike | None = None,
+    scene_ply: str | os.PathLike | None = None,
+    T_base_headcam: np.ndarray | None = None,
     gaussians_per_object: int = 20000,
     scene_density_per_m2: float = 60000.0,
     max_collision_parts: int = 8,
     seed: int = 0,
     overwrite: bool = False,
 ) -> WorldConfig:
-    """Write ``<ws>/objects/<name>/...`` and ``<ws>/world/world.yaml`` from a sample's ground truth.
-
-    Existing object folders are kept (delete them, or pass ``overwrite``, to rebuild). Returns the config.
-    """
-    sample_dir, ws = Path(sample_dir), Path(ws)
+    """Write ``<assets_dir>/<name>/...`` (default ``world_dir/assets``) and ``world_dir/world.yaml`` from a sample's
+    ground truth (see the module docstring). Existing asset folders are kept (delete them, or pass
+    ``overwrite``, to rebuild). Returns the config."""
+    sample_dir, world_dir = Path(sample_dir), Path(world_dir)
+    assets = Path(assets_dir) if assets_dir is not None else world_dir / "assets"
     gt_path = sample_dir / "ground_truth.json"
     if not gt_path.is_file():
-        raise FileNotFoundError(f"{gt_path} not found; give the sample folder (e.g. samples/tabletop)")
+        raise WorldConfigError(f"{gt_path} not found; give the sample folder (e.g. samples/tabletop)")
     gt = json.loads(gt_path.read_text())
     by_name = {o["name"]: o for o in gt["objects"]}
-    world_dir = ws / "world"
     world_dir.mkdir(parents=True, exist_ok=True)
 
     def load(name: str) -> trimesh.Trimesh:
         return trimesh.load(str(sample_dir / by_name[name]["mesh"]), process=False, force="mesh")
 
     def build(name: str, mesh: trimesh.Trimesh, k: int) -> PartConfig:
-        final = ws / "objects" / name
+        final = assets / name
         if final.is_dir() and not overwrite and (final / "gaussians.ply").is_file():
             return PartConfig(final / "gaussians.ply", final / "mesh.obj", final / "collision")
         with atomic_dir(final) as tmp:
@@ -218,20 +227,13 @@ def sample_world(
             )
         )
 
-    scene_ply = ws / "scene" / "gaussians.ply"
-    if not scene_ply.is_file():
+    if scene_ply is None:
         scene_ply = world_dir / "scene_stand_in.ply"
         if overwrite or not scene_ply.is_file():
-            scene_ply.parent.mkdir(parents=True, exist_ok=True)
             write_ply(scene_ply, _scene_stand_in(seed, scene_density_per_m2))
-
     head = gt["head_camera"]
-    T_base_headcam = np.asarray(head["T_base_headcam"], dtype=np.float64)
-    handeye = ws / "calib" / "handeye.json"
-    if handeye.is_file():
-        data = json.loads(handeye.read_text())
-        if "T_base_headcam" in data:
-            T_base_headcam = np.asarray(data["T_base_headcam"], dtype=np.float64)
+    if T_base_headcam is None:
+        T_base_headcam = np.asarray(head["T_base_headcam"], dtype=np.float64)
     cameras = {
         "head": CameraConfig("base", T_base_headcam, np.asarray(head["K"]), int(head["width"]), int(head["height"])),
         "wrist": default_wrist_camera(),
@@ -243,7 +245,7 @@ def sample_world(
     cfg = WorldConfig(
         root=world_dir.resolve(),
         cameras=cameras,
-        scene_gaussians=scene_ply.resolve(),
+        scene_gaussians=Path(scene_ply).resolve(),
         objects=objects,
         articulated=articulated,
         lights=lights,

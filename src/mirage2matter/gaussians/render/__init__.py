@@ -14,6 +14,7 @@ import os
 
 import torch
 
+from ...errors import M2MError
 from ..model import Gaussians
 from .gsplat_cuda import cuda_available, render_gsplat
 from .numba_cpu import render_numba
@@ -23,15 +24,19 @@ from .types import RenderOutput
 BACKENDS = ("cpu", "cuda", "reference")
 
 
+class BackendError(M2MError, ValueError):
+    """A render backend that does not exist or cannot run here."""
+
+
 def resolve_backend(backend: str = "auto") -> str:
     if backend == "auto":
         backend = os.environ.get("M2M_RENDER_BACKEND", "auto")
     if backend == "auto":
         return "cuda" if cuda_available() else "cpu"
     if backend not in BACKENDS:
-        raise ValueError(f"unknown render backend {backend!r}; choose one of auto, {', '.join(BACKENDS)}")
+        raise BackendError(f"unknown render backend {backend!r}; choose one of auto, {', '.join(BACKENDS)}")
     if backend == "cuda" and not cuda_available():
-        raise RuntimeError("render backend 'cuda' needs a CUDA GPU, torch with CUDA and gsplat; use 'cpu'")
+        raise BackendError("render backend 'cuda' needs a CUDA GPU, torch with CUDA and gsplat; use 'cpu'")
     return backend
 
 
@@ -57,4 +62,13 @@ def render(
     return render_reference(gaussians, viewmat, K, width, height, background)
 
 
-__all__ = ["BACKENDS", "RenderOutput", "render", "render_gsplat", "render_numba", "render_reference", "resolve_backend"]
+__all__ = [
+    "BACKENDS",
+    "BackendError",
+    "RenderOutput",
+    "render",
+    "render_gsplat",
+    "render_numba",
+    "render_reference",
+    "resolve_backend",
+]

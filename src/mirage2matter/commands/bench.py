@@ -1,0 +1,110 @@
+"""``m2m bench render | train | datagen``: benchmarks, each printing one JSON line last on stdout."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from .. import configure_threads
+from ..bench import RenderBenchConfig
+from ..configs import add_flags, from_flags
+from .args import backend, info, int_at_least, positive_float
+
+
+def datagen_config() -> type:
+    """bench datagen's Config: the generate stage's with one task, defaults for a benchmark, and ``runs``
+    (a function: the generate stage's Config imports the generation libraries)."""
+    from ..stages import generate
+
+    @dataclass
+    class DatagenBenchConfig(generate.Config):
+        """bench datagen settings (the generate stage's, one task, and these).
+
+        runs   repetitions; the JSON line holds the medians over runs
+        """
+
+        task: tuple[str, ...] = ("grasp banana",)
+        episodes: int = 20
+        runs: int = 1
+
+    return DatagenBenchConfig
+
+
+def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
+    bench = sub.add_parser("bench", help="benchmarks (prints one JSON line last on stdout)")
+    bench_sub = bench.add_subparsers(dest="what", metavar="WHAT", required=True)
+    b = bench_sub.add_parser(
+        "render", help="time the renderer on a synthetic tabletop scene",
+        description="Time render() on tabletop_scene(N) from V orbit cameras: W untimed warm-up renders, then R "
+        "rounds of all V views. Progress goes to stderr; the last stdout line is JSON with backend, gaussians, "
+        "width, height, sh_degree, ms_median, ms_min, ms_max, runs.",
+    )  # fmt: skip
+    add_flags(b, RenderBenchConfig)
+    b.set_defaults(func=_render)
+
+    t = bench_sub.add_parser(
+        "train", help="train 3DGS on a transforms.json capture for M minutes; held-out PSNR/SSIM as a JSON line last"
+    )
+    t.add_argument("--data", required=True, metavar="DIR", help="folder with transforms.json + images (e.g. fox)")
+    t.add_argument("--minutes", type=positive_float, default=15.0, metavar="M", help="training time (default 15)")
+    t.add_argument("--downscale", type=int_at_least(1), default=4, metavar="F", help="1/F resolution (default 4)")
+    t.add_argument("--poses", default="given", choices=("given", "sfm"), help="given poses or our own SfM")
+    t.add_argument("--work-dir", metavar="DIR", help="cache for the SfM used for initial points")
+    t.add_argument("--max-gaussians", type=int_at_least(1000), default=150_000, metavar="N")
+    t.set_defaults(func=_train)
+
+    d = bench_sub.add_parser(
+        "datagen", help="demonstrations per minute on a workspace's world; JSON line last",
+        description="Generate N episodes R times into throw-away folders; the last stdout line is JSON with "
+        "demos_per_min (workers warm), success_rate, episodes, frames, workers, backend, ms_per_frame (medians).",
+    )  # fmt: skip
+    d.add_argument("-w", "--workspace", required=True, type=Path, help="workspace with world/world.yaml")
+    if full:
+        add_flags(d, datagen_config())
+    d.set_defaults(func=_datagen)
+
+
+def _render(args: argparse.Namespace) -> int:
+    from ..bench import bench_render
+
+    cfg = from_flags(RenderBenchConfig, args)
+    cfg = replace(cfg, backend=backend(cfg.backend))
+    cfg.validate()
+    threads = configure_threads()
+    info(f"bench render: {cfg.backend} backend, {threads} CPU thread(s)")
+    result = bench_render(cfg, log=info)
+    print(json.dumps(result), flush=True)  # machine-readable: always the last line on stdout
+    return 0
+
+
+def _train(args: argparse.Namespace) -> int:
+    from ..gaussians.bench_train import bench_train
+
+    configure_threads()
+    result = bench_train(
+        args.data, minutes=args.minutes, downscale=args.downscale, poses=args.poses, work_dir=args.work_dir,
+        max_gaussians=args.max_gaussians, progress=True,
+    )  # fmt: skip
+    keys = ("psnr_heldout", "ssim_heldout", "iterations", "gaussians", "minutes", "backend")
+    info(json.dumps(result.get("curve", []), separators=(",", ":")))
+    print(json.dumps({k: result[k] for k in keys}))
+    return 0
+
+
+def _datagen(args: argparse.Namespace) -> int:
+    from ..datagen import BENCH_KEYS, bench_datagen
+    from ..sim.tasks import parse_task
+    from ..workspace import Workspace
+    from ..world import load_world
+
+    cfg = from_flags(datagen_config(), args)
+    cfg.validate()
+    ws = Workspace(args.workspace)
+    world = load_world(ws.require(ws.world_yaml, "compose"))
+    task = parse_task(cfg.task[0], world)
+    result = bench_datagen(world, task, cfg.generation(), ws.datasets_dir, runs=cfg.runs, log=info)
+    info(json.dumps(result))
+    print(json.dumps({k: result[k] for k in BENCH_KEYS}))
+    return 0

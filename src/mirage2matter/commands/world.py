@@ -1,0 +1,151 @@
+"""``m2m world <edit>`` (insert, move, duplicate, delete, import-placement, match-lighting) and ``m2m task``
+(scripted task success rates in the twin): tools over a workspace's world/world.yaml."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from ..workspace import Workspace
+from .args import CliError, check_output, int_at_least, positive_float, show, xyz
+
+_EDITS = (
+    ("insert", "add an object from a Gaussian PLY + a mesh"),
+    ("move", "move an object (--to x,y,z or --by dx,dy,dz; --yaw about z)"),
+    ("duplicate", "copy an object under a new name (--as NAME --to x,y,z)"),
+    ("delete", "remove an object"),
+    ("import-placement", "take an object's placement from a PLY moved in SuperSplat"),
+    ("match-lighting", "shift an object's colours toward the scene's illumination"),
+    ("check", "recompose world.ply from world.yaml (after editing it by hand) and check every part"),
+)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    wo = sub.add_parser("world", help="edit world.yaml: insert, move, duplicate, delete, import-placement, ...")
+    wo_sub = wo.add_subparsers(dest="op", metavar="OP", required=True)
+    for op, text in _EDITS:
+        w = wo_sub.add_parser(op, help=text)
+        w.add_argument("-w", "--workspace", required=True, metavar="DIR")
+        if op == "check":
+            w.add_argument("--max-mm", type=positive_float,
+                           help="largest median Gaussian-to-mesh distance per part (mm; default: compose's max_mm)")
+            w.set_defaults(func=check_world)
+            continue
+        w.add_argument("--name", required=True)
+        if op in ("insert", "move", "duplicate"):
+            w.add_argument("--to", metavar="X,Y,Z", help="new origin in the base frame (m)")
+            w.add_argument("--yaw", type=float, default=0.0, help="turn about z (deg)")
+            w.add_argument("--scale", type=positive_float, help="placement scale (default: kept, or 1)")
+        if op == "move":
+            w.add_argument("--by", metavar="DX,DY,DZ", help="shift by (m)")
+        if op == "insert":
+            w.add_argument("--gaussians", required=True, metavar="PLY")
+            w.add_argument("--mesh", required=True, metavar="OBJ")
+            w.add_argument("--collision", metavar="DIR", help="convex parts (*.obj); computed when absent")
+            w.add_argument("--mass", type=positive_float, help="kg (default: density 500 kg/m^3)")
+        if op == "duplicate":
+            w.add_argument("--as", dest="as_name", required=True, metavar="NEW")
+        if op == "import-placement":
+            w.add_argument("--ply", required=True, help="the object's (or world.ply's) Gaussians, moved")
+        if op == "match-lighting":
+            w.add_argument("--strength", type=positive_float, default=1.0, help="0..1 of the full correction")
+            w.add_argument("--radius", type=positive_float, default=0.3, help="scene neighbourhood (m)")
+        w.set_defaults(func=edit_world)
+
+    ta = sub.add_parser("task", help="run scripted tasks on randomised starts in the Genesis twin -> summary.json")
+    ta.add_argument("-w", "--workspace", required=True, metavar="DIR", help="workspace with world/world.yaml")
+    ta.add_argument("task", nargs="+", help='e.g. "grasp banana" "press button" "push croissant --direction 0,1"')
+    ta.add_argument("--episodes", type=int_at_least(1), default=50, metavar="N", help="per task (default 50)")
+    ta.add_argument("--seed", type=int_at_least(0), default=0, help="first reset seed (default 0)")
+    ta.add_argument("--out", metavar="JSON", help="default <workspace>/world/task_summary.json")
+    ta.set_defaults(func=run_tasks)
+
+
+def _world(workspace: str):
+    from ..world import load_world
+
+    ws = Workspace(workspace)
+    return ws, load_world(ws.require(ws.world_yaml, "compose"))
+
+
+def edit_world(args: argparse.Namespace) -> int:
+    from ..world import edit, save_world
+    from ..world.compose import write_world_ply
+
+    _, cfg = _world(args.workspace)
+    op = args.op
+    if op == "delete":
+        new = edit.delete(cfg, args.name)
+    elif op == "import-placement":
+        new, sim = edit.import_placement(cfg, args.name, args.ply)
+        print(f"{args.name}: placement from {args.ply}: {sim}")
+    elif op == "match-lighting":
+        new, gain = edit.match_lighting(cfg, args.name, strength=args.strength, radius=args.radius)
+        print(f"{args.name}: colour gain r,g,b = {', '.join(f'{g:.3f}' for g in gain)}")
+    else:
+        base = None if op == "insert" else edit.placement_of(cfg, args.name)
+        if op == "move" and args.by:
+            d = xyz(args.by, "--by")
+            placement = edit.placement_from_pose(base.translation + d, args.yaw, base.scale, base)
+        else:
+            if not args.to:
+                raise CliError(f"`m2m world {op}` needs --to x,y,z")
+            scale = args.scale if args.scale else (base.scale if base is not None else 1.0)
+            placement = edit.placement_from_pose(xyz(args.to, "--to"), args.yaw, scale, base)
+        if op == "insert":
+            new = edit.insert(cfg, args.name, args.gaussians, args.mesh, placement, collision=args.collision,
+                              mass=args.mass)  # fmt: skip
+        elif op == "move":
+            new = edit.move(cfg, args.name, placement)
+        else:
+            new = edit.duplicate(cfg, args.name, args.as_name, placement)
+    save_world(new)
+    ply = write_world_ply(new)
+    print(f"{op} {args.name}: saved {show(new.root / 'world.yaml')}, recomposed {show(ply)}")
+    return 0
+
+
+def check_world(args: argparse.Namespace) -> int:
+    from ..stages import world as compose
+    from ..world.compose import consistency, write_world_ply
+
+    max_mm = compose.Config.max_mm if args.max_mm is None else args.max_mm
+    _, cfg = _world(args.workspace)
+    ply = write_world_ply(cfg)
+    cons = consistency(cfg)
+    print(f"world: {len(cfg.objects)} objects, {len(cfg.articulated)} articulated -> {show(ply)} (+ world.json)")
+    for name, d in cons.items():
+        print(f"  {name}: median Gaussian-to-mesh distance {1000 * d:.2f} mm")
+    worst = max(cons.values(), default=0.0)
+    if worst > max_mm / 1000:
+        raise CliError(f"an object's Gaussians and mesh disagree by {1000 * worst:.1f} mm (> {max_mm} mm)")
+    return 0
+
+
+def run_tasks(args: argparse.Namespace) -> int:
+    from ..atomic import atomic_write
+    from ..sim.tasks import evaluate, parse_task
+    from ..sim.twin import Twin, TwinOptions
+
+    ws, cfg = _world(args.workspace)
+    tasks = [parse_task(t, cfg) for t in args.task]  # unknown tasks / objects fail before Genesis starts
+    out = Path(args.out) if args.out else ws.task_summary
+    check_output(out, "--out", (".json",))
+    t0 = time.perf_counter()
+    twin = Twin.build(cfg, TwinOptions(render=False))
+    build_s = time.perf_counter() - t0
+    results = []
+    for task in tasks:
+        r = evaluate(twin, task, args.episodes, seed=args.seed, progress=True)
+        results.append(r)
+        print(
+            f"{task.instruction!r}: {r['successes']}/{r['episodes']} = {100 * r['success_rate']:.0f}% "
+            f"(mean {r['mean_sim_s']:.1f} s simulated, {r['mean_wall_s']:.2f} s wall per episode)"
+        )
+    summary = {"world": str(ws.world_yaml), "build_s": build_s, "seed": args.seed, "tasks": results}
+    with atomic_write(out, "w", encoding="utf-8") as f:
+        json.dump(summary, f, indent=1)
+    print(f"-> {show(out)}")
+    return 0

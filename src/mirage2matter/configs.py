@@ -1,0 +1,332 @@
+"""Typed config dataclasses as command-line flags and as YAML: a default lives once, in its Config.
+
+Every stage's Config is a dataclass whose fields carry the defaults and whose class docstring documents
+each field on a line of its own (``name   what it is``, continuation lines indented further). From that:
+
+- :func:`add_flags` adds one ``--field-name`` flag per field (nested dataclasses as ``--outer.field``) with
+  the field's doc and default in ``--help``; the flags default to *absent*, so :func:`from_flags` starts
+  from a base config (the Config's defaults, or the workspace's ``m2m.yaml``) and changes only what was
+  given. ``m2m <stage>``, ``m2m demo`` and ``m2m run`` therefore cannot drift apart.
+- :func:`from_dict` / :func:`to_dict` read and write the same fields as YAML-ready mappings: unknown keys
+  and wrong types are errors naming the field (``"no"`` is not a bool), paths are resolved against the
+  file's folder and written relative to it.
+
+Supported field types: bool, int, float, str, Path, ``X | None``, ``Literal[...]``, ``tuple[T, ...]`` /
+``list[T]`` (several values), fixed tuples ``tuple[T, T]`` (``a,b``), ``dict[str, T]`` (``NAME=VALUE``,
+repeatable) and nested dataclasses. Field metadata: ``{"positional": True}`` makes a field the command's
+optional positional argument; ``{"flag": False}`` keeps an internal field off the command line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import inspect
+import re
+import types
+import typing
+from pathlib import Path
+from typing import Any, Literal, Union
+
+from .errors import M2MError
+
+__all__ = ["ConfigError", "add_flags", "field_docs", "from_dict", "from_flags", "to_dict"]
+
+_DOC_LINE = re.compile(r"^(\w+)\s{2,}(\S.*)$")
+
+
+class ConfigError(M2MError, ValueError):
+    """A config value of the wrong type or an unknown key; the message names the field."""
+
+
+# ---- field documentation and types ------------------------------------------------------------------
+def field_docs(cls: type) -> dict[str, str]:
+    """{field: doc} from the class docstrings (a subclass's docs win over its bases')."""
+    names = {f.name for f in dataclasses.fields(cls)}
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        doc = klass.__dict__.get("__doc__")
+        if not doc or not dataclasses.is_dataclass(klass):
+            continue
+        current = None
+        for raw in inspect.cleandoc(doc).splitlines():
+            m = _DOC_LINE.match(raw)
+            if m and m.group(1) in names:
+                current = m.group(1)
+                docs[current] = m.group(2).strip()
+            elif current and raw.startswith(" ") and raw.strip():
+                docs[current] += " " + raw.strip()
+            else:
+                current = None
+    return docs
+
+
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def _unwrap_optional(tp: Any) -> tuple[Any, bool]:
+    if typing.get_origin(tp) in (Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if len(args) == 1:
+            return args[0], True
+    return tp, False
+
+
+def _scalar(tp: Any, value: Any, where: str) -> Any:
+    """``value`` (from YAML or a command-line word) as a ``tp``; ConfigError naming ``where`` otherwise."""
+    if typing.get_origin(tp) is Literal:
+        choices = typing.get_args(tp)
+        if value not in choices:
+            raise ConfigError(f"{where}: {value!r} is not one of {', '.join(map(str, choices))}")
+        return value
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+        raise ConfigError(f"{where}: expected true or false, got {value!r}")
+    if tp is int:
+        if isinstance(value, str):
+            try:
+                return int(value.replace("_", ""))
+            except ValueError:
+                pass
+        elif isinstance(value, int) and not isinstance(value, bool):
+            return value
+        raise ConfigError(f"{where}: expected an integer, got {value!r}")
+    if tp is float:
+        if isinstance(value, str):
+            try:
+                return float(value)
+            except ValueError:
+                pass
+        elif isinstance(value, int | float) and not isinstance(value, bool):
+            return float(value)
+        raise ConfigError(f"{where}: expected a number, got {value!r}")
+    if tp is str:
+        if isinstance(value, str):
+            return value
+        raise ConfigError(f"{where}: expected text, got {value!r}")
+    if tp is Path:
+        if isinstance(value, str | Path) and str(value):
+            return Path(value)
+        raise ConfigError(f"{where}: expected a path, got {value!r}")
+    raise TypeError(f"{where}: unsupported config field type {tp!r}")
+
+
+def _is_config(tp: Any) -> bool:
+    return isinstance(tp, type) and dataclasses.is_dataclass(tp)
+
+
+def _coerce(tp: Any, value: Any, where: str) -> Any:
+    """A YAML value (or parsed flag) of field type ``tp``."""
+    tp, optional = _unwrap_optional(tp)
+    if value is None:
+        if optional:
+            return None
+        raise ConfigError(f"{where}: a value is required (null given)")
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin in (tuple, list):
+        if isinstance(value, str) or not isinstance(value, list | tuple):
+            raise ConfigError(f"{where}: expected a list, got {value!r}")
+        if origin is tuple and not (len(args) == 2 and args[1] is Ellipsis):
+            if len(value) != len(args):
+                raise ConfigError(f"{where}: expected {len(args)} values, got {len(value)}")
+            return tuple(_coerce(a, v, f"{where}[{i}]") for i, (a, v) in enumerate(zip(args, value, strict=True)))
+        items = [_coerce(args[0], v, f"{where}[{i}]") for i, v in enumerate(value)]
+        return tuple(items) if origin is tuple else items
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where}: expected a mapping, got {value!r}")
+        return {_scalar(args[0], k, where): _coerce(args[1], v, f"{where}.{k}") for k, v in value.items()}
+    return _scalar(tp, value, where)
+
+
+# ---- YAML-ready mappings ---------------------------------------------------------------------------------
+def from_dict(cls: type, data: Any, where: str = "", base_dir: Path | None = None, base: Any = None) -> Any:
+    """A ``cls`` from a mapping (e.g. one section of ``m2m.yaml``): ``base`` (default ``cls()``) with the
+    given keys replaced. Relative paths resolve against ``base_dir``. ConfigError names the field."""
+    base = cls() if base is None else base
+    if data is None:
+        return base
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where or cls.__name__}: expected a mapping of settings, got {type(data).__name__}")
+    hints = _hints(cls)
+    known = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = [k for k in data if k not in known]
+    if unknown:
+        raise ConfigError(
+            f"{where or cls.__name__}: unknown setting(s) {', '.join(map(str, unknown))}; known: {', '.join(known)}"
+        )
+    changes = {}
+    for key, value in data.items():
+        field_where = f"{where}.{key}" if where else key
+        tp = hints[key]
+        inner, _ = _unwrap_optional(tp)
+        if _is_config(inner):
+            changes[key] = from_dict(inner, value, field_where, base_dir, getattr(base, key))
+            continue
+        v = _coerce(tp, value, field_where)
+        changes[key] = _resolve_paths(v, base_dir)
+    return dataclasses.replace(base, **changes)
+
+
+def _resolve_paths(value: Any, base_dir: Path | None) -> Any:
+    if base_dir is None:
+        return value
+    if isinstance(value, Path):
+        return value if value.is_absolute() else (base_dir / value).resolve()
+    if isinstance(value, tuple | list):
+        return type(value)(_resolve_paths(v, base_dir) for v in value)
+    if isinstance(value, dict):
+        return {k: _resolve_paths(v, base_dir) for k, v in value.items()}
+    return value
+
+
+def to_dict(cfg: Any, base_dir: Path | None = None) -> dict[str, Any]:
+    """A YAML-ready mapping of ``cfg`` (tuples as lists; paths relative to ``base_dir`` when below it)."""
+
+    def plain(v: Any) -> Any:
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            return {f.name: plain(getattr(v, f.name)) for f in dataclasses.fields(v)}
+        if isinstance(v, Path):
+            if base_dir is not None:
+                try:
+                    return str(v.resolve().relative_to(base_dir.resolve()))
+                except ValueError:
+                    pass
+            return str(v)
+        if isinstance(v, tuple | list):
+            return [plain(x) for x in v]
+        if isinstance(v, dict):
+            return {str(k): plain(x) for k, x in v.items()}
+        return v
+
+    return plain(cfg)
+
+
+# ---- command-line flags ---------------------------------------------------------------------------------
+def _flag(prefix: str, name: str, negate: bool = False) -> str:
+    """``--outer.field-name`` (``--outer.no-field-name`` when ``negate``)."""
+    return "--" + prefix.replace("_", "-") + ("no-" if negate else "") + name.replace("_", "-")
+
+
+class _Switch(argparse.Action):
+    """``--x.flag`` / ``--x.no-flag`` for a bool field (argparse's BooleanOptionalAction would say --no-x.flag)."""
+
+    def __init__(self, option_strings, dest, negative: str = "", **kw):
+        super().__init__([*option_strings, negative], dest, nargs=0, **kw)
+        self.negative = negative
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, option_string != self.negative)
+
+    def format_usage(self) -> str:
+        return " | ".join(self.option_strings)
+
+
+def _word_parser(tp: Any, where: str):
+    def parse(text: str) -> Any:
+        try:
+            return _scalar(tp, text, where)
+        except ConfigError as e:
+            raise argparse.ArgumentTypeError(str(e).split(": ", 1)[-1]) from None
+
+    parse.__name__ = getattr(tp, "__name__", "value")
+    return parse
+
+
+def _fixed_tuple_parser(args: tuple, where: str):
+    def parse(text: str) -> tuple:
+        parts = [p.strip() for p in text.split(",")]
+        if len(parts) != len(args):
+            raise argparse.ArgumentTypeError(f"expected {len(args)} comma-separated values, got {text!r}")
+        try:
+            return tuple(_scalar(a, p, where) for a, p in zip(args, parts, strict=True))
+        except ConfigError as e:
+            raise argparse.ArgumentTypeError(str(e).split(": ", 1)[-1]) from None
+
+    parse.__name__ = "values"
+    return parse
+
+
+def _key_value_parser(tp: Any, where: str):
+    def parse(text: str) -> tuple[str, Any]:
+        name, sep, value = text.partition("=")
+        if not sep or not name or not value:
+            raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+        try:
+            return name, _scalar(tp, value, where)
+        except ConfigError as e:
+            raise argparse.ArgumentTypeError(str(e).split(": ", 1)[-1]) from None
+
+    parse.__name__ = "NAME=VALUE"
+    return parse
+
+
+def _default_text(value: Any) -> str:
+    if isinstance(value, tuple | list):
+        return " ".join(map(str, value)) if value else "none"
+    if isinstance(value, dict):
+        return ", ".join(f"{k}={v}" for k, v in value.items()) or "none"
+    return "none" if value is None else str(value)
+
+
+def add_flags(parser: argparse.ArgumentParser, cls: type, prefix: str = "", base: Any = None) -> None:
+    """One flag per field of ``cls`` (recursively), documented from the docstring; ``base`` supplies the
+    defaults shown in ``--help`` (default: ``cls()``)."""
+    base = cls() if base is None else base
+    docs, hints = field_docs(cls), _hints(cls)
+    for f in dataclasses.fields(cls):
+        if f.metadata.get("flag", True) is False:
+            continue
+        tp, _ = _unwrap_optional(hints[f.name])
+        default = getattr(base, f.name)
+        if _is_config(tp):
+            add_flags(parser, tp, f"{prefix}{f.name}.", default)
+            continue
+        dest, where = prefix + f.name, _flag(prefix, f.name)
+        doc = docs.get(f.name, "")
+        help_text = f"{doc} (default: {_default_text(default)})".strip()
+        kw: dict[str, Any] = {"dest": dest, "default": argparse.SUPPRESS, "help": help_text.replace("%", "%%")}
+        origin, args = typing.get_origin(tp), typing.get_args(tp)
+        if tp is bool:
+            kw.update(action=_Switch, negative=_flag(prefix, f.name, negate=True))
+        elif typing.get_origin(tp) is Literal:
+            kw["choices"] = typing.get_args(tp)
+        elif origin in (tuple, list) and (origin is list or (len(args) == 2 and args[1] is Ellipsis)):
+            kw.update(nargs="*", type=_word_parser(args[0], where), metavar=f.name.upper().rstrip("S") or "V")
+        elif origin is tuple:
+            kw.update(type=_fixed_tuple_parser(args, where), metavar=",".join("V" * len(args)))
+        elif origin is dict:
+            kw.update(action="append", type=_key_value_parser(args[1], where), metavar="NAME=VALUE")
+        else:
+            kw.update(type=_word_parser(tp, where), metavar=f.name.upper())
+        if f.metadata.get("positional") and not prefix:
+            # absent -> None (argparse stores its SUPPRESS marker for an optional positional); from_flags skips it
+            kw.update(default=None, nargs="?")
+            parser.add_argument(dest, **{k: v for k, v in kw.items() if k not in ("metavar", "dest")})
+        else:
+            parser.add_argument(where, **kw)
+
+
+def from_flags(cls: type, ns: argparse.Namespace, base: Any = None, prefix: str = "") -> Any:
+    """``base`` (default ``cls()``) with the fields given on the command line replaced."""
+    base = cls() if base is None else base
+    hints = _hints(cls)
+    changes = {}
+    for f in dataclasses.fields(cls):
+        tp, _ = _unwrap_optional(hints[f.name])
+        if _is_config(tp):
+            changes[f.name] = from_flags(tp, ns, getattr(base, f.name), f"{prefix}{f.name}.")
+            continue
+        dest = prefix + f.name
+        if not hasattr(ns, dest) or (f.metadata.get("positional") and not prefix and getattr(ns, dest) is None):
+            continue
+        value = getattr(ns, dest)
+        origin = typing.get_origin(tp)
+        if origin is dict:
+            value = dict(value)
+        elif origin is tuple and isinstance(value, list):
+            value = tuple(value)
+        changes[f.name] = value
+    return dataclasses.replace(base, **changes)

@@ -1,0 +1,37 @@
+"""The pipeline's stages, in order: the only code besides ``workspace.py`` that knows workspace paths.
+
+Each stage is a :class:`~.base.Stage` here and a module (``Config``, ``inputs``, ``outputs``, ``run``,
+optionally ``compare``) imported on first use; ``m2m <stage>``, ``m2m demo`` and ``m2m run`` all go through
+:func:`~.base.run_stage`. :class:`~.pipeline.PipelineConfig` composes the Configs (a workspace's ``m2m.yaml``).
+"""
+
+from __future__ import annotations
+
+from ..errors import M2MError
+from .base import Input, Stage, run_stage
+
+__all__ = ["STAGES", "Input", "Stage", "get_stage", "run_stage"]
+
+STAGES: tuple[Stage, ...] = (
+    Stage("capture", "capture", "pick keyframes (sharpness + parallax) from a video or an image folder", "capture"),
+    Stage("sfm", "sfm", "camera poses and points of the keyframes (COLMAP SfM), or imported ones", "sfm"),
+    Stage("align", "align-scene", "the SfM scene in the robot-base frame, metric, via the ChArUco board", "align"),
+    Stage("handeye", "calibrate-handeye", "the camera's mount from board images + the robot's joint angles",
+          "handeye"),  # fmt: skip
+    Stage("scene", "train-scene", "scene 3D Gaussian Splatting from the posed keyframes", "scene"),
+    Stage("head_view", "head-view", "the scene through the calibrated head camera, against a head photo",
+          "head_view"),  # fmt: skip
+    Stage("objects", "objects", "per object: masks, object 3DGS, watertight mesh + collision parts, aligned",
+          "objects"),  # fmt: skip
+    Stage("world", "compose", "the world (robot, cameras, scene, objects) and its one Gaussian world.ply",
+          "world"),  # fmt: skip
+    Stage("generate", "generate", "demonstrations of tasks in the world -> LeRobot datasets", "generate"),
+)
+
+
+def get_stage(name: str) -> Stage:
+    """The stage of that name (pipeline.json / m2m.yaml key) or command (``train-scene``)."""
+    for s in STAGES:
+        if name in (s.name, s.command):
+            return s
+    raise M2MError(f"unknown stage {name!r}; stages: {', '.join(s.name for s in STAGES)}")

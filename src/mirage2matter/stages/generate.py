@@ -1,0 +1,89 @@
+"""Stage ``generate``: scripted demonstrations of each task in the workspace's world, rendered as hybrid
+frames (splats + the simulated robot) and written as LeRobot datasets -> ``datasets/<task>/``, each checked
+by the independent reader (``m2m validate``). A killed run resumes at the episode it was on."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from ..datagen import GenerateConfig, GenerateError, task_slug
+from ..workspace import Workspace
+from .base import Input, Log
+
+
+@dataclass
+class Config:
+    """generate settings.
+
+    task         one or more task instructions, e.g. "grasp banana", "press button",
+                 "push croissant --direction 0,1 --distance 0.1"
+    episodes     successful episodes wanted per task
+    workers      parallel workers (local processes, or Ray actors with ray_address)
+    ray_address  run the workers on Ray: auto, host:port, or local (a private Ray instance)
+    format       dataset format (lerobot-v2.1 for openpi)
+    seed         run seed: the same seed gives the same episodes
+    size         square frame side of every camera (pixels)
+    fps          control and video rate (Hz)
+    out          dataset folder (one task only; default <workspace>/datasets/<task>)
+    """
+
+    task: tuple[str, ...] = ()
+    episodes: int = 50
+    workers: int = GenerateConfig.workers
+    ray_address: str | None = None
+    format: Literal["lerobot-v3.0", "lerobot-v2.1"] = GenerateConfig.format
+    seed: int = GenerateConfig.seed
+    size: int = GenerateConfig.size[0]
+    fps: int = GenerateConfig.fps
+    out: Path | None = field(default=None)
+
+    def validate(self) -> None:
+        if not self.task:
+            raise GenerateError('generate: no task; give one or more, e.g. --task "grasp banana"')
+        if self.out is not None and len(self.task) != 1:
+            raise GenerateError("generate: out names one dataset folder; give one task with it")
+        if self.episodes < 1 or self.workers < 1 or self.size < 2 or self.fps < 1:
+            raise GenerateError("generate: episodes, workers and fps must be >= 1, size >= 2")
+
+    def generation(self) -> GenerateConfig:
+        return GenerateConfig(
+            episodes=self.episodes, workers=self.workers, ray_address=self.ray_address, format=self.format,
+            seed=self.seed, size=(self.size, self.size), fps=self.fps,
+        )  # fmt: skip
+
+
+def inputs(ws: Workspace, cfg: Config) -> list[Input]:
+    return [Input(ws.world_yaml, made_by="compose")]
+
+
+def _dataset_dir(ws: Workspace, cfg: Config, task: str) -> Path:
+    return cfg.out if cfg.out is not None else ws.dataset_dir(task_slug(task))
+
+
+def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
+    from ..datagen import generate
+    from ..export.validate import validate
+    from ..sim.tasks import parse_task
+    from ..world import load_world
+
+    world = load_world(ws.world_yaml)
+    tasks = [parse_task(text, world) for text in cfg.task]  # every task checked before any generation
+    per_task, lines = {}, []
+    for text, task in zip(cfg.task, tasks, strict=True):
+        s = generate(world, task, _dataset_dir(ws, cfg, text), cfg.generation(), log=log)
+        problems = validate(s["dataset"])
+        per_task[text] = {**s, "validation_problems": problems}
+        rate = s.get("success_rate")
+        lines.append(
+            f"{text!r}: {s.get('episodes')} episodes"
+            + ("" if rate is None else f", success {100 * rate:.0f}%")
+            + (f", {s.get('demos_per_min')} demos/min" if s.get("demos_per_min") else "")
+            + (", valid" if not problems else f", {len(problems)} PROBLEMS")
+        )
+    return {"tasks": per_task, "details": lines, "line": "; ".join(lines)}
+
+
+def outputs(ws: Workspace, cfg: Config) -> list[Path]:
+    return [_dataset_dir(ws, cfg, t) / "meta" / "info.json" for t in cfg.task]

@@ -1,0 +1,71 @@
+"""Stage ``head_view``: the scene rendered through the calibrated head camera, compared with a photo the
+head camera took (PSNR, board corners) -> ``calib/head_view.png`` + ``head_view.json``. A wrong scale,
+alignment or hand-eye shows up as pixels of offset."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from ..workspace import Workspace, WorkspaceError
+from .base import Input, Log
+
+
+@dataclass
+class Config:
+    """head-view settings.
+
+    photo     an image the head camera took of the same scene (without one: the render alone)
+    backend   renderer: auto (cuda when available), cpu, cuda
+    """
+
+    photo: Path | None = None
+    backend: Literal["auto", "cpu", "cuda"] = "auto"
+
+
+def inputs(ws: Workspace, cfg: Config) -> list[Input]:
+    out = [Input(ws.scene_ply, made_by="train-scene"), Input(ws.handeye_file, made_by="calibrate-handeye"),
+           Input(ws.alignment_file, made_by="align-scene")]  # fmt: skip
+    return out + ([Input(Path(cfg.photo), field="head-view photo")] if cfg.photo is not None else [])
+
+
+def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
+    from PIL import Image
+
+    from ..calib.board import BoardSpec
+    from ..calib.headview import check_head_view, save_head_view
+    from ..gaussians.ply import read_ply
+    from ..geometry.camera import Camera
+
+    he, al = json.loads(ws.handeye_file.read_text()), json.loads(ws.alignment_file.read_text())
+    if he.get("mount") != "head":
+        raise WorkspaceError(f"{ws.handeye_file}: mount is {he.get('mount')!r}; the head-view check needs a head "
+                             "camera (`m2m calibrate-handeye --mount head`)")  # fmt: skip
+    photo = np.asarray(Image.open(cfg.photo).convert("RGB")) if cfg.photo is not None else None
+    width, height = he.get("width"), he.get("height")
+    if width is None:
+        if photo is None:
+            raise WorkspaceError(f"{ws.handeye_file} has no image size; give a head-camera photo (--photo)")
+        height, width = photo.shape[:2]
+    if photo is not None and photo.shape[:2] != (height, width):
+        raise WorkspaceError(f"{cfg.photo} is {photo.shape[1]}x{photo.shape[0]} but the head camera is "
+                             f"{width}x{height}; give a photo the head camera took")  # fmt: skip
+    cam = Camera(he["K"], he["T_base_headcam"], width, height, "head")
+    check = check_head_view(read_ply(ws.scene_ply), cam, photo, BoardSpec.from_json(al["board"]),
+                            np.asarray(al["T_base_board"]), backend=cfg.backend)  # fmt: skip
+    save_head_view(ws.head_view_png, check, photo)
+    known, seen = check.corners_vs_known_px, check.corners_vs_photo_px
+    parts = [] if check.psnr is None else [f"PSNR {check.psnr:.2f} dB vs the photo"]
+    if known.get("n"):
+        parts.append(f"board corners {known['median']:.2f} px (median, {known['n']}) from the board's known pose")
+    if seen.get("n"):
+        parts.append(f"{seen['median']:.2f} px from the photo's")
+    return {**check.to_json(), "line": "; ".join(parts) or "rendered (the board is not seen in the render)"}
+
+
+def outputs(ws: Workspace, cfg: Config) -> list[Path]:
+    return [ws.head_view_file]

@@ -1,0 +1,64 @@
+"""Stage ``objects``: per object found on the table, masks -> object 3DGS -> watertight mesh + convex
+collision parts -> alignment, in one object frame -> ``objects/<name>/`` (see ``objects.reconstruct``) and
+``objects/summary.json``. An object whose ``align.json`` was written from the same config and points is
+kept, so a killed run resumes at the object it was on."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from ..atomic import atomic_write
+from ..objects import ObjectsError
+from ..objects.reconstruct import ObjectsConfig, find_targets, load_keyframes_rgb, process_object, target_fingerprint
+from ..workspace import Workspace
+from .base import Input, Log
+
+Config = ObjectsConfig
+
+
+def inputs(ws: Workspace, cfg: Config) -> list[Input]:
+    out = [Input(ws.cameras_base_file, made_by="align-scene"), Input(ws.points_base_file, made_by="align-scene"),
+           Input(ws.keyframes_file, made_by="capture")]  # fmt: skip
+    files = [(cfg.masks, "objects masks"), (cfg.sam2_checkpoint, "objects sam2_checkpoint")]
+    files += [(p, f"objects mesh {name}") for name, p in cfg.mesh.items()]
+    return out + [Input(Path(p), field=what) for p, what in files if p is not None]
+
+
+def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
+    posed = ws.posed_capture(frame="base")
+    images = load_keyframes_rgb(posed.cameras, posed.image_dir)
+    _, targets = find_targets(cfg, posed.cameras, posed.points)
+    unknown = set(cfg.mesh) - {t.name for t in targets}
+    if unknown:
+        names = [t.name for t in targets]
+        raise ObjectsError(f"mesh for {', '.join(sorted(unknown))}: no such object (objects: {names})")
+    out: dict[str, Any] = {}
+    for target in targets:
+        folder = ws.object_dir(target.name)
+        done = folder / "align.json"
+        if done.is_file():
+            previous = json.loads(done.read_text())
+            if previous.get("fingerprint") == target_fingerprint(cfg, target):
+                log(f"{target.name}: up to date, skipped")
+                out[target.name] = previous
+                continue
+        out[target.name] = process_object(target, cfg, posed.cameras, images, folder, log, progress=True)
+    keep = ("sim3_obj_to_base", "mesh", "gaussians")
+    with atomic_write(ws.objects_summary, "w", encoding="utf-8") as f:
+        json.dump({k: {kk: v[kk] for kk in keep if kk in v} for k, v in out.items()}, f, indent=1, default=str)
+    lines = []
+    for name, s in out.items():
+        held = s["gaussians"]["heldout"]
+        lines.append(
+            f"{name}: mesh {s['mesh']['volume'] * 1e6:.1f} cm3, {s['mesh']['mass'] * 1000:.0f} g, watertight "
+            f"{s['mesh']['watertight']}, {s['collision']['parts']} convex parts; 3DGS masked PSNR "
+            f"{held['psnr_masked']:.2f} dB, alpha outside {held['alpha_outside']:.3f}; Gaussians to mesh "
+            f"{1000 * s['alignment']['median_distance_to_mesh_m']:.2f} mm (median)"
+        )
+    return {"objects": out, "details": lines, "line": f"{len(out)} objects: {', '.join(sorted(out))}"}
+
+
+def outputs(ws: Workspace, cfg: Config) -> list[Path]:
+    return [ws.objects_summary]

@@ -1,0 +1,117 @@
+"""Stage ``world`` (``m2m compose``): the world of the reconstruction -> ``world/`` (world.yaml with the
+robot, the calibrated cameras, the scene without the objects, the placed objects and press buttons; one
+Gaussian ``world.ply``), checked: every part's Gaussians must lie on its mesh. With ``sample`` the world is
+the sample's ground truth instead (a stand-in to try the twin without reconstructing)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..robots import DEFAULT_ROBOT
+from ..workspace import Workspace
+from ..world.config import CameraConfig, RandomizeConfig, RobotConfig, WorldConfigError
+from ..world.reconstruction import ReconstructionOptions
+from .base import Input, Log
+
+
+@dataclass
+class Config:
+    """compose settings.
+
+    robot             the robot at the base origin (a name from `mirage2matter.robots`)
+    buttons           reconstructed objects that are press buttons (names with "button" always are)
+    crop_margin       scene Gaussians this close (m) to an object's mesh are removed
+    means_margin      scene Gaussians this close (m) to an object's own opaque Gaussians are removed too
+    fill_spacing      m between the flat Gaussians filling the table under each object (0: no fill)
+    snap_to_table     rest each object's lowest collision vertex on the table
+    button_travel     press button travel (m)
+    button_stiffness  the button's spring (N/m)
+    randomize         where the twin may put objects at each reset
+    max_mm            largest accepted median distance (mm) from a part's opaque Gaussians to its mesh
+    sample            build the world from this sample's ground truth instead of the reconstruction
+    """
+
+    robot: str = DEFAULT_ROBOT
+    buttons: tuple[str, ...] = ()
+    crop_margin: float = ReconstructionOptions.crop_margin
+    means_margin: float = ReconstructionOptions.means_margin
+    fill_spacing: float = ReconstructionOptions.fill_spacing
+    snap_to_table: bool = ReconstructionOptions.snap_to_table
+    button_travel: float = ReconstructionOptions.button_travel
+    button_stiffness: float = ReconstructionOptions.button_stiffness
+    randomize: RandomizeConfig = field(default_factory=RandomizeConfig)
+    max_mm: float = 3.0
+    sample: Path | None = None
+
+    def options(self) -> ReconstructionOptions:
+        shared = {f.name for f in fields(ReconstructionOptions)} & {f.name for f in fields(self)} - {"robot"}
+        return ReconstructionOptions(robot=RobotConfig(name=self.robot), **{k: getattr(self, k) for k in shared})
+
+
+def _object_dirs(ws: Workspace) -> dict[str, Path]:
+    names = list(json.loads(ws.objects_summary.read_text())) if ws.objects_summary.is_file() else []
+    if not names:
+        raise WorldConfigError(f"{ws.objects_dir}: no reconstructed objects; run `m2m objects -w {ws.root}` first")
+    for name in names:
+        for f in ("align.json", "mesh.obj", "gaussians.ply"):
+            if not (ws.object_dir(name) / f).is_file():
+                raise WorldConfigError(f"{ws.object_dir(name) / f} not found: object {name!r} is incomplete; run "
+                                       f"`m2m objects -w {ws.root}` again")  # fmt: skip
+    return {n: ws.object_dir(n) for n in names}
+
+
+def _head_camera(ws: Workspace) -> CameraConfig:
+    data = json.loads(ws.handeye_file.read_text())
+    missing = [k for k in ("T_base_headcam", "K", "width", "height") if k not in data]
+    if missing:
+        raise WorldConfigError(
+            f"{ws.handeye_file}: no {', '.join(missing)} (a head-camera calibration records T_base_headcam, K and "
+            f"the image size); rerun `m2m calibrate-handeye --mount head ... -w {ws.root}`"
+        )
+    T, K = np.asarray(data["T_base_headcam"], np.float64), np.asarray(data["K"], np.float64)
+    if T.shape != (4, 4) or K.shape != (3, 3):
+        raise WorldConfigError(f"{ws.handeye_file}: T_base_headcam must be 4x4 and K 3x3")
+    return CameraConfig("base", T, K, int(data["width"]), int(data["height"]))
+
+
+def inputs(ws: Workspace, cfg: Config) -> list[Input]:
+    if cfg.sample is not None:
+        optional = [Input(p) for p in (ws.handeye_file, ws.scene_ply) if p.is_file()]
+        truth = [Input(Path(cfg.sample) / n, field="compose sample") for n in ("ground_truth.json", "gt")]
+        return truth + optional
+    return [Input(ws.handeye_file, made_by="calibrate-handeye"), Input(ws.scene_ply, made_by="train-scene"),
+            Input(ws.objects_summary, made_by="objects")]  # fmt: skip
+
+
+def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
+    from ..world import sample_world, save_world, world_from_reconstruction
+    from ..world.compose import consistency, write_world_ply
+
+    if cfg.sample is not None:  # the sample's ground truth, over the workspace's scene and head camera if it has them
+        he = json.loads(ws.handeye_file.read_text()) if ws.handeye_file.is_file() else {}
+        T = np.asarray(he["T_base_headcam"], np.float64) if "T_base_headcam" in he else None
+        scene = ws.scene_ply if ws.scene_ply.is_file() else None
+        world = sample_world(cfg.sample, ws.world_dir, scene_ply=scene, T_base_headcam=T, overwrite=True)
+    else:
+        world = world_from_reconstruction(ws.world_dir, _head_camera(ws), ws.scene_ply, _object_dirs(ws),
+                                          cfg.options(), log)  # fmt: skip
+    save_world(world)
+    write_world_ply(world)
+    cons = {k: 1000 * v for k, v in consistency(world).items()}
+    worst = max(cons.values(), default=0.0)
+    details = [f"{name}: median Gaussian-to-mesh distance {d:.2f} mm" for name, d in cons.items()]
+    if worst > cfg.max_mm:
+        raise WorldConfigError(f"an object's Gaussians and mesh disagree by {worst:.1f} mm (> max_mm {cfg.max_mm}); "
+                               "check objects/<name>/figure.png")  # fmt: skip
+    return {"consistency_mm": cons, "details": details,
+            "line": f"{len(world.objects)} objects, {len(world.articulated)} articulated; Gaussians vs meshes "
+                    f"<= {worst:.2f} mm (median per part)"}  # fmt: skip
+
+
+def outputs(ws: Workspace, cfg: Config) -> list[Path]:
+    return [ws.world_yaml]
