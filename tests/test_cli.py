@@ -253,9 +253,9 @@ def test_bench_cuda_without_gpu_is_a_clear_error(capsys: pytest.CaptureFixture) 
 
 # ---- m2m demo ------------------------------------------------------------------------------------------------
 def test_demo_first_stages_and_resume(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
-    """The demo's first stages on the sample (the whole run is tests/test_demo_full.py, slow)."""
+    """The demo's first stages on the sample (the whole run is `make demo`)."""
     ws = tmp_path / "ws"
-    args = ["demo", "-w", str(ws), "--keyframes", "16", "--stop-after", "handeye"]
+    args = ["demo", "-w", str(ws), "--capture.max-keyframes", "16", "--until", "handeye"]
     assert main(args) == 0
     out, err = capsys.readouterr()
     s = json.loads((ws / "demo_summary.json").read_text())
@@ -268,23 +268,29 @@ def test_demo_first_stages_and_resume(tmp_path: Path, capsys: pytest.CaptureFixt
     assert "[4/4] handeye:" in err and "m2m demo finished" in out
     for rel in ("capture/keyframes.json", "sfm/sfm.json", "calib/sim3_sfm_to_base.json", "calib/handeye.json"):
         assert (ws / rel).is_file(), rel
+    assert "max_keyframes: 16" in (ws / "m2m.yaml").read_text()  # the settings it ran with
 
     # a rerun resumes: finished stages are skipped, not redone
     assert main(args) == 0
     err = capsys.readouterr().err
     assert err.count("done earlier") == 4
-    # a changed setting reruns that stage and everything after it
-    assert main(["demo", "-w", str(ws), "--keyframes", "12", "--stop-after", "sfm"]) == 0
+    # a changed setting reruns that stage, and the next because its input changed
+    assert main(["demo", "-w", str(ws), "--capture.max-keyframes", "12", "--until", "sfm"]) == 0
     err = capsys.readouterr().err
     assert err.count("done earlier") == 0 and "12 keyframes" in err
-    assert json.loads((ws / "pipeline.json").read_text()).keys() == {"capture", "sfm"}  # later records dropped
+    # a stage command on the demo's workspace uses the demo's settings (m2m.yaml): align is up to date only after
+    # it ran on the new SfM
+    assert main(["align-scene", "-w", str(ws)]) == 0
+    assert "up to date" not in capsys.readouterr().out
+    assert main(["align-scene", "-w", str(ws)]) == 0
+    assert "up to date" in capsys.readouterr().out
 
 
 def test_demo_workspace_is_a_file(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     f = tmp_path / "ws"
     f.write_text("not a folder")
     assert main(["demo", "-w", str(f)]) == 2
-    assert "ws" in capsys.readouterr().err
+    assert "not a folder" in capsys.readouterr().err
 
 
 # ---- the installed entry points ------------------------------------------------------------------------------
@@ -303,11 +309,8 @@ def test_entry_points_and_light_import() -> None:
 
 
 @pytest.mark.slow
-def test_bench_train_on_fox_prints_json_last(capsys: pytest.CaptureFixture) -> None:
-    fox = Path(__file__).resolve().parents[2] / "shared" / "data" / "fox"
-    if not (fox / "transforms.json").is_file():
-        pytest.skip(f"real data not present: {fox} (the fox capture lives in ../shared/data)")
-    assert main(["bench", "train", "--data", str(fox), "--minutes", "1", "--downscale", "8"]) == 0
+def test_bench_train_on_fox_prints_json_last(fox_dir: Path, capsys: pytest.CaptureFixture) -> None:
+    assert main(["bench", "train", "--data", str(fox_dir), "--minutes", "1", "--downscale", "8"]) == 0
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert set(result) == {"psnr_heldout", "ssim_heldout", "iterations", "gaussians", "minutes", "backend"}
     assert result["psnr_heldout"] > 18.0 and result["iterations"] > 50

@@ -2,13 +2,11 @@
 capture -> sfm (calibrated intrinsics) -> align-scene -> calibrate-handeye -> train-scene -> head-view."""
 
 import json
-from pathlib import Path
 
 import pytest
 
+from fixtures import SAMPLE
 from mirage2matter.cli import main
-
-SAMPLE = Path(__file__).resolve().parents[1] / "samples" / "tabletop"
 
 
 @pytest.mark.slow

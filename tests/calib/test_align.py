@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from fixtures import SAMPLE
 from mirage2matter.calib.align import AlignError, align_scene, apply_to_cameras
 from mirage2matter.calib.board import BoardSpec
 from mirage2matter.capture import CaptureConfig, extract_keyframes
@@ -18,8 +19,6 @@ from mirage2matter.geometry.sim3 import Sim3
 from mirage2matter.geometry.umeyama import umeyama
 from mirage2matter.sfm import SfMConfig, run_sfm
 from mirage2matter.sfm.known_poses import with_fixed_intrinsics
-
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
 
 
 def test_pose_update_keeps_every_pixel_where_it_was():

@@ -1,20 +1,18 @@
 """The head-camera check: a splatted ChArUco board at its known pose, seen through the head camera."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 from PIL import Image
 
+from fixtures import SAMPLE
 from mirage2matter.calib.board import BoardSpec, board_image_to_board_frame
 from mirage2matter.calib.headview import check_head_view
 from mirage2matter.gaussians.model import Gaussians
 from mirage2matter.gaussians.sh import rgb_to_sh_dc
 from mirage2matter.geometry.camera import Camera
-
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
 
 
 def board_gaussians(board: BoardSpec, T_base_board: np.ndarray, pps: int = 60) -> Gaussians:

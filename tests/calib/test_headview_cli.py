@@ -14,7 +14,7 @@ from mirage2matter.gaussians.ply import write_ply
 sys.path.insert(0, str(Path(__file__).parent))
 from test_headview import board_gaussians  # noqa: E402
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+from fixtures import SAMPLE
 
 
 @pytest.mark.skipif(not (SAMPLE / "ground_truth.json").is_file(), reason="samples/tabletop not built")

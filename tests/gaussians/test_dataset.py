@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from fixtures import SAMPLE
 from mirage2matter.gaussians.dataset import (
     DatasetError,
     build_views,
@@ -20,7 +20,7 @@ from mirage2matter.gaussians.dataset import (
 )
 from mirage2matter.geometry.camera import Camera
 
-TABLETOP = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
+TABLETOP = SAMPLE
 
 
 def _camera(w: int = 320, h: int = 240, f: float = 200.0, **distortion: float) -> Camera:

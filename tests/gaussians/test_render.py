@@ -13,9 +13,10 @@ import torch
 from render_helpers import intrinsics, look_at, psnr
 from scipy.spatial.transform import Rotation
 
+from fixtures.gaussians import random_gaussians
 from mirage2matter.gaussians.model import Gaussians
-from mirage2matter.gaussians.render import render
-from mirage2matter.gaussians.synthetic import orbit_cameras, random_gaussians, tabletop_scene
+from mirage2matter.gaussians.render import BackendError, render
+from mirage2matter.gaussians.synthetic import orbit_cameras, tabletop_scene
 
 BG = torch.tensor([0.2, 0.5, 0.8])
 PARAMS = ("means", "quats", "log_scales", "logit_opacities", "sh")
@@ -368,7 +369,7 @@ def test_environment_variable_overrides_auto(monkeypatch):
 def test_cuda_backend_without_cuda_says_use_cpu(monkeypatch):
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     g, V, K = _tiny()
-    with pytest.raises(RuntimeError, match="cpu"):
+    with pytest.raises(BackendError, match="cpu"):
         render(g, V, K, 16, 12, backend="cuda")
     # and "auto" then falls back to the CPU rasterizer, which agrees with the reference
     monkeypatch.delenv("M2M_RENDER_BACKEND", raising=False)

@@ -8,9 +8,10 @@ import pytest
 import torch
 from render_helpers import intrinsics, look_at, psnr
 
+from fixtures.gaussians import random_gaussians
 from mirage2matter.gaussians.model import Gaussians
 from mirage2matter.gaussians.render import render
-from mirage2matter.gaussians.synthetic import orbit_cameras, random_gaussians, tabletop_scene
+from mirage2matter.gaussians.synthetic import orbit_cameras, tabletop_scene
 
 
 def _why_no_gsplat_cuda() -> str | None:

@@ -16,9 +16,9 @@ import torch
 from render_helpers import intrinsics as _intrinsics
 from render_helpers import look_at, psnr
 
+from fixtures.gaussians import random_gaussians
 from mirage2matter.gaussians.model import Gaussians
 from mirage2matter.gaussians.render import render
-from mirage2matter.gaussians.synthetic import random_gaussians
 from mirage2matter.gaussians.transform import apply_sim3
 from mirage2matter.geometry.rotation import axis_angle_to_matrix
 from mirage2matter.geometry.sim3 import Sim3

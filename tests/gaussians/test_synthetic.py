@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 import torch
 
+from fixtures.gaussians import random_gaussians
 from mirage2matter.gaussians import Gaussians
 from mirage2matter.gaussians.synthetic import (
     ROOM_MAX,
@@ -12,7 +13,6 @@ from mirage2matter.gaussians.synthetic import (
     TABLE_ROI_MIN,
     TABLE_TOP_Z,
     orbit_cameras,
-    random_gaussians,
     tabletop_scene,
 )
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fixtures import FOX
 from mirage2matter.geometry.camera import (
     Camera,
     CameraFormatError,
@@ -19,7 +20,6 @@ from mirage2matter.geometry.camera import (
     save_camera_json,
 )
 
-FOX = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "fox"
 K0 = np.array([[500.0, 0.0, 320.0], [0.0, 480.0, 240.0], [0.0, 0.0, 1.0]])
 
 

@@ -132,12 +132,15 @@ def test_sam2_without_package_or_checkpoint_says_what_to_do(tmp_path):
     reason="SAM2 runs only with the sam2 package and a local checkpoint in M2M_SAM2_CHECKPOINT (nothing is downloaded)",
 )
 def test_sam2_masks_on_the_sample(tmp_path):
-    from mirage2matter.objects.stage import ObjectsConfig, _targets, load_workspace
-    from mirage2matter.sample.workspace import ground_truth_workspace
+    from fixtures.ground_truth_workspace import ground_truth_workspace
+    from mirage2matter.objects.reconstruct import ObjectsConfig, find_targets, load_keyframes_rgb
+    from mirage2matter.workspace import Workspace
 
     ground_truth_workspace(tmp_path, n_keyframes=12)
-    cams, images, points = load_workspace(tmp_path)
-    _, targets = _targets(ObjectsConfig(names=["banana"]), cams, points)
+    posed = Workspace(tmp_path).posed_capture(frame="base")
+    cams, points = posed.cameras, posed.points
+    images = load_keyframes_rgb(cams, posed.image_dir)
+    _, targets = find_targets(ObjectsConfig(names=["banana"]), cams, points)
     res = Sam2Masks(Path(os.environ["M2M_SAM2_CHECKPOINT"])).masks(targets[0], cams, images)
     areas = [m.sum() for m in res.masks if m is not None]
     assert len(areas) >= 6 and min(areas) > 100

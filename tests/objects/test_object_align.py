@@ -4,17 +4,15 @@ object frame sits at the bottom centre with z up."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
 
+from fixtures import SAMPLE
 from mirage2matter.geometry.rotation import axis_angle_to_matrix, rotation_angle
 from mirage2matter.geometry.sim3 import Sim3
 from mirage2matter.objects.align import align_points_to_mesh, distance_to_mesh, object_frame
-
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
 
 
 def _gt(name: str) -> tuple[trimesh.Trimesh, np.ndarray]:

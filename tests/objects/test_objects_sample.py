@@ -16,6 +16,8 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
+from fixtures import SAMPLE
+from fixtures.ground_truth_workspace import ground_truth_workspace
 from mirage2matter.cli import main
 from mirage2matter.gaussians.ply import read_ply
 from mirage2matter.geometry.camera import Camera
@@ -23,12 +25,18 @@ from mirage2matter.geometry.rotation import axis_angle_to_matrix, rotation_angle
 from mirage2matter.geometry.sim3 import Sim3
 from mirage2matter.objects import ObjectsError
 from mirage2matter.objects.matting import MattingConfig
+from mirage2matter.objects.reconstruct import ObjectsConfig
 from mirage2matter.objects.splat import SplatConfig
-from mirage2matter.objects.stage import ObjectsConfig, run_objects
-from mirage2matter.sample.workspace import ground_truth_workspace
+from mirage2matter.stages import get_stage, run_stage
+from mirage2matter.workspace import Workspace, WorkspaceError
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
 GT = json.loads((SAMPLE / "ground_truth.json").read_text()) if (SAMPLE / "ground_truth.json").is_file() else None
+
+
+def run_objects(ws: Path, cfg: ObjectsConfig) -> dict:
+    """The objects stage as `m2m objects` runs it; {name: summary}."""
+    summary, _ = run_stage(get_stage("objects"), Workspace(ws), cfg, log=lambda s: None)
+    return summary["objects"]
 
 
 def gt_mesh_base(name: str) -> trimesh.Trimesh:
@@ -136,7 +144,7 @@ def test_bad_inputs_are_clear_errors(small_ws, tmp_path):
     bad = tmp_path / "banana.glb"
     bad.write_bytes(b"glTF\x02\x00\x00\x00garbage")
     with pytest.raises(ObjectsError, match=r"'banana'.*banana\.glb.*does not parse"):
-        run_objects(small_ws, ObjectsConfig(names=["banana"], meshes={"banana": str(bad)}, **SMALL))
+        run_objects(small_ws, ObjectsConfig(names=["banana"], mesh={"banana": bad}, **SMALL))
     assert main(["objects", "-w", str(small_ws), "--names", "banana", "--mesh", f"banana={bad}"]) == 2
 
     with pytest.raises(ObjectsError, match=r"'banana' is seen in only \d+ keyframe"):
@@ -150,7 +158,7 @@ def test_bad_inputs_are_clear_errors(small_ws, tmp_path):
     np.save(empty / "calib" / "points_base.npy", pts[pts[:, 2] < 0.003])  # the table, no objects
     with pytest.raises(ObjectsError, match="no object found"):
         run_objects(empty, ObjectsConfig(**SMALL))
-    with pytest.raises(ObjectsError, match="align-scene"):
+    with pytest.raises(WorkspaceError, match="run `m2m align-scene"):
         run_objects(tmp_path / "nothing_here", ObjectsConfig(**SMALL))
 
 
@@ -198,7 +206,7 @@ def test_must_show_user_mesh_recovered(full_ws, tmp_path):
     ws = tmp_path / "ws"
     shutil.copytree(full_ws / "capture", ws / "capture")
     shutil.copytree(full_ws / "calib", ws / "calib")
-    out = run_objects(ws, ObjectsConfig(names=["banana"], meshes={"banana": str(path)}))
+    out = run_objects(ws, ObjectsConfig(names=["banana"], mesh={"banana": path}))
     a = out["banana"]
     mesh_to_base = Sim3.from_json(a["sim3_obj_to_base"]) @ Sim3.from_json(a["sim3_mesh_input_to_obj"])
     expected = Sim3.from_matrix(np.asarray(objs["banana"]["T_base_obj"])) @ wrong.inverse()

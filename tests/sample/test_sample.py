@@ -15,11 +15,11 @@ import cv2
 import numpy as np
 import pytest
 
+from fixtures import SAMPLE
 from mirage2matter.calib.board import BoardSpec
 from mirage2matter.sample.make import SampleConfig, SampleError, make_sample
 from mirage2matter.video import read_video_frames
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
 REQUIRED = ["scene.mp4", "ground_truth.json", "head_view.png", "board.json", "handeye/joints.json", "contact_sheet.jpg"]
 
 

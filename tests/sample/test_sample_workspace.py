@@ -10,10 +10,9 @@ import numpy as np
 import pytest
 import trimesh
 
+from fixtures import SAMPLE
+from fixtures.ground_truth_workspace import ground_truth_workspace, keyframe_indices
 from mirage2matter.geometry.camera import Camera
-from mirage2matter.sample.workspace import ground_truth_workspace, keyframe_indices
-
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
 
 
 @pytest.fixture(scope="module")

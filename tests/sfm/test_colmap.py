@@ -6,14 +6,12 @@ import cv2
 import numpy as np
 import pytest
 
+from fixtures import FOX, SAMPLE
 from mirage2matter.capture import CaptureConfig, extract_keyframes, load_keyframes
 from mirage2matter.geometry import Sim3, load_transforms_json
 from mirage2matter.geometry.rotation import axis_angle_to_matrix, random_rotation
 from mirage2matter.sfm import SfMConfig, SfMError, compare_poses, load_sfm_summary, run_sfm
 
-ROOT = Path(__file__).resolve().parents[2]
-SAMPLE = ROOT / "samples" / "tabletop"
-FOX = ROOT.parent / "shared" / "data" / "fox"
 needs_sample = pytest.mark.skipif(not (SAMPLE / "scene.mp4").is_file(), reason="samples/tabletop not built")
 
 

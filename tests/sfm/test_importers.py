@@ -1,18 +1,16 @@
 """Importing poses made elsewhere: transforms.json (triangulated with the given poses) and COLMAP models."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from fixtures import SAMPLE
 from mirage2matter.geometry.camera import load_transforms_json
 from mirage2matter.sample.transforms import write_sample_transforms
 from mirage2matter.sfm import SfMConfig, SfMError, load_sfm_summary
 from mirage2matter.sfm.importers import import_colmap_model, import_transforms
 
-ROOT = Path(__file__).resolve().parents[2]
-SAMPLE = ROOT / "samples" / "tabletop"
 needs_sample = pytest.mark.skipif(not (SAMPLE / "scene.mp4").is_file(), reason="samples/tabletop not built")
 
 

@@ -13,17 +13,25 @@ import pytest
 import torch
 from PIL import Image
 
+from fixtures import SAMPLE
 from mirage2matter.gaussians.losses import psnr
 from mirage2matter.gaussians.ply import read_ply
 from mirage2matter.gaussians.render import render
 from mirage2matter.geometry.camera import camera_from_transforms_frame
 from mirage2matter.sample.transforms import write_sample_transforms
-from mirage2matter.scene import SceneConfig, train_scene
 from mirage2matter.sfm import SfMConfig
 from mirage2matter.sfm.importers import import_transforms
+from mirage2matter.stages import get_stage, run_stage
+from mirage2matter.stages.scene import Config as SceneConfig
+from mirage2matter.workspace import Workspace
 
-ROOT = Path(__file__).resolve().parents[1]
-SAMPLE = ROOT / "samples" / "tabletop"
+SCENE = get_stage("scene")
+
+
+def train_scene(ws, cfg, log=print) -> tuple[dict, bool]:
+    """The scene stage as `m2m train-scene` runs it; (metrics.json, skipped)."""
+    _, skipped = run_stage(SCENE, Workspace(ws), cfg, log)
+    return json.loads((Path(ws) / "scene" / "metrics.json").read_text()), skipped
 
 
 @pytest.fixture(scope="module")
@@ -42,14 +50,14 @@ def test_train_scene_learns_the_scene_in_the_given_frame_and_skips_when_done(imp
     tf, ws = imported
     cfg = SceneConfig(iterations=150, downscale=2, max_gaussians=30_000, checkpoint_every=0)
     logs = []
-    m = train_scene(ws, cfg, progress=False, log=logs.append)
-    assert m["frame"] == "sfm" and m["views"] == {"train": 14, "heldout": 2}
+    m, skipped = train_scene(ws, cfg, log=logs.append)
+    assert not skipped and m["frame"] == "sfm" and m["views"] == {"train": 14, "heldout": 2}
     assert m["iterations"] == 150
     # training improves held-out views well beyond the initial point cloud
     assert m["psnr_heldout"] > m["initial"]["psnr"] + 3.0, m
     assert (ws / "scene" / "gaussians.ply").is_file() and (ws / "scene" / "heldout.png").is_file()
     assert not (ws / "scene" / "checkpoint.pt").exists()
-    assert json.loads((ws / "scene" / "metrics.json").read_text())["psnr_heldout"] == m["psnr_heldout"]
+    assert json.loads((ws / "pipeline.json").read_text())["scene"]["summary"]["psnr_heldout"] == m["psnr_heldout"]
 
     # a camera as given in the original transforms.json renders the trained scene where the photo is:
     # no hidden normalisation. A camera moved by 30 cm sees a clearly worse match.
@@ -70,8 +78,8 @@ def test_train_scene_learns_the_scene_in_the_given_frame_and_skips_when_done(imp
     assert good == pytest.approx(m["per_view"][0]["psnr"], abs=1.0)
     assert good > score(moved) + 1.0
 
-    again = train_scene(ws, cfg, progress=False, log=logs.append)
-    assert again["skipped"] and "up to date" in logs[-1]
+    again, skipped = train_scene(ws, cfg, log=logs.append)
+    assert skipped and again == m
 
 
 def test_train_scene_resumes_after_a_kill(imported, tmp_path):
@@ -79,12 +87,9 @@ def test_train_scene_resumes_after_a_kill(imported, tmp_path):
     ws = tmp_path / "ws"
     for sub in ("capture", "sfm"):
         os.symlink(ws_src / sub, ws / sub) if ws.exists() else (ws.mkdir(), os.symlink(ws_src / sub, ws / sub))
-    code = (
-        "import sys; from mirage2matter.scene import SceneConfig, train_scene; "
-        "train_scene(sys.argv[1], SceneConfig(iterations=120, downscale=4, max_gaussians=20000, checkpoint_every=10),"
-        " progress=False)"
-    )
-    proc = subprocess.Popen([sys.executable, "-c", code, str(ws)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    args = ["--iterations", "120", "--downscale", "4", "--max-gaussians", "20000", "--checkpoint-every", "10"]
+    proc = subprocess.Popen([sys.executable, "-m", "mirage2matter", "train-scene", "-w", str(ws), *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)  # fmt: skip
     ckpt = ws / "scene" / "checkpoint.pt"
     deadline = time.time() + 240
     while not ckpt.exists() and time.time() < deadline and proc.poll() is None:
@@ -97,8 +102,8 @@ def test_train_scene_resumes_after_a_kill(imported, tmp_path):
     assert 0 < step_killed < 120
 
     logs = []
-    m = train_scene(ws, SceneConfig(iterations=120, downscale=4, max_gaussians=20000, checkpoint_every=10),
-                    progress=False, log=logs.append)  # fmt: skip
+    m, _ = train_scene(ws, SceneConfig(iterations=120, downscale=4, max_gaussians=20000, checkpoint_every=10),
+                       log=logs.append)  # fmt: skip
     assert any("resuming" in line for line in logs)
     assert m["iterations"] == 120
     steps = [c["step"] for c in m["curve"]]

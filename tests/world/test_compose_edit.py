@@ -17,7 +17,7 @@ from mirage2matter.world.sample import surface_gaussians
 
 
 def test_compose_has_scene_and_every_part(sample_ws):
-    cfg = load_world(sample_ws)
+    cfg = load_world(sample_ws / "world")
     world = WorldGaussians.load(cfg)
     g = compose(cfg)
     ranges = world.ranges()
@@ -31,12 +31,12 @@ def test_compose_has_scene_and_every_part(sample_ws):
 
 
 def test_gaussians_lie_on_the_placed_meshes(sample_ws):
-    for name, d in consistency(load_world(sample_ws)).items():
+    for name, d in consistency(load_world(sample_ws / "world")).items():
         assert d <= 0.003, f"{name}: median Gaussian-to-mesh distance {1000 * d:.2f} mm"
 
 
 def test_moving_an_object_in_world_yaml_moves_gaussians_and_mesh(sample_ws, tmp_path):
-    cfg = load_world(sample_ws)
+    cfg = load_world(sample_ws / "world")
     before = WorldGaussians.load(cfg)
     a, b = before.ranges()["croissant"]
     old = before.at().means[a:b].numpy()
@@ -65,7 +65,7 @@ def _known_sim3(seed=0) -> Sim3:
 
 
 def test_supersplat_round_trip_object_ply(sample_ws, tmp_path):
-    cfg = load_world(sample_ws)
+    cfg = load_world(sample_ws / "world")
     truth = _known_sim3(1)
     local = read_ply(cfg.object("banana").part.gaussians)
     write_ply(tmp_path / "banana_moved.ply", apply_sim3(local, truth))  # what SuperSplat exports (float32)
@@ -75,7 +75,7 @@ def test_supersplat_round_trip_object_ply(sample_ws, tmp_path):
 
 
 def test_supersplat_round_trip_whole_world_ply(sample_ws, tmp_path):
-    cfg = load_world(sample_ws)
+    cfg = load_world(sample_ws / "world")
     ply = write_world_ply(cfg, out_dir=cfg.root)
     world = read_ply(ply)
     a, b = WorldGaussians.load(cfg).ranges()["croissant"]
@@ -91,7 +91,7 @@ def test_supersplat_round_trip_whole_world_ply(sample_ws, tmp_path):
 
 
 def test_supersplat_import_refuses_changed_gaussians(sample_ws, tmp_path):
-    cfg = load_world(sample_ws)
+    cfg = load_world(sample_ws / "world")
     local = read_ply(cfg.object("banana").part.gaussians)
     bent = local.map(lambda t: t.clone())
     bent.means[:, 2] += 0.3 * bent.means[:, 0] ** 2  # not a similarity
@@ -104,7 +104,7 @@ def test_supersplat_import_refuses_changed_gaussians(sample_ws, tmp_path):
 
 
 def test_insert_duplicate_delete(sample_ws, tmp_path):
-    cfg = load_world(sample_ws)
+    cfg = load_world(sample_ws / "world")
     croissant = cfg.object("croissant")
     free_spot = edit.placement_from_pose((0.3, -0.35, 0.0), 0.0)
     new = edit.insert(

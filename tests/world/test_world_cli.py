@@ -1,4 +1,4 @@
-"""m2m compose / m2m world / m2m task: wiring and clear errors (no Genesis build here)."""
+"""m2m world (edits, check) / m2m task / m2m compose: wiring and clear errors (no Genesis build here)."""
 
 import shutil
 
@@ -12,14 +12,14 @@ from mirage2matter.world import load_world
 def test_compose_move_and_bad_tasks(sample_ws, tmp_path, capsys):
     ws = tmp_path / "ws"
     shutil.copytree(sample_ws, ws, symlinks=True)
-    assert main(["compose", "-w", str(ws)]) == 0
+    assert main(["world", "check", "-w", str(ws)]) == 0
     out = capsys.readouterr().out
     assert "median Gaussian-to-mesh distance" in out and (ws / "world" / "world.ply").is_file()
     n = len(read_ply(ws / "world" / "world.ply"))
 
-    before = load_world(ws).object("banana").placement.translation.copy()
+    before = load_world(ws / "world").object("banana").placement.translation.copy()
     assert main(["world", "move", "-w", str(ws), "--name", "banana", "--by", "0,-0.03,0"]) == 0
-    after = load_world(ws).object("banana").placement.translation
+    after = load_world(ws / "world").object("banana").placement.translation
     assert np.allclose(after - before, [0, -0.03, 0])
     assert (
         main(["world", "duplicate", "-w", str(ws), "--name", "croissant", "--as", "croissant2", "--to", "0.3,-0.35,0"])
@@ -37,4 +37,4 @@ def test_compose_move_and_bad_tasks(sample_ws, tmp_path, capsys):
     assert main(["task", "-w", str(ws), "grasp kiwi"]) == 2
     assert "no object named 'kiwi'" in capsys.readouterr().err
     assert main(["compose", "-w", str(tmp_path / "nowhere")]) == 2
-    assert "not found" in capsys.readouterr().err
+    assert "run `m2m calibrate-handeye" in capsys.readouterr().err

@@ -13,7 +13,7 @@ from mirage2matter.world.config import world_yaml_path
 
 def _edit_yaml(ws, tmp_path, fn):
     """Copy the world.yaml into tmp_path (paths made absolute), apply fn to its dict, return the new path."""
-    cfg = load_world(ws)
+    cfg = load_world(ws / "world")
     out = tmp_path / "world.yaml"
     save_world(cfg, out)
     data = yaml.safe_load(out.read_text())
@@ -23,7 +23,7 @@ def _edit_yaml(ws, tmp_path, fn):
 
 
 def test_round_trip(sample_ws, tmp_path):
-    cfg = load_world(sample_ws)
+    cfg = load_world(sample_ws / "world")
     assert [o.name for o in cfg.objects] == ["banana", "croissant"]
     assert [a.name for a in cfg.articulated] == ["button"]
     out = save_world(cfg, tmp_path / "copy" / "world.yaml")
@@ -53,7 +53,7 @@ def test_missing_mesh_file(sample_ws, tmp_path):
 
 
 def test_overlapping_objects(sample_ws, tmp_path):
-    cfg = load_world(sample_ws)
+    cfg = load_world(sample_ws / "world")
     banana = cfg.object("banana").placement
 
     def put_croissant_on_banana(d):
@@ -87,7 +87,7 @@ def test_camera_on_unknown_link(sample_ws, tmp_path):
 def test_missing_world(tmp_path):
     with pytest.raises(WorldConfigError, match="not found"):
         load_world(tmp_path)
-    assert world_yaml_path(tmp_path) == tmp_path / "world" / "world.yaml"
+    assert world_yaml_path(tmp_path) == tmp_path / "world.yaml"  # a world folder: no guessing of workspaces
 
 
 def test_collision_folder_without_parts(sample_ws, tmp_path):

@@ -1,4 +1,4 @@
-"""The world from a workspace's own reconstruction (`from_workspace`, `m2m compose` without world.yaml).
+"""The world from a workspace's own reconstruction (the world stage, `m2m compose`).
 
 The workspace is hand-made in the objects stage's format (objects/<name>/{mesh.obj, collision/, gaussians.ply,
 align.json}) from the sample's meshes: the button as ONE remeshed solid (what a reconstruction gives: no
@@ -16,17 +16,25 @@ import numpy as np
 import pytest
 import trimesh
 
+from fixtures import SAMPLE
 from mirage2matter.cli import main
 from mirage2matter.gaussians.model import Gaussians
 from mirage2matter.gaussians.ply import read_ply, write_ply
 from mirage2matter.gaussians.transform import apply_sim3
 from mirage2matter.geometry.sim3 import Sim3
-from mirage2matter.world import WorldConfigError, from_workspace, load_world
+from mirage2matter.stages import get_stage, run_stage
+from mirage2matter.workspace import Workspace, WorkspaceError
+from mirage2matter.world import load_world
 from mirage2matter.world.compose import WorldGaussians, consistency, write_world_ply
 from mirage2matter.world.sample import _scene_stand_in, surface_gaussians
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "tabletop"
 MARGIN = 0.01
+WORLD = get_stage("world")
+
+
+def from_workspace(ws: Path) -> dict:
+    """The world stage as `m2m compose` runs it."""
+    return run_stage(WORLD, Workspace(ws), WORLD.config(), log=lambda s: None)[0]
 
 
 def _remeshed(mesh: trimesh.Trimesh, pitch: float = 0.002) -> trimesh.Trimesh:
@@ -93,7 +101,7 @@ def recon_ws(tmp_path_factory) -> tuple[Path, dict[str, trimesh.Trimesh]]:
 
 def test_world_from_reconstruction(recon_ws):
     ws, truth = recon_ws
-    cfg = load_world(ws)  # validates: files, names, no overlaps, nothing under the table
+    cfg = load_world(ws / "world")  # validates: files, names, no overlaps, nothing under the table
     assert [o.name for o in cfg.objects] == ["banana", "croissant"]
     assert [a.name for a in cfg.articulated] == ["button"] and cfg.articulated[0].kind == "press_button"
     head = json.loads((SAMPLE / "ground_truth.json").read_text())["head_camera"]
@@ -112,7 +120,7 @@ def test_world_from_reconstruction(recon_ws):
 
 def test_button_split_into_base_and_cap(recon_ws):
     ws, _ = recon_ws
-    a = load_world(ws).articulated_asset("button")
+    a = load_world(ws / "world").articulated_asset("button")
     # the cap (4 x 4 x 1.5 cm) sits on the 8 x 8 x 4 cm base: the cut is found at the step, not at a third
     z_cut = a.T_base_cap[2, 3]
     assert abs(z_cut - 0.041) <= 0.0025, z_cut  # the remesh shifted surfaces by up to a voxel (2 mm)
@@ -143,7 +151,7 @@ def _surface_distance(mesh: trimesh.Trimesh, X: np.ndarray) -> np.ndarray:
 
 def test_scene_loses_the_objects_and_keeps_the_table(recon_ws):
     ws, truth = recon_ws
-    cfg = load_world(ws)
+    cfg = load_world(ws / "world")
     g0, g1 = read_ply(ws / "scene" / "gaussians.ply"), read_ply(cfg.scene_gaussians)
     before, after = (g.means.numpy().astype(np.float64) for g in (g0, g1))
     near = lambda mesh, X: int(((_surface_distance(mesh, X) < 0.005) & (X[:, 2] > 0.003)).sum())
@@ -174,7 +182,7 @@ def test_scene_loses_the_objects_and_keeps_the_table(recon_ws):
 
 def test_grasped_object_leaves_nothing_behind(recon_ws):
     ws, truth = recon_ws
-    cfg = load_world(ws)
+    cfg = load_world(ws / "world")
     world = WorldGaussians.load(cfg)
     lifted = cfg.object("banana").placement.matrix.copy()
     lifted[2, 3] += 0.2
@@ -191,15 +199,15 @@ def test_missing_inputs_name_the_stage(recon_ws, tmp_path):
     for sub in ("calib", "scene", "objects"):
         shutil.copytree(ws / sub, bad / sub)
     (bad / "calib" / "handeye.json").unlink()
-    with pytest.raises(WorldConfigError, match="calibrate-handeye"):
+    with pytest.raises(WorkspaceError, match="run `m2m calibrate-handeye"):
         from_workspace(bad)
     shutil.copy(ws / "calib" / "handeye.json", bad / "calib" / "handeye.json")
     (bad / "scene" / "gaussians.ply").unlink()
-    with pytest.raises(WorldConfigError, match="m2m train-scene"):
+    with pytest.raises(WorkspaceError, match="run `m2m train-scene"):
         from_workspace(bad)
     shutil.copy(ws / "scene" / "gaussians.ply", bad / "scene" / "gaussians.ply")
     shutil.rmtree(bad / "objects")
-    with pytest.raises(WorldConfigError, match="m2m objects"):
+    with pytest.raises(WorkspaceError, match="run `m2m objects"):
         from_workspace(bad)
     assert not (bad / "world" / "world.yaml").exists()
 
@@ -212,13 +220,14 @@ def test_compose_cli_builds_the_world_from_the_workspace(recon_ws, tmp_path, cap
     assert main(["compose", "-w", str(cli_ws)]) == 0
     assert (cli_ws / "world" / "world.yaml").is_file() and (cli_ws / "world" / "world.ply").is_file()
     assert "button/cap: median Gaussian-to-mesh distance" in capsys.readouterr().out
-    # an existing world.yaml is kept (edits survive); --rebuild makes it again from the reconstruction
+    # edits survive a rerun (the reconstruction is unchanged: up to date); --force makes it again from it
     assert main(["world", "move", "-w", str(cli_ws), "--name", "banana", "--by", "0,-0.02,0"]) == 0
-    y = load_world(cli_ws).object("banana").placement.translation[1]
+    y = load_world(cli_ws / "world").object("banana").placement.translation[1]
     assert main(["compose", "-w", str(cli_ws)]) == 0
-    assert load_world(cli_ws).object("banana").placement.translation[1] == pytest.approx(y)
-    assert main(["compose", "-w", str(cli_ws), "--rebuild"]) == 0
-    assert load_world(cli_ws).object("banana").placement.translation[1] == pytest.approx(y + 0.02)
+    assert "up to date" in capsys.readouterr().out
+    assert load_world(cli_ws / "world").object("banana").placement.translation[1] == pytest.approx(y)
+    assert main(["compose", "-w", str(cli_ws), "--force"]) == 0
+    assert load_world(cli_ws / "world").object("banana").placement.translation[1] == pytest.approx(y + 0.02)
     capsys.readouterr()
     assert main(["compose", "-w", str(tmp_path / "nowhere")]) == 2
     assert "not found" in capsys.readouterr().err
@@ -231,7 +240,7 @@ def test_reconstructed_world_twin_grasps_and_presses(recon_ws):
     from mirage2matter.sim.twin import Twin, TwinOptions
 
     ws, _ = recon_ws
-    cfg = load_world(ws)
+    cfg = load_world(ws / "world")
     with Twin.build(cfg, TwinOptions(render=False)) as twin:
         results = {}
         for task in ("grasp banana", "press button"):

@@ -1,0 +1,45 @@
+"""Shared fixtures. ``tests/`` is on ``sys.path`` (pytest's rootdir conftest), so test modules import the
+scaffolding in ``tests/fixtures/`` as ``fixtures``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from fixtures import FOX, SAMPLE, sample_present
+
+
+@pytest.fixture(scope="session")
+def sample_dir() -> Path:
+    """The bundled sample capture (samples/tabletop); the test is skipped when it is not in this checkout."""
+    if not sample_present():
+        pytest.skip(f"the bundled sample is not at {SAMPLE}")
+    return SAMPLE
+
+
+@pytest.fixture(scope="session")
+def fox_dir() -> Path:
+    """The real fox phone capture (../shared/data/fox); skipped where it is absent."""
+    if not (FOX / "transforms.json").is_file():
+        pytest.skip(f"real data not present: {FOX} (the fox capture lives in ../shared/data)")
+    return FOX
+
+
+@pytest.fixture(scope="session")
+def sample_world_ws(tmp_path_factory, sample_dir):
+    """``make(**sample_world options) -> workspace`` whose ``world/`` is the sample's ground truth (assets in
+    ``world/assets``), built once per set of options in this session (CoACD takes a few seconds)."""
+    from mirage2matter.world import sample_world
+
+    built: dict[tuple, Path] = {}
+
+    def make(**options) -> Path:
+        key = tuple(sorted(options.items()))
+        if key not in built:
+            ws = tmp_path_factory.mktemp("sample_world")
+            sample_world(sample_dir, ws / "world", **options)
+            built[key] = ws
+        return built[key]
+
+    return make
