@@ -45,15 +45,18 @@ def run_stage_command(stage: Stage, args: argparse.Namespace) -> int:
     from . import configure_threads
     from .stages.base import run_stage
     from .stages.pipeline import PipelineConfig
+    from .stages.transaction import workspace_lock
     from .workspace import Workspace
 
     ws = Workspace(args.workspace)
-    pipeline = PipelineConfig.load(ws.config_file) if ws.config_file.is_file() else PipelineConfig()
-    cfg = from_flags(stage.config, args, pipeline.stage_config(stage.name))
+    load = lambda: PipelineConfig.load(ws.config_file) if ws.config_file.is_file() else PipelineConfig()
+    cfg = from_flags(stage.config, args, load().stage_config(stage.name))
     configure_threads()
     summary, skipped = run_stage(stage, ws, cfg, log=info, force=args.force)
-    setattr(pipeline, stage.name, cfg)
-    pipeline.save(ws.config_file)
+    with workspace_lock(ws):  # read-modify-write of m2m.yaml: another stage's section may have changed
+        pipeline = load()
+        setattr(pipeline, stage.name, cfg)
+        pipeline.save(ws.config_file)
     for line in summary.get("details", []):
         print(line)
     note = " (up to date: same settings and inputs as the last run; --force to rerun)" if skipped else ""

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -56,128 +57,164 @@ class PosedCapture:
 
 @dataclass(frozen=True)
 class Workspace:
-    """Paths of one workspace folder (nothing is created until a stage writes)."""
+    """Paths of one workspace folder (nothing is created until a stage writes).
+
+    Every path comes from :meth:`path`, so a staged view (:meth:`staged`) can send the artifacts a running
+    stage writes into its staging folder while everything else still reads from the workspace.
+    """
 
     root: Path
 
     def __init__(self, root: str | os.PathLike[str]) -> None:
         object.__setattr__(self, "root", Path(root))
 
-    # ---- top level -----------------------------------------------------------------------------------
+    def path(self, *parts: str) -> Path:
+        """``root / parts``: the one place workspace paths are made."""
+        return self.root.joinpath(*parts)
+
+    def staged(self, staging: Path, writes: Sequence[Path]) -> Workspace:
+        """This workspace with the artifacts ``writes`` (paths relative to the root) and everything below them
+        under ``staging`` instead: what a stage in a transaction writes into."""
+        return _StagedWorkspace(self.root, Path(staging), tuple(Path(w) for w in writes))
+
+    @property
+    def committed(self) -> Workspace:
+        """The workspace itself (a staged view's committed artifacts)."""
+        return self
+
+    # ---- top level --------------------------------------------------------------------------------
     @property
     def config_file(self) -> Path:
-        return self.root / "m2m.yaml"
+        return self.path("m2m.yaml")
 
     @property
     def record_file(self) -> Path:
-        return self.root / "pipeline.json"
+        return self.path("pipeline.json")
 
     @property
     def demo_summary(self) -> Path:
-        return self.root / "demo_summary.json"
+        return self.path("demo_summary.json")
 
-    # ---- capture, sfm ------------------------------------------------------------------------------
+    @property
+    def state_dir(self) -> Path:
+        """hidden: the workspace lock and the staged outputs of running stages"""
+        return self.path(".m2m")
+
+    # ---- capture, sfm -----------------------------------------------------------------------------
     @property
     def capture_dir(self) -> Path:
-        return self.root / "capture"
+        return self.path("capture")
 
     @property
     def keyframes_file(self) -> Path:
-        return self.capture_dir / "keyframes.json"
+        return self.path("capture", "keyframes.json")
 
     @property
     def sfm_dir(self) -> Path:
-        return self.root / "sfm"
+        return self.path("sfm")
 
     @property
     def sfm_file(self) -> Path:
-        return self.sfm_dir / "sfm.json"
+        return self.path("sfm", "sfm.json")
 
     @property
     def sfm_model(self) -> Path:
-        return self.sfm_dir / "model"
+        return self.path("sfm", "model")
 
-    # ---- calib -----------------------------------------------------------------------------------
+    # ---- calib ------------------------------------------------------------------------------------
     @property
     def calib_dir(self) -> Path:
-        return self.root / "calib"
+        return self.path("calib")
 
     @property
     def alignment_file(self) -> Path:
-        """sim3_sfm_to_base, the board and its pose, the fit's figures."""
-        return self.calib_dir / "sim3_sfm_to_base.json"
+        """sim3_sfm_to_base, the board and its pose, the fit's figures"""
+        return self.path("calib", "sim3_sfm_to_base.json")
 
     @property
     def cameras_base_file(self) -> Path:
-        return self.calib_dir / "cameras_base.json"
+        return self.path("calib", "cameras_base.json")
 
     @property
     def points_base_file(self) -> Path:
-        return self.calib_dir / "points_base.npy"
+        return self.path("calib", "points_base.npy")
 
     @property
     def colors_base_file(self) -> Path:
-        return self.calib_dir / "colors_base.npy"
+        return self.path("calib", "colors_base.npy")
 
     @property
     def overlay_png(self) -> Path:
-        return self.calib_dir / "overlay.png"
+        return self.path("calib", "overlay.png")
 
     @property
     def handeye_file(self) -> Path:
-        return self.calib_dir / "handeye.json"
+        return self.path("calib", "handeye.json")
 
     @property
     def head_view_png(self) -> Path:
-        return self.calib_dir / "head_view.png"
+        return self.path("calib", "head_view.png")
 
     @property
     def head_view_file(self) -> Path:
-        return self.calib_dir / "head_view.json"
+        return self.path("calib", "head_view.json")
 
-    # ---- scene, objects ------------------------------------------------------------------------------
+    # ---- scene, objects ---------------------------------------------------------------------------
     @property
     def scene_dir(self) -> Path:
-        return self.root / "scene"
+        return self.path("scene")
 
     @property
     def scene_ply(self) -> Path:
-        return self.scene_dir / "gaussians.ply"
+        return self.path("scene", "gaussians.ply")
 
     @property
     def scene_metrics(self) -> Path:
-        return self.scene_dir / "metrics.json"
+        return self.path("scene", "metrics.json")
 
     @property
     def objects_dir(self) -> Path:
-        return self.root / "objects"
+        return self.path("objects")
 
     @property
     def objects_summary(self) -> Path:
-        return self.objects_dir / "summary.json"
+        return self.path("objects", "summary.json")
 
-    def object_dir(self, name: str) -> Path:
-        return self.objects_dir / name
-
-    # ---- world, datasets ---------------------------------------------------------------------------
+    # ---- world, datasets --------------------------------------------------------------------------
     @property
     def world_dir(self) -> Path:
-        return self.root / "world"
+        return self.path("world")
 
     @property
     def world_yaml(self) -> Path:
-        return self.world_dir / "world.yaml"
+        return self.path("world", "world.yaml")
+
+    @property
+    def world_ply(self) -> Path:
+        return self.path("world", "world.ply")
+
+    @property
+    def world_manifest(self) -> Path:
+        """world.json: the index ranges of world.ply's parts"""
+        return self.path("world", "world.json")
+
+    def world_asset_dir(self, name: str) -> Path:
+        """Assets the world owns (inserted objects, button parts, relit copies)."""
+        return self.path("world", "assets", name)
 
     @property
     def task_summary(self) -> Path:
-        return self.world_dir / "task_summary.json"
+        return self.path("world", "task_summary.json")
 
     @property
     def datasets_dir(self) -> Path:
-        return self.root / "datasets"
+        return self.path("datasets")
+
+    def object_dir(self, name: str) -> Path:
+        return self.path("objects", name)
 
     def dataset_dir(self, slug: str) -> Path:
-        return self.datasets_dir / slug
+        return self.path("datasets", slug)
 
     # ---- reading ---------------------------------------------------------------------------------
     def require(self, path: Path, stage: str) -> Path:
@@ -222,3 +259,26 @@ class Workspace:
         if self.alignment_file.is_file():
             sim = Sim3.from_json(json.loads(self.alignment_file.read_text())["sim3_sfm_to_base"])
         return PosedCapture(sorted(cameras, key=lambda c: c.name), points, colors, self.capture_dir, "base", sim)
+
+
+@dataclass(frozen=True)
+class _StagedWorkspace(Workspace):
+    """A workspace whose ``writes`` (relative paths) live under ``staging``; see :meth:`Workspace.staged`."""
+
+    staging: Path
+    writes: tuple[Path, ...]
+
+    def __init__(self, root: Path, staging: Path, writes: tuple[Path, ...]) -> None:
+        super().__init__(root)
+        object.__setattr__(self, "staging", staging)
+        object.__setattr__(self, "writes", writes)
+
+    def path(self, *parts: str) -> Path:
+        rel = Path(*parts)
+        if any(rel == w or w in rel.parents for w in self.writes):
+            return self.staging.joinpath(*parts)
+        return self.root.joinpath(*parts)
+
+    @property
+    def committed(self) -> Workspace:
+        return Workspace(self.root)

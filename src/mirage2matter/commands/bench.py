@@ -96,15 +96,17 @@ def _train(args: argparse.Namespace) -> int:
 def _datagen(args: argparse.Namespace) -> int:
     from ..datagen import BENCH_KEYS, bench_datagen
     from ..sim.tasks import parse_task
+    from ..stages.transaction import workspace_lock
     from ..workspace import Workspace
     from ..world import load_world
 
     cfg = from_flags(datagen_config(), args)
     cfg.validate()
     ws = Workspace(args.workspace)
-    world = load_world(ws.require(ws.world_yaml, "compose"))
-    task = parse_task(cfg.task[0], world)
-    result = bench_datagen(world, task, cfg.generation(), ws.datasets_dir, runs=cfg.runs, log=info)
+    with workspace_lock(ws, "m2m bench datagen"):  # it writes throw-away datasets into the workspace
+        world = load_world(ws.require(ws.world_yaml, "compose"))
+        task = parse_task(cfg.task[0], world)
+        result = bench_datagen(world, task, cfg.generation(), ws.datasets_dir, runs=cfg.runs, log=info)
     info(json.dumps(result))
     print(json.dumps({k: result[k] for k in BENCH_KEYS}))
     return 0

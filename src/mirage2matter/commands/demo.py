@@ -70,6 +70,7 @@ def _print_summary(result: dict[str, Any], ws: Workspace, elapsed: float) -> Non
 def run(args: argparse.Namespace) -> int:
     from ..atomic import atomic_write
     from ..stages.pipeline import PipelineConfig, run_pipeline
+    from ..stages.transaction import workspace_lock
 
     configure_threads()
     sample = Path(args.sample)
@@ -80,10 +81,11 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     if ws.root.exists() and not ws.root.is_dir():
         raise WorkspaceError(f"workspace {ws.root} exists and is not a folder; choose another with -w")
-    cfg.save(ws.config_file)
-    result = run_pipeline(ws, cfg, log=info, until=args.until, start=args.start, ground_truth=gt)
-    result["mirage2matter_version"] = __version__
-    with atomic_write(ws.demo_summary, "w", encoding="utf-8") as f:
-        json.dump(result, f, indent=1, default=str)
+    with workspace_lock(ws, "m2m demo"):
+        cfg.save(ws.config_file)
+        result = run_pipeline(ws, cfg, log=info, until=args.until, start=args.start, ground_truth=gt)
+        result["mirage2matter_version"] = __version__
+        with atomic_write(ws.demo_summary, "w", encoding="utf-8") as f:
+            json.dump(result, f, indent=1, default=str)
     _print_summary(result, ws, time.perf_counter() - t0)
     return 0

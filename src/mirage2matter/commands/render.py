@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -42,10 +41,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _peek_json(path: Path) -> Any:
     """The parsed JSON, or None when unreadable (used only to improve error messages)."""
+    from ..inputs import InputError, read_json
+
     try:
-        with open(path, encoding="utf-8") as f:
-            return json.load(f)
-    except (OSError, ValueError):
+        return read_json(path, expect=None)
+    except (InputError, OSError):
         return None
 
 

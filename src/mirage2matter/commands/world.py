@@ -49,6 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
             w.add_argument("--as", dest="as_name", required=True, metavar="NEW")
         if op == "import-placement":
             w.add_argument("--ply", required=True, help="the object's (or world.ply's) Gaussians, moved")
+            w.add_argument("--allow-scale", action="store_true", help="accept a changed object size (> x1.5)")
         if op == "match-lighting":
             w.add_argument("--strength", type=positive_float, default=1.0, help="0..1 of the full correction")
             w.add_argument("--radius", type=positive_float, default=0.3, help="scene neighbourhood (m)")
@@ -71,68 +72,104 @@ def _world(workspace: str):
 
 
 def edit_world(args: argparse.Namespace) -> int:
-    from ..world import edit, save_world
+    """One edit as a transaction: the new world.yaml, world.ply (+ world.json) and any new assets are written
+    into staging and swapped in together, under the workspace lock."""
+    from ..stages.transaction import Transaction, workspace_lock
+    from ..world import load_world, save_world
     from ..world.compose import write_world_ply
 
-    _, cfg = _world(args.workspace)
-    op = args.op
-    if op == "delete":
-        new = edit.delete(cfg, args.name)
-    elif op == "import-placement":
-        new, sim = edit.import_placement(cfg, args.name, args.ply)
-        print(f"{args.name}: placement from {args.ply}: {sim}")
-    elif op == "match-lighting":
-        new, gain = edit.match_lighting(cfg, args.name, strength=args.strength, radius=args.radius)
-        print(f"{args.name}: colour gain r,g,b = {', '.join(f'{g:.3f}' for g in gain)}")
-    else:
-        base = None if op == "insert" else edit.placement_of(cfg, args.name)
-        if op == "move" and args.by:
-            d = xyz(args.by, "--by")
-            placement = edit.placement_from_pose(base.translation + d, args.yaw, base.scale, base)
-        else:
-            if not args.to:
-                raise CliError(f"`m2m world {op}` needs --to x,y,z")
-            scale = args.scale if args.scale else (base.scale if base is not None else 1.0)
-            placement = edit.placement_from_pose(xyz(args.to, "--to"), args.yaw, scale, base)
-        if op == "insert":
-            new = edit.insert(cfg, args.name, args.gaussians, args.mesh, placement, collision=args.collision,
-                              mass=args.mass)  # fmt: skip
-        elif op == "move":
-            new = edit.move(cfg, args.name, placement)
-        else:
-            new = edit.duplicate(cfg, args.name, args.as_name, placement)
-    save_world(new)
-    ply = write_world_ply(new)
-    print(f"{op} {args.name}: saved {show(new.root / 'world.yaml')}, recomposed {show(ply)}")
+    ws = Workspace(args.workspace)
+    ws.require(ws.world_yaml, "compose")
+    with workspace_lock(ws, f"m2m world {args.op}"):
+        cfg = load_world(ws.world_yaml)
+        asset = ws.world_asset_dir(args.name)
+        writes = [ws.world_yaml, ws.world_ply, ws.world_manifest, asset]
+        txn = Transaction(ws, "world-edit", [p.relative_to(ws.root) for p in writes])
+        with txn.staging_of(f"{args.op}-{time.time_ns()}", resumable=False) as staged:  # an edit is never resumed
+            staged.world_dir.mkdir(parents=True, exist_ok=True)
+            new = _edit(args, cfg, staged.world_asset_dir(args.name).resolve())
+            write_world_ply(new, out_dir=staged.world_dir)
+            save_world(new.relocated(staged.world_dir, ws.world_dir), staged.world_yaml, home=ws.world_dir)
+    print(f"{args.op} {args.name}: saved {show(ws.world_yaml)}, recomposed {show(ws.world_ply)}")
     return 0
 
 
+def _edit(args: argparse.Namespace, cfg, asset_dir: Path):
+    """The edited world; new files go into ``asset_dir``."""
+    from ..world import edit
+
+    op = args.op
+    if op == "delete":
+        return edit.delete(cfg, args.name)
+    if op == "import-placement":
+        new, sim = edit.import_placement(cfg, args.name, args.ply, allow_scale=args.allow_scale)
+        print(f"{args.name}: placement from {args.ply}: {sim}")
+        return new
+    if op == "match-lighting":
+        new, gain = edit.match_lighting(cfg, args.name, asset_dir / "gaussians_lit.ply", strength=args.strength,
+                                        radius=args.radius)  # fmt: skip
+        print(f"{args.name}: colour gain r,g,b = {', '.join(f'{g:.3f}' for g in gain)}")
+        return new
+    base = None if op == "insert" else edit.placement_of(cfg, args.name)
+    if op == "move" and args.by:
+        placement = edit.placement_from_pose(base.translation + xyz(args.by, "--by"), args.yaw, base.scale, base)
+    else:
+        if not args.to:
+            raise CliError(f"`m2m world {op}` needs --to x,y,z")
+        scale = args.scale if args.scale else (base.scale if base is not None else 1.0)
+        placement = edit.placement_from_pose(xyz(args.to, "--to"), args.yaw, scale, base)
+    if op == "insert":
+        return edit.insert(cfg, args.name, args.gaussians, args.mesh, placement, collision=args.collision,
+                           mass=args.mass, objects_dir=asset_dir.parent)  # fmt: skip
+    if op == "move":
+        return edit.move(cfg, args.name, placement)
+    return edit.duplicate(cfg, args.name, args.as_name, placement)
+
+
 def check_world(args: argparse.Namespace) -> int:
+    """world.ply + world.json recomposed from world.yaml and checked; swapped in together only when they pass."""
     from ..stages import world as compose
+    from ..stages.transaction import Transaction, workspace_lock
+    from ..world import load_world
     from ..world.compose import consistency, write_world_ply
 
     max_mm = compose.Config.max_mm if args.max_mm is None else args.max_mm
-    _, cfg = _world(args.workspace)
-    ply = write_world_ply(cfg)
-    cons = consistency(cfg)
-    print(f"world: {len(cfg.objects)} objects, {len(cfg.articulated)} articulated -> {show(ply)} (+ world.json)")
+    ws = Workspace(args.workspace)
+    ws.require(ws.world_yaml, "compose")
+    with workspace_lock(ws, "m2m world check"):
+        cfg = load_world(ws.world_yaml)
+        txn = Transaction(ws, "world-check", [p.relative_to(ws.root) for p in (ws.world_ply, ws.world_manifest)])
+        with txn.staging_of(f"check-{time.time_ns()}", resumable=False) as staged:
+            staged.world_dir.mkdir(parents=True, exist_ok=True)
+            write_world_ply(cfg, out_dir=staged.world_dir)
+            cons = consistency(cfg)
+            worst = max(cons.values(), default=0.0)
+            if worst > max_mm / 1000:
+                raise CliError(f"an object's Gaussians and mesh disagree by {1000 * worst:.1f} mm (> {max_mm} mm)")
+    print(f"world: {len(cfg.objects)} objects, {len(cfg.articulated)} articulated -> {show(ws.world_ply)} "
+          "(+ world.json)")  # fmt: skip
     for name, d in cons.items():
         print(f"  {name}: median Gaussian-to-mesh distance {1000 * d:.2f} mm")
-    worst = max(cons.values(), default=0.0)
-    if worst > max_mm / 1000:
-        raise CliError(f"an object's Gaussians and mesh disagree by {1000 * worst:.1f} mm (> {max_mm} mm)")
     return 0
 
 
 def run_tasks(args: argparse.Namespace) -> int:
-    from ..atomic import atomic_write
-    from ..sim.tasks import evaluate, parse_task
-    from ..sim.twin import Twin, TwinOptions
+    from ..sim.tasks import parse_task
+    from ..stages.transaction import workspace_lock
 
     ws, cfg = _world(args.workspace)
     tasks = [parse_task(t, cfg) for t in args.task]  # unknown tasks / objects fail before Genesis starts
     out = Path(args.out) if args.out else ws.task_summary
     check_output(out, "--out", (".json",))
+    with workspace_lock(ws, "m2m task"):  # one writer: the world it runs is the one on disk throughout
+        return _run_tasks(ws, cfg, tasks, out, args)
+
+
+def _run_tasks(ws: Workspace, cfg, tasks, out: Path, args: argparse.Namespace) -> int:
+    from ..atomic import atomic_write
+    from ..sim.tasks import evaluate
+    from ..sim.twin import Twin, TwinOptions
+
     t0 = time.perf_counter()
     twin = Twin.build(cfg, TwinOptions(render=False))
     build_s = time.perf_counter() - t0

@@ -7,7 +7,7 @@ paths); ``generate_dataset`` is the procedure behind it for any episode source."
 from .config import GenerateConfig, Randomization
 from .dataset import GenerateError, RunConfig, check_output, generate_dataset
 from .runner import Attempt, EpisodeSource, RunnerError, attempt_seed, connect_ray, run_attempts
-from .simulated import BENCH_KEYS, bench_datagen, generate, task_slug
+from .simulated import BENCH_KEYS, bench_datagen, dataset_fingerprint, generate, task_slug
 
 __all__ = [
     "BENCH_KEYS",
@@ -22,6 +22,7 @@ __all__ = [
     "bench_datagen",
     "check_output",
     "connect_ray",
+    "dataset_fingerprint",
     "generate",
     "generate_dataset",
     "run_attempts",

@@ -71,6 +71,12 @@ class RunConfig:
         return self.max_attempts if self.max_attempts is not None else 3 * self.episodes + 5
 
 
+def run_fingerprint(source: dict[str, Any], cfg: RunConfig) -> dict[str, Any]:
+    """The fingerprint a dataset's summary.json records: its source's and the run's count, seed and format."""
+    return json.loads(json.dumps({**source, "episodes": cfg.episodes, "seed": cfg.seed, "format": cfg.format,
+                                  "max_attempts": cfg.attempts_limit}))  # fmt: skip
+
+
 def check_output(out_dir: Path, fingerprint: dict[str, Any]) -> dict[str, Any] | None:
     """None if ``out_dir`` may be (re)written; the existing summary if it already holds exactly this
     dataset (a rerun of a finished run is a no-op); GenerateError if it holds anything else."""
@@ -162,8 +168,7 @@ def generate_dataset(
     """
     cfg.check()
     out_dir = Path(out_dir)
-    fingerprint = {**fingerprint, "episodes": cfg.episodes, "seed": cfg.seed, "format": cfg.format,
-                   "max_attempts": cfg.attempts_limit}  # fmt: skip
+    fingerprint = run_fingerprint(fingerprint, cfg)
     existing = check_output(out_dir, fingerprint)
     if existing is not None:
         # A run killed after swapping the dataset in but before removing its staging area leaves the latter.

@@ -18,13 +18,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .config import GenerateConfig
-from .dataset import GenerateError, RunConfig, generate_dataset
+from .dataset import GenerateError, RunConfig, generate_dataset, run_fingerprint
 
 if TYPE_CHECKING:
     from ..sim.tasks import Task
     from ..world.config import WorldConfig
 
-__all__ = ["BENCH_KEYS", "bench_datagen", "generate", "task_slug", "world_fingerprint"]
+__all__ = ["BENCH_KEYS", "bench_datagen", "dataset_fingerprint", "generate", "task_slug", "world_fingerprint"]
 
 BENCH_KEYS = ("demos_per_min", "success_rate", "episodes", "frames", "workers", "backend", "ms_per_frame")
 
@@ -39,6 +39,32 @@ def world_fingerprint(world: WorldConfig) -> dict[str, Any]:
     different dataset."""
     text = json.dumps(world.to_dict(), sort_keys=True, default=str)
     return {"world_sha1": hashlib.sha1(text.encode()).hexdigest()}
+
+
+def _source(world: WorldConfig, task: Task, cfg: GenerateConfig):
+    from .sim_source import SimSourceConfig
+
+    return SimSourceConfig(
+        world=world, task=task, size=tuple(cfg.size), fps=cfg.fps, cameras=tuple(cfg.cameras),
+        randomization=cfg.randomization,
+    )  # fmt: skip
+
+
+def _run_config(cfg: GenerateConfig) -> RunConfig:
+    return RunConfig(
+        episodes=cfg.episodes, seed=cfg.seed, max_attempts=cfg.max_attempts, workers=cfg.workers,
+        ray_address=cfg.ray_address, format=cfg.format, preview=cfg.preview,
+    )  # fmt: skip
+
+
+def _source_fingerprint(world: WorldConfig, source) -> dict[str, Any]:
+    return {**world_fingerprint(world), "source": json.loads(json.dumps(source.to_json(), default=str))}
+
+
+def dataset_fingerprint(world: WorldConfig, task: Task, cfg: GenerateConfig) -> dict[str, Any]:
+    """The fingerprint summary.json records for this dataset (world content, task, frames, count, seed,
+    format): a finished dataset holding it is the one ``generate`` would write."""
+    return run_fingerprint(_source_fingerprint(world, _source(world, task, cfg)), _run_config(cfg))
 
 
 def _check(world: WorldConfig, task: Task, cfg: GenerateConfig) -> None:
@@ -69,23 +95,16 @@ def generate(
     returns the summary (summary.json) with ``"dataset"`` the dataset folder. A rerun of a finished run is a
     no-op; a killed run resumes (the fingerprint: world content, task, frame settings, seed, count, format)."""
     from .robot_proxy import lowpoly_robot
-    from .sim_source import SimSourceConfig, SimSourceFactory, robot_cache_dir
+    from .sim_source import SimSourceFactory, robot_cache_dir
 
     _check(world, task, cfg)
     out = Path(out)
-    source = SimSourceConfig(
-        world=world, task=task, size=tuple(cfg.size), fps=cfg.fps, cameras=tuple(cfg.cameras),
-        randomization=cfg.randomization,
-    )  # fmt: skip
-    run = RunConfig(
-        episodes=cfg.episodes, seed=cfg.seed, max_attempts=cfg.max_attempts, workers=cfg.workers,
-        ray_address=cfg.ray_address, format=cfg.format, preview=cfg.preview,
-    )  # fmt: skip
+    source = _source(world, task, cfg)
+    run = _run_config(cfg)
     if source.robot_render_faces and world.robot.file.lower().endswith(".xml"):
         # build the render copy of the robot once, before workers race for it
         lowpoly_robot(world.robot.file, robot_cache_dir(), source.robot_render_faces)
-    fingerprint = {**world_fingerprint(world), "source": json.loads(json.dumps(source.to_json(), default=str))}
-    return generate_dataset(out, SimSourceFactory(source), source.spec(), run, fingerprint,
+    return generate_dataset(out, SimSourceFactory(source), source.spec(), run, _source_fingerprint(world, source),
                             {"task": task.text, "dataset": str(out)}, log, progress)  # fmt: skip
 
 

@@ -126,3 +126,8 @@ def compare(ws: Workspace, cfg: Config, gt: dict) -> dict[str, Any]:
 
 def outputs(ws: Workspace, cfg: Config) -> list[Path]:
     return [ws.alignment_file, ws.cameras_base_file, ws.points_base_file]
+
+
+def writes(ws: Workspace, cfg: Config) -> list[Path]:
+    """What the stage replaces (its transaction swaps these in together)."""
+    return [ws.alignment_file, ws.cameras_base_file, ws.points_base_file, ws.colors_base_file, ws.overlay_png]

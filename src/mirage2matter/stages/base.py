@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -62,10 +63,11 @@ class Stage:
     command   its ``m2m`` subcommand ("capture", "align-scene", "train-scene", ...)
     help      one line for ``m2m --help``
     module    the module under ``stages/`` that defines ``Config``, ``inputs(ws, cfg) -> [Input]`` (the files
-              read: their content enters the fingerprint), ``outputs(ws, cfg) -> [Path]`` (what a finished
-              stage leaves), ``run(ws, cfg, log) -> summary`` (JSON-ready, with a one-line "line") and
-              optionally ``compare(ws, cfg, ground_truth) -> summary fields`` (how close the stage came to a
-              sample's ground truth, with a "line" suffix)
+              read: their content enters the fingerprint), ``writes(ws, cfg) -> [Path]`` (the artifacts it
+              replaces, swapped in together), ``outputs(ws, cfg) -> [Path]`` (what a finished stage leaves),
+              ``run(ws, cfg, log) -> summary`` (JSON-ready, with a one-line "line") and optionally
+              ``compare(ws, cfg, ground_truth) -> summary fields`` (how close the stage came to a sample's
+              ground truth, with a "line" suffix)
     """
 
     name: str
@@ -86,6 +88,9 @@ class Stage:
 
     def outputs(self, ws: Workspace, cfg: Any) -> list[Path]:
         return self.code.outputs(ws, cfg)
+
+    def writes(self, ws: Workspace, cfg: Any) -> list[Path]:
+        return self.code.writes(ws, cfg)
 
     def run(self, ws: Workspace, cfg: Any, log: Log) -> dict[str, Any]:
         return self.code.run(ws, cfg, log)
@@ -137,27 +142,56 @@ def run_stage(
 ) -> tuple[dict[str, Any], bool]:
     """Run ``stage`` on ``ws`` with ``cfg`` unless an identical run finished; returns (summary, skipped).
 
-    With ``ground_truth`` (a sample's ground_truth.json) the stage's ``compare`` adds how close it came."""
+    Holds the workspace lock; the stage writes into its transaction's staging and its outputs are swapped in
+    together only when it succeeded (see ``stages.transaction``). With ``ground_truth`` (a sample's
+    ground_truth.json) the stage's ``compare`` adds how close it came."""
+    from .transaction import Transaction, workspace_lock
+
     validate = getattr(cfg, "validate", None)
     if validate is not None:
         validate()
     if ws.root.exists() and not ws.root.is_dir():
         raise WorkspaceError(f"workspace {ws.root} exists and is not a folder; choose another with -w")
-    key = stage_fingerprint(stage, ws, cfg)
-    record = StageRecord(ws)
-    done = None if force else record.get(stage.name, key, stage.outputs(ws, cfg))
-    if done is not None:
-        return done["summary"], True
-    ws.root.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    summary = stage.run(ws, cfg, log)
-    extra = None if ground_truth is None else stage.compare(ws, cfg, ground_truth)
-    if extra is not None:
-        summary = {**summary, **extra, "line": summary["line"] + extra["line"]}
-    seconds = time.perf_counter() - t0
-    summary = jsonable(summary)
-    record = StageRecord(ws)  # re-read: a long stage may have run beside another command
-    record.put(stage.name, {"fingerprint": key, "config": to_dict(cfg), "summary": summary,
-                            "seconds": round(seconds, 1)})  # fmt: skip
+    stage_fingerprint(stage, ws, cfg)  # missing inputs are errors before anything is written
+    with workspace_lock(ws):
+        key = stage_fingerprint(stage, ws, cfg)  # under the lock: what the stage will read
+        done = None if force else StageRecord(ws).get(stage.name, key, stage.outputs(ws, cfg))
+        if done is not None:
+            return done["summary"], True
+        txn = Transaction(ws, stage.name, [_inside(ws, p, stage) for p in stage.writes(ws, cfg)])
+        t0 = time.perf_counter()
+        # a failed stage leaves the workspace as it was; a killed (or interrupted) one, its staging to resume
+        with txn.staging_of(key) as staged:
+            if txn.resumed:
+                log(f"{stage.name}: resuming the interrupted run")
+            summary = stage.run(staged, cfg, log)
+            missing = [str(p.relative_to(txn.staging)) for p in stage.outputs(staged, cfg) if not p.exists()]
+            if missing:
+                raise WorkspaceError(f"{stage.command} finished without writing {', '.join(missing)}")
+            extra = None if ground_truth is None else stage.compare(staged, cfg, ground_truth)
+            if extra is not None:
+                summary = {**summary, **extra, "line": summary["line"] + extra["line"]}
+            summary = jsonable(_unstaged(summary, txn.staging, ws.root))
+        StageRecord(ws).put(stage.name, {"fingerprint": key, "config": to_dict(cfg), "summary": summary,
+                                         "seconds": round(time.perf_counter() - t0, 1)})  # fmt: skip
     return summary, False
 
+
+def _inside(ws: Workspace, path: Path, stage: Stage) -> Path:
+    """``path`` relative to the workspace root; outputs are written only inside the workspace."""
+    root, p = Path(os.path.abspath(ws.root)), Path(os.path.abspath(path))
+    if p == root or root not in p.parents:
+        raise WorkspaceError(f"{stage.command}: {path} is outside the workspace {ws.root}; outputs are written only "
+                             "inside it (choose a path below the workspace)")  # fmt: skip
+    return p.relative_to(root)
+
+
+def _unstaged(x: Any, staging: Path, root: Path) -> Any:
+    """``x`` with the staging folder in paths and texts replaced by the workspace root (where they land)."""
+    if isinstance(x, dict):
+        return {k: _unstaged(v, staging, root) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_unstaged(v, staging, root) for v in x]
+    if isinstance(x, Path | str) and str(staging) in str(x):
+        return type(x)(str(x).replace(str(staging), str(root)))
+    return x

@@ -38,3 +38,8 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
 
 def outputs(ws: Workspace, cfg: Config) -> list[Path]:
     return [ws.keyframes_file]
+
+
+def writes(ws: Workspace, cfg: Config) -> list[Path]:
+    """What the stage replaces (its transaction swaps these in together)."""
+    return [ws.capture_dir]

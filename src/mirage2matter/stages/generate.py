@@ -4,6 +4,7 @@ by the independent reader (``m2m validate``). A killed run resumes at the episod
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -62,8 +63,19 @@ def _dataset_dir(ws: Workspace, cfg: Config, task: str) -> Path:
     return cfg.out if cfg.out is not None else ws.dataset_dir(task_slug(task))
 
 
+def _finished(folder: Path, fingerprint: dict) -> dict | None:
+    """The summary of a finished dataset in ``folder`` whose fingerprint is ``fingerprint``, else None."""
+    try:
+        summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if summary.get("fingerprint") != fingerprint or not (folder / "meta" / "info.json").is_file():
+        return None
+    return {**summary, "dataset": str(folder)}
+
+
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
-    from ..datagen import generate
+    from ..datagen import dataset_fingerprint, generate
     from ..export.validate import validate
     from ..sim.tasks import parse_task
     from ..world import load_world
@@ -72,7 +84,12 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     tasks = [parse_task(text, world) for text in cfg.task]  # every task checked before any generation
     per_task, lines = {}, []
     for text, task in zip(cfg.task, tasks, strict=True):
-        s = generate(world, task, _dataset_dir(ws, cfg, text), cfg.generation(), log=log)
+        done = _finished(_dataset_dir(ws.committed, cfg, text), dataset_fingerprint(world, task, cfg.generation()))
+        if done is not None:  # the same dataset is already in the workspace: left in place, not rewritten
+            log(f"{text!r}: {done['dataset']} already holds this dataset")
+            s = done
+        else:
+            s = generate(world, task, _dataset_dir(ws, cfg, text), cfg.generation(), log=log)
         problems = validate(s["dataset"])
         per_task[text] = {**s, "validation_problems": problems}
         rate = s.get("success_rate")
@@ -87,3 +104,8 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
 
 def outputs(ws: Workspace, cfg: Config) -> list[Path]:
     return [_dataset_dir(ws, cfg, t) / "meta" / "info.json" for t in cfg.task]
+
+
+def writes(ws: Workspace, cfg: Config) -> list[Path]:
+    """What the stage replaces (its transaction swaps these in together)."""
+    return [_dataset_dir(ws, cfg, t) for t in cfg.task]

@@ -89,3 +89,8 @@ def compare(ws: Workspace, cfg: Config, gt: dict) -> dict[str, Any]:
 
 def outputs(ws: Workspace, cfg: Config) -> list[Path]:
     return [ws.handeye_file]
+
+
+def writes(ws: Workspace, cfg: Config) -> list[Path]:
+    """What the stage replaces (its transaction swaps these in together)."""
+    return [ws.handeye_file]

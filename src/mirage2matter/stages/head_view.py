@@ -34,18 +34,17 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
 
 
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
-    from PIL import Image
-
     from ..calib.board import BoardSpec
     from ..calib.headview import check_head_view, save_head_view
     from ..gaussians.ply import read_ply
     from ..geometry.camera import Camera
+    from ..inputs import read_image_rgb
 
     he, al = json.loads(ws.handeye_file.read_text()), json.loads(ws.alignment_file.read_text())
     if he.get("mount") != "head":
         raise WorkspaceError(f"{ws.handeye_file}: mount is {he.get('mount')!r}; the head-view check needs a head "
                              "camera (`m2m calibrate-handeye --mount head`)")  # fmt: skip
-    photo = np.asarray(Image.open(cfg.photo).convert("RGB")) if cfg.photo is not None else None
+    photo = read_image_rgb(cfg.photo, "head photo") if cfg.photo is not None else None
     width, height = he.get("width"), he.get("height")
     if width is None:
         if photo is None:
@@ -69,3 +68,8 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
 
 def outputs(ws: Workspace, cfg: Config) -> list[Path]:
     return [ws.head_view_file]
+
+
+def writes(ws: Workspace, cfg: Config) -> list[Path]:
+    """What the stage replaces (its transaction swaps these in together)."""
+    return [ws.head_view_png, ws.head_view_file]

@@ -48,17 +48,29 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     keep = ("sim3_obj_to_base", "mesh", "gaussians")
     with atomic_write(ws.objects_summary, "w", encoding="utf-8") as f:
         json.dump({k: {kk: v[kk] for kk in keep if kk in v} for k, v in out.items()}, f, indent=1, default=str)
-    lines = []
-    for name, s in out.items():
-        held = s["gaussians"]["heldout"]
-        lines.append(
-            f"{name}: mesh {s['mesh']['volume'] * 1e6:.1f} cm3, {s['mesh']['mass'] * 1000:.0f} g, watertight "
-            f"{s['mesh']['watertight']}, {s['collision']['parts']} convex parts; 3DGS masked PSNR "
-            f"{held['psnr_masked']:.2f} dB, alpha outside {held['alpha_outside']:.3f}; Gaussians to mesh "
-            f"{1000 * s['alignment']['median_distance_to_mesh_m']:.2f} mm (median)"
-        )
+    lines = [_object_line(name, s) for name, s in out.items()]
     return {"objects": out, "details": lines, "line": f"{len(out)} objects: {', '.join(sorted(out))}"}
+
+
+def _object_line(name: str, s: dict[str, Any]) -> str:
+    """One object's figures; a figure an object lacks (no held-out view, no opaque Gaussian) reads n/a."""
+
+    def num(v: Any, scale: float, fmt: str) -> str:
+        return "n/a" if not isinstance(v, int | float) else format(scale * v, fmt)
+
+    held, mesh = s.get("gaussians", {}).get("heldout") or {}, s.get("mesh", {})
+    return (
+        f"{name}: mesh {num(mesh.get('volume'), 1e6, '.1f')} cm3, {num(mesh.get('mass'), 1000, '.0f')} g, watertight "
+        f"{mesh.get('watertight')}, {s.get('collision', {}).get('parts')} convex parts; 3DGS masked PSNR "
+        f"{num(held.get('psnr_masked'), 1, '.2f')} dB, alpha outside {num(held.get('alpha_outside'), 1, '.3f')}; "
+        f"Gaussians to mesh {num(s.get('alignment', {}).get('median_distance_to_mesh_m'), 1000, '.2f')} mm (median)"
+    )
 
 
 def outputs(ws: Workspace, cfg: Config) -> list[Path]:
     return [ws.objects_summary]
+
+
+def writes(ws: Workspace, cfg: Config) -> list[Path]:
+    """What the stage replaces (its transaction swaps these in together)."""
+    return [ws.objects_dir]

@@ -15,9 +15,11 @@ from typing import Any
 
 from ..atomic import atomic_write
 from ..configs import ConfigError, from_dict, to_dict
+from ..inputs import read_yaml
 from ..workspace import Workspace
 from . import STAGES, align, capture, generate, handeye, head_view, objects, scene, sfm, world
 from .base import Log, run_stage
+from .transaction import workspace_lock
 
 __all__ = ["PipelineConfig", "run_pipeline"]
 
@@ -52,17 +54,10 @@ class PipelineConfig:
     @classmethod
     def load(cls, path: str | Path) -> PipelineConfig:
         """Read an ``m2m.yaml`` (paths relative to its folder); ConfigError names the file and the field."""
-        import yaml
-
         path = Path(path)
+        data = read_yaml(path, "pipeline settings (m2m.yaml)")
         try:
-            data = yaml.safe_load(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise ConfigError(f"{path} not found") from None
-        except yaml.YAMLError as e:
-            raise ConfigError(f"{path}: not valid YAML ({e})") from None
-        try:
-            return from_dict(cls, data or {}, base_dir=path.parent.resolve())
+            return from_dict(cls, data, base_dir=path.parent.resolve())
         except ConfigError as e:
             raise ConfigError(f"{path}: {e}") from None
 
@@ -97,6 +92,11 @@ def run_pipeline(
     if lo >= hi:
         raise ConfigError(f"--from {start} comes after --until {until}")
     chosen = STAGES[lo:hi]
+    with workspace_lock(ws):  # one writer for the whole run
+        return _run(ws, cfg, chosen, log, ground_truth)
+
+
+def _run(ws: Workspace, cfg: PipelineConfig, chosen, log: Log, ground_truth: dict | None) -> dict[str, Any]:
     t_start = time.perf_counter()
     summaries: dict[str, Any] = {}
     for i, stage in enumerate(chosen, 1):

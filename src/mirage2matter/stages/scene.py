@@ -178,3 +178,8 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
 
 def outputs(ws: Workspace, cfg: Config) -> list[Path]:
     return [ws.scene_ply, ws.scene_metrics]
+
+
+def writes(ws: Workspace, cfg: Config) -> list[Path]:
+    """What the stage replaces (its transaction swaps these in together)."""
+    return [ws.scene_dir]

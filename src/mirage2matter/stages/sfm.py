@@ -92,3 +92,8 @@ def compare(ws: Workspace, cfg: Config, gt: dict) -> dict[str, Any]:
 
 def outputs(ws: Workspace, cfg: Config) -> list[Path]:
     return [ws.sfm_file]
+
+
+def writes(ws: Workspace, cfg: Config) -> list[Path]:
+    """What the stage replaces (its transaction swaps these in together)."""
+    return [ws.sfm_dir] + ([ws.capture_dir] if cfg.from_transforms is not None or cfg.from_colmap is not None else [])

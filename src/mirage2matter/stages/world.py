@@ -100,7 +100,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     else:
         world = world_from_reconstruction(ws.world_dir, _head_camera(ws), ws.scene_ply, _object_dirs(ws),
                                           cfg.options(), log)  # fmt: skip
-    save_world(world)
+    save_world(world.relocated(ws.world_dir, ws.committed.world_dir), ws.world_yaml, home=ws.committed.world_dir)
     write_world_ply(world)
     cons = {k: 1000 * v for k, v in consistency(world).items()}
     worst = max(cons.values(), default=0.0)
@@ -115,3 +115,8 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
 
 def outputs(ws: Workspace, cfg: Config) -> list[Path]:
     return [ws.world_yaml]
+
+
+def writes(ws: Workspace, cfg: Config) -> list[Path]:
+    """What the stage replaces (its transaction swaps these in together)."""
+    return [ws.world_dir]

@@ -27,6 +27,7 @@ import numpy as np
 from ..atomic import atomic_write
 from ..errors import M2MError
 from ..geometry.sim3 import Sim3
+from ..inputs import InputError, check_image_size, check_intrinsics, check_joints, read_yaml
 from ..robots import DEFAULT_ROBOT, RobotError, RobotSpec, get_robot
 
 __all__ = [
@@ -81,12 +82,27 @@ def _sim3(value: Any, where: str) -> Sim3:
 
 
 def _path(value: Any, root: Path, where: str) -> Path | None:
+    """A file world.yaml names, resolved; it must lie in the world's workspace (the folder holding the world
+    folder), so a world can neither read nor, through an edit, write outside it."""
     if value in (None, ""):
         return None
     if not isinstance(value, str | os.PathLike):
         raise WorldConfigError(f"{where}: expected a path, got {value!r}")
     p = Path(value)
-    return p if p.is_absolute() else (root / p).resolve()
+    p = (p if p.is_absolute() else root / p).resolve()
+    home = root.parent
+    if home not in p.parents:
+        raise WorldConfigError(
+            f"{where}: {value} is outside the workspace {home}; a world names files inside its workspace (copy the "
+            "asset in, or add it with `m2m world insert`)"
+        )
+    return p
+
+
+def _bool(value: Any, where: str) -> bool:
+    if not isinstance(value, bool):
+        raise WorldConfigError(f"{where}: expected true or false, got {value!r}")
+    return value
 
 
 def _rel(path: Path | None, root: Path) -> str | None:
@@ -108,9 +124,20 @@ def _float(value: Any, where: str, lo: float = -math.inf, hi: float = math.inf) 
     return v
 
 
-def _check_keys(data: Any, allowed: set[str], where: str) -> dict:
+def _list(data: Any, where: str) -> list:
+    if data is None:
+        return []
+    if not isinstance(data, list):
+        raise WorldConfigError(f"{where}: expected a list, got {type(data).__name__}")
+    return data
+
+
+def _check_keys(data: Any, allowed: set[str] | None, where: str) -> dict:
+    """``data`` as a mapping (None: any keys)."""
     if not isinstance(data, dict):
         raise WorldConfigError(f"{where}: expected a mapping, got {type(data).__name__}")
+    if allowed is None:
+        return data
     unknown = set(data) - allowed
     if unknown:
         raise WorldConfigError(f"{where}: unknown field(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
@@ -129,9 +156,9 @@ def _robot(data: Any, root: Path) -> RobotConfig:
         robot_file = str((root / robot_file).resolve())
     home = r.get("home") or spec.home
     try:
-        home = tuple(float(v) for v in home)
-    except (TypeError, ValueError):
-        raise WorldConfigError(f"robot.home: expected {spec.n_arm} joint angles (rad), got {home!r}") from None
+        home = tuple(check_joints(home, spec.arm_joints, None, "robot.home").tolist())
+    except InputError as e:
+        raise WorldConfigError(f"{e} (rad)") from None
     return RobotConfig(name=spec.name, file=robot_file, ee_link=str(r.get("ee_link") or spec.ee_link), home=home)
 
 
@@ -286,6 +313,26 @@ class WorldConfig:
     def copy(self) -> WorldConfig:
         return copy.deepcopy(self)
 
+    def relocated(self, src: Path, dst: Path) -> WorldConfig:
+        """A copy whose files under folder ``src`` are named under ``dst`` instead (and whose root moves the same
+        way): a world built in a staging folder, as it reads once swapped into place."""
+        src, dst = Path(src).resolve(), Path(dst).resolve()
+
+        def move(p: Path | None) -> Path | None:
+            if p is None or (p != src and src not in p.parents):
+                return p
+            return dst / p.relative_to(src)
+
+        new = self.copy()
+        new.root = move(new.root)
+        for it in [*new.objects, *new.articulated]:
+            for attr in ("part", "base", "cap"):
+                part = getattr(it, attr, None)
+                if part is not None:
+                    setattr(it, attr, PartConfig(move(part.gaussians), move(part.mesh), move(part.collision)))
+        new.scene_gaussians = move(new.scene_gaussians)
+        return new
+
     # ---- (de)serialisation -----------------------------------------------------------------------
     @classmethod
     def from_dict(cls, data: dict, root: str | os.PathLike) -> WorldConfig:
@@ -296,19 +343,21 @@ class WorldConfig:
             raise WorldConfigError(f"world.yaml: version {data.get('version')!r} is not supported (expected 1)")
         robot = _robot(data.get("robot") or {}, root)
         cameras = {}
-        for name, c in (data.get("cameras") or {}).items():
+        for name, c in _check_keys(data.get("cameras") or {}, None, "cameras").items():
             where = f"cameras.{name}"
             c = _check_keys(c, {"mount", "T_mount_cam", "K", "width", "height"}, where)
             for key in ("mount", "T_mount_cam", "K", "width", "height"):
                 if key not in c:
                     raise WorldConfigError(f"{where}: missing {key!r}")
+            try:
+                K = check_intrinsics(c["K"], f"{where}.K")
+                width, height = (check_image_size(c[k], f"{where}.{k}", k) for k in ("width", "height"))
+            except InputError as e:
+                raise WorldConfigError(str(e)) from None
             cameras[str(name)] = CameraConfig(
-                mount=str(c["mount"]),
-                T_mount_cam=_rigid(c["T_mount_cam"], f"{where}.T_mount_cam"),
-                K=_matrix(c["K"], (3, 3), f"{where}.K"),
-                width=int(c["width"]),
-                height=int(c["height"]),
-            )
+                mount=str(c["mount"]), T_mount_cam=_rigid(c["T_mount_cam"], f"{where}.T_mount_cam"), K=K,
+                width=width, height=height,
+            )  # fmt: skip
         scene = _check_keys(data.get("scene") or {}, {"gaussians"}, "scene")
 
         def part(d: Any, where: str) -> PartConfig:
@@ -320,7 +369,7 @@ class WorldConfig:
             )
 
         objects = []
-        for i, o in enumerate(data.get("objects") or []):
+        for i, o in enumerate(_list(data.get("objects"), "objects")):
             where = f"objects[{i}]"
             o = _check_keys(
                 o, {"name", "gaussians", "mesh", "collision", "placement", "mass", "density", "friction"}, where
@@ -341,7 +390,7 @@ class WorldConfig:
                 )
             )
         articulated = []
-        for i, a in enumerate(data.get("articulated") or []):
+        for i, a in enumerate(_list(data.get("articulated"), "articulated")):
             where = f"articulated[{i}]"
             allowed_a = {f.name for f in fields(ArticulatedConfig)}
             a = _check_keys(a, allowed_a, where)
@@ -369,8 +418,10 @@ class WorldConfig:
                 )
             )
         lights = []
-        for i, li in enumerate(data.get("lights") or []):
+        for i, li in enumerate(_list(data.get("lights"), "lights")):
             li = _check_keys(li, {"dir", "color", "intensity"}, f"lights[{i}]")
+            if "dir" not in li:
+                raise WorldConfigError(f"lights[{i}]: missing 'dir' (the direction the light travels, base frame)")
             lights.append(
                 LightConfig(
                     dir=tuple(_matrix(li["dir"], (3,), f"lights[{i}].dir").tolist()),
@@ -385,7 +436,7 @@ class WorldConfig:
             y=tuple(_matrix(rz.get("y", defaults.y), (2,), "randomize.y").tolist()),
             yaw_deg=tuple(_matrix(rz.get("yaw_deg", defaults.yaw_deg), (2,), "randomize.yaw_deg").tolist()),
             min_gap=_float(rz.get("min_gap", defaults.min_gap), "randomize.min_gap", 0.0, 1.0),
-            articulated=bool(rz.get("articulated", defaults.articulated)),
+            articulated=_bool(rz.get("articulated", defaults.articulated), "randomize.articulated"),
         )
         return cls(
             root=root,
@@ -480,29 +531,31 @@ def world_yaml_path(world: str | os.PathLike) -> Path:
 
 def read_world(path: str | os.PathLike) -> WorldConfig:
     """Parse the world.yaml file ``path`` (no checks of the files it names: ``world.io.load_world`` does those)."""
-    import yaml
-
     path = Path(path)
     if not path.is_file():
-        raise WorldConfigError(f"{path} not found; create it with `m2m compose -w <workspace> --sample` or by hand")
+        raise WorldConfigError(f"{path} not found; create it with `m2m compose -w <workspace>` or by hand")
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except yaml.YAMLError as e:
-        raise WorldConfigError(f"{path}: not valid YAML ({e})") from None
+        data = read_yaml(path, "world file")
+    except InputError as e:
+        raise WorldConfigError(str(e)) from None
     try:
-        return WorldConfig.from_dict(data or {}, path.parent)
+        return WorldConfig.from_dict(data, path.parent)
     except WorldConfigError as e:
         raise WorldConfigError(f"{path}: {e}") from None
 
 
-def save_world(cfg: WorldConfig, path: str | os.PathLike | None = None) -> Path:
-    """Write ``cfg`` as YAML (atomically) to ``path`` (default ``<cfg.root>/world.yaml``); returns the path."""
+def save_world(
+    cfg: WorldConfig, path: str | os.PathLike | None = None, *, home: str | os.PathLike | None = None
+) -> Path:
+    """Write ``cfg`` as YAML (atomically) to ``path`` (default ``<cfg.root>/world.yaml``); returns the path.
+    Paths are written relative to ``home``, the folder the file will be read from (default: ``path``'s)."""
     import yaml
 
     path = Path(path) if path is not None else cfg.root / "world.yaml"
-    if path.parent.resolve() != cfg.root:
+    home = Path(home).resolve() if home is not None else path.parent.resolve()
+    if home != cfg.root:
         cfg = cfg.copy()  # paths are absolute in memory; only their relative spelling changes
-        cfg.root = path.parent.resolve()
+        cfg.root = home
     path.parent.mkdir(parents=True, exist_ok=True)
     text = yaml.safe_dump(cfg.to_dict(), sort_keys=False, default_flow_style=None, width=200)
     with atomic_write(path, "w", encoding="utf-8") as f:
