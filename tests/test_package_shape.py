@@ -75,12 +75,15 @@ def test_no_import_circles():
 
 
 def test_layers_point_one_way():
-    """geometry imports nothing of ours but errors; libraries import no stage, command or CLI module."""
+    """geometry imports nothing of ours but errors and inputs (which import nothing but errors); libraries import
+    no stage, command or CLI module."""
     graph = _import_graph()
     upper = ("mirage2matter.stages", "mirage2matter.commands", "mirage2matter.cli", "mirage2matter.__main__")
+    assert graph["mirage2matter.inputs"] <= {"mirage2matter.errors"} and not graph["mirage2matter.errors"]
     for m, deps in graph.items():
         if m.startswith("mirage2matter.geometry"):
-            assert deps <= {d for d in deps if d.startswith("mirage2matter.geometry")} | {"mirage2matter.errors"}, m
+            leaves = {"mirage2matter.errors", "mirage2matter.inputs"}
+            assert deps <= {d for d in deps if d.startswith("mirage2matter.geometry")} | leaves, m
         if not m.startswith(upper):
             bad = sorted(d for d in deps if d.startswith(upper))
             assert not bad, f"{m} (a library) imports {bad}"

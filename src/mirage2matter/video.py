@@ -75,7 +75,18 @@ def read_video_frames(path: str | Path, every: int = 1) -> Iterator[tuple[int, f
         if not container.streams.video:
             raise VideoError(f"{path}: has no video stream")
         stream = container.streams.video[0]
-        for i, frame in enumerate(container.decode(stream)):
-            if i % every == 0:
-                ts = float(frame.pts * stream.time_base) if frame.pts is not None else i / float(stream.average_rate)
-                yield i, ts, frame.to_ndarray(format="rgb24")
+        expected, n = int(stream.frames or 0), 0
+        try:
+            for i, frame in enumerate(container.decode(stream)):
+                n = i + 1
+                if i % every == 0:
+                    rate = float(stream.average_rate)
+                    ts = float(frame.pts * stream.time_base) if frame.pts is not None else i / rate
+                    yield i, ts, frame.to_ndarray(format="rgb24")
+        except av.error.FFmpegError as exc:
+            raise VideoError(f"{path}: decoding failed at frame {n} ({exc}); the file is damaged from there: "
+                             "re-export or re-record it") from None  # fmt: skip
+        # FFmpeg skips undecodable data without an error: a damaged file ends early
+        if expected and n < expected:
+            raise VideoError(f"{path}: only {n} of its {expected} frames decode (decoding stopped after frame {n}); "
+                             "the file is damaged there: re-export or re-record it")  # fmt: skip

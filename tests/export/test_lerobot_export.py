@@ -46,8 +46,11 @@ def synthetic_episode(seed: int, task: str = "grasp banana", spec: DatasetSpec =
     rng = np.random.default_rng(seed)
     t = int(rng.integers(6, 14))
     images = {c: _frames(rng, t, h, w) for c, (h, w) in spec.cameras.items()}
-    state = rng.normal(size=(t, len(spec.state_names))).astype(np.float32)
-    action = rng.normal(size=(t, len(spec.action_names))).astype(np.float32)
+    # a smooth trajectory: each action is where the joints are one frame later (as a controller tracks it)
+    state = np.cumsum(rng.normal(scale=0.15, size=(t, len(spec.state_names))), axis=0).astype(np.float32)
+    action = rng.normal(scale=0.01, size=(t, len(spec.action_names))).astype(np.float32)
+    n = min(len(spec.state_names), len(spec.action_names))
+    action[:-1, :n] += state[1:, :n]
     return EpisodeData(task, images, state, action)
 
 
@@ -164,6 +167,19 @@ def test_validator_finds_corruption(tmp_path: Path) -> None:
 
     _rewrite_parquet(data, gap)
     assert any("index is not 0..N-1" in p for p in validate(out))
+    restore()
+
+    # Two frames of an episode swapped (state and action together): stats, counts and indices all still agree;
+    # only the action no longer leads to the next state.
+    def swap(t: pa.Table) -> pa.Table:
+        for name in ("observation.state", "action"):
+            col = t.column(name).to_pylist()
+            col[1], col[5] = col[5], col[1]
+            t = t.set_column(t.schema.get_field_index(name), name, pa.array(col, type=t.schema.field(name).type))
+        return t
+
+    _rewrite_parquet(data, swap)
+    assert any("episode 0 frame 0: its action and the next frame's state disagree" in p for p in validate(out))
     restore()
 
     # info.json claiming a different frame size than the videos.

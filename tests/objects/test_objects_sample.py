@@ -107,6 +107,28 @@ SMALL = dict(
 )
 
 
+SMALL_FLAGS = ["--matting.iterations", "500", "--matting.init-gaussians", "8000", "--matting.max-gaussians", "20000",
+               "--splat.iterations", "200", "--splat.sh-degree", "1", "--splat.max-gaussians", "20000",
+               "--voxel", "0.0025", "--figure-views", "2"]  # fmt: skip
+
+
+@pytest.mark.slow  # the user mesh's outline fit takes ~2 minutes on 2 cores
+def test_cli_with_a_user_mesh_writes_the_object_and_reports_it(small_ws, tmp_path, capsys):
+    """`m2m objects --mesh banana=<a valid watertight mesh>` (it used to write its artifacts and then raise a
+    TypeError while printing them, on every rerun)."""
+    ws = tmp_path / "ws"
+    shutil.copytree(small_ws / "capture", ws / "capture")
+    shutil.copytree(small_ws / "calib", ws / "calib")
+    mesh = SAMPLE / {o["name"]: o for o in GT["objects"]}["banana"]["mesh"]
+    args = ["objects", "-w", str(ws), "--names", "banana", "--mesh", f"banana={mesh}", *SMALL_FLAGS]
+    for _ in range(2):  # the rerun is up to date and prints the same
+        assert main(args) == 0
+        out = capsys.readouterr().out
+        assert "banana: mesh " in out and "watertight True" in out and "Traceback" not in out
+    align = json.loads((ws / "objects" / "banana" / "align.json").read_text())
+    assert align["mesh_source"] == str(mesh)
+
+
 def test_banana_small_run_against_ground_truth(small_ws):
     out = run_objects(small_ws, ObjectsConfig(names=["banana"], **SMALL))
     folder = small_ws / "objects" / "banana"

@@ -12,9 +12,9 @@ from mirage2matter.world.config import world_yaml_path
 
 
 def _edit_yaml(ws, tmp_path, fn):
-    """Copy the world.yaml into tmp_path (paths made absolute), apply fn to its dict, return the new path."""
+    """A second world.yaml in the same workspace with fn applied to its dict; returns its path."""
     cfg = load_world(ws / "world")
-    out = tmp_path / "world.yaml"
+    out = ws / f"edited_{tmp_path.name}" / "world.yaml"  # a world folder of the same workspace
     save_world(cfg, out)
     data = yaml.safe_load(out.read_text())
     fn(data)
@@ -26,7 +26,7 @@ def test_round_trip(sample_ws, tmp_path):
     cfg = load_world(sample_ws / "world")
     assert [o.name for o in cfg.objects] == ["banana", "croissant"]
     assert [a.name for a in cfg.articulated] == ["button"]
-    out = save_world(cfg, tmp_path / "copy" / "world.yaml")
+    out = save_world(cfg, sample_ws / "copy" / "world.yaml")  # another folder of the workspace: paths re-relativised
     again = load_world(out)
     assert again.to_dict()["objects"][0]["placement"] == cfg.to_dict()["objects"][0]["placement"]
     assert again.objects[0].part.mesh == cfg.objects[0].part.mesh  # relative paths re-resolved to the same files
@@ -47,8 +47,11 @@ def test_object_without_mesh(sample_ws, tmp_path):
 
 
 def test_missing_mesh_file(sample_ws, tmp_path):
-    path = _edit_yaml(sample_ws, tmp_path, lambda d: d["objects"][1].update(mesh="/nonexistent/croissant.obj"))
+    path = _edit_yaml(sample_ws, tmp_path, lambda d: d["objects"][1].update(mesh="../missing/croissant.obj"))
     with pytest.raises(WorldConfigError, match=r"croissant.*not found"):
+        load_world(path)
+    path = _edit_yaml(sample_ws, tmp_path, lambda d: d["objects"][1].update(mesh="/etc/croissant.obj"))
+    with pytest.raises(WorldConfigError, match=r"croissant.*outside the workspace"):
         load_world(path)
 
 
@@ -91,8 +94,8 @@ def test_missing_world(tmp_path):
 
 
 def test_collision_folder_without_parts(sample_ws, tmp_path):
-    empty = tmp_path / "empty_collision"
-    empty.mkdir()
+    empty = sample_ws / f"edited_{tmp_path.name}" / "empty_collision"
+    empty.mkdir(parents=True)
     path = _edit_yaml(sample_ws, tmp_path, lambda d: d["objects"][0].update(collision=str(empty)))
     with pytest.raises(WorldConfigError, match="convex"):
         load_world(path)

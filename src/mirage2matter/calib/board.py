@@ -26,6 +26,7 @@ import numpy as np
 
 from ..atomic import atomic_write
 from ..errors import M2MError
+from ..inputs import InputError, read_json
 
 __all__ = ["BoardError", "BoardSpec", "board_frame_to_board_image", "board_image_to_board_frame", "margin_pixels"]
 
@@ -172,11 +173,10 @@ class BoardSpec:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> BoardSpec:
-        with open(path, encoding="utf-8") as f:
-            try:
-                data = json.load(f)
-            except json.JSONDecodeError as e:
-                raise BoardError(f"{path}: not valid JSON ({e})") from e
+        try:
+            data = read_json(path, "board spec")
+        except InputError as e:
+            raise BoardError(str(e)) from None
         try:
             return cls.from_json(data)
         except ValueError as e:

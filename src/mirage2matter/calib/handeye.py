@@ -12,7 +12,6 @@ the gripper poses inverted (the base "rides" on the gripper), which gives the ca
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -228,17 +227,21 @@ def calibrate_from_files(
     """Detect the board in every image of ``joints_file`` (``{"robot", "link", "views": [{"image",
     "joints"}]}``, image paths relative to ``images_dir``), run forward kinematics, solve.
     Returns the result and its JSON (with the images used and those skipped)."""
-    from PIL import Image
-
+    from ..inputs import InputError, check_joints, read_image_rgb, read_json
     from ..robots import DEFAULT_ROBOT, get_robot
     from .kinematics import RobotKinematics
 
     joints_file, images_dir = Path(joints_file), Path(images_dir)
     try:
-        spec = json.loads(joints_file.read_text())
-        views = spec["views"]
-    except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
-        raise HandEyeError(f"{joints_file}: expected JSON {{'views': [{{'image', 'joints'}}, ...]}} ({e})") from None
+        spec = read_json(joints_file, "joints file")
+    except InputError as e:
+        raise HandEyeError(str(e)) from None
+    views = spec.get("views")
+    if not isinstance(views, list) or not all(isinstance(v, dict) and "image" in v and "joints" in v for v in views):
+        raise HandEyeError(f"{joints_file}: expected {{'views': [{{'image': NAME, 'joints': [...]}}, ...]}} (joint "
+                           "angles in radians, one list per image)")  # fmt: skip
+    if not images_dir.is_dir():
+        raise HandEyeError(f"{images_dir}: not a folder of board images")
     images = sorted(p for p in images_dir.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
     if len(images) != len(views):
         raise HandEyeError(
@@ -248,13 +251,21 @@ def calibrate_from_files(
     default = get_robot(DEFAULT_ROBOT)
     kin = RobotKinematics(robot or spec.get("robot", default.model))
     link = link or spec.get("link", default.ee_link)
+    n_chain, limits = kin.chain(link)
     used, skipped, T_links, observations = [], [], [], []
-    for view in views:
-        name = Path(view["image"]).name
+    for i, view in enumerate(views):
+        name = Path(str(view["image"])).name
         path = images_dir / name
         if not path.is_file():
             raise HandEyeError(f"{joints_file} names image {name}, which is not in {images_dir}")
-        obs = detect_board_pose(np.asarray(Image.open(path).convert("RGB")), board, K)
+        q = view["joints"]
+        try:  # the joints that move the link: a view missing some is a different pose, not a rounding
+            if isinstance(q, list) and len(q) >= n_chain:
+                q = q[:n_chain]
+            check_joints(q, tuple(f"{k + 1}" for k in range(n_chain)), limits, f"{joints_file}: views[{i}] ({name})")
+        except InputError as e:
+            raise HandEyeError(f"{e}; {link} is moved by the first {n_chain} joints of {kin.path.name}") from None
+        obs = detect_board_pose(read_image_rgb(path, "board image"), board, K)
         if obs is None:
             skipped.append(name)
             continue

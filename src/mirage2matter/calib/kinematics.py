@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import M2MError
 from ..robots import DEFAULT_ROBOT, get_robot
 
 _DEFAULT = get_robot(DEFAULT_ROBOT)
@@ -34,6 +35,10 @@ def resolve_robot_path(robot: str | os.PathLike) -> Path:
     )
 
 
+class KinematicsError(M2MError, ValueError):
+    """A robot model, link or joint vector the kinematics cannot use."""
+
+
 class RobotKinematics:
     """Link poses T_base_link [4,4] for joint vectors q; the model's world frame is the robot base.
 
@@ -47,7 +52,7 @@ class RobotKinematics:
         try:
             self._model = mujoco.MjModel.from_xml_path(str(self.path))
         except ValueError as e:
-            raise ValueError(f"{self.path}: MuJoCo cannot load this robot model ({e})") from None
+            raise KinematicsError(f"{self.path}: MuJoCo cannot load this robot model ({e})") from None
         self._data = mujoco.MjData(self._model)
         self._mujoco = mujoco
 
@@ -55,17 +60,38 @@ class RobotKinematics:
     def n_joints(self) -> int:
         return self._model.nq
 
+    def chain(self, link: str) -> tuple[int, np.ndarray]:
+        """(n, limits [n,2]): the joint values up to ``link`` (the first n of q move it) and their limits
+        (+-inf where a joint is unlimited)."""
+        m = self._model
+        try:
+            body = m.body(link).id
+        except KeyError:
+            names = [m.body(i).name for i in range(m.nbody)]
+            raise KinematicsError(f"link {link!r} not in {self.path.name}; links: {', '.join(names)}") from None
+        n = 0
+        while body > 0:
+            for j in range(m.body_jntadr[body], m.body_jntadr[body] + m.body_jntnum[body]):
+                n = max(n, int(m.jnt_qposadr[j]) + 1)
+            body = int(m.body_parentid[body])
+        limits = np.full((n, 2), [-np.inf, np.inf])
+        for j in range(m.njnt):
+            a = int(m.jnt_qposadr[j])
+            if a < n and m.jnt_limited[j]:
+                limits[a] = m.jnt_range[j]
+        return n, limits
+
     def link_pose(self, q: np.ndarray, link: str = _DEFAULT.ee_link) -> np.ndarray:
         """T_base_link [4,4] at joint positions q [n] (n <= n_joints; the rest stay at 0); default link: the
         default robot's end-effector link."""
         q = np.asarray(q, dtype=np.float64).ravel()
         if q.size > self._model.nq:
-            raise ValueError(f"{q.size} joint values given, the model {self.path.name} has {self._model.nq}")
+            raise KinematicsError(f"{q.size} joint values given, the model {self.path.name} has {self._model.nq}")
         try:
             body = self._model.body(link).id
         except KeyError:
             names = [self._model.body(i).name for i in range(self._model.nbody)]
-            raise ValueError(f"link {link!r} not in {self.path.name}; links: {', '.join(names)}") from None
+            raise KinematicsError(f"link {link!r} not in {self.path.name}; links: {', '.join(names)}") from None
         self._data.qpos[:] = 0.0
         self._data.qpos[: q.size] = q
         self._mujoco.mj_kinematics(self._model, self._data)
@@ -89,7 +115,7 @@ class RobotKinematics:
             v = m.mesh_vert[m.mesh_vertadr[mesh] : m.mesh_vertadr[mesh] + m.mesh_vertnum[mesh]]
             pts.append(v @ d.geom_xmat[g].reshape(3, 3).T + d.geom_xpos[g])
         if not pts:
-            raise ValueError(f"{self.path.name}: the base link has no mesh geometry to take a footprint from")
+            raise KinematicsError(f"{self.path.name}: the base link has no mesh geometry to take a footprint from")
         return np.concatenate(pts).astype(np.float64)
 
     def base_footprint(self, height: float = 0.01) -> np.ndarray:

@@ -195,7 +195,42 @@ def _check_rows(table, info: dict, data_feats: list[str], problems: _Problems) -
     for e in np.unique(ep):
         if len(np.unique(ti[ep == e])) != 1:
             problems.add(f"data: episode {e} has more than one task_index")
+    _check_state_action(cols, info, problems)
     return cols
+
+
+# A joint command names where the joint is one control tick later: the arm lags behind it by about one tick's
+# motion (measured on the demo's datasets: median 0.02-0.04 rad, at most 0.24 rad at the Panda's speeds), so a
+# frame off by more than this (or 6x the dataset's median) holds a row out of order or state and action mixed up.
+STATE_ACTION_TOL = 0.3
+
+
+def _check_state_action(cols: dict[str, np.ndarray], info: dict, problems: _Problems) -> None:
+    """``action`` at frame t against ``observation.state`` at t + 1, over the entries both name (joint
+    positions; the gripper command is named apart)."""
+    feats = info["features"]
+    if not {"observation.state", "action", "episode_index", "frame_index"} <= set(cols):
+        return
+    s_names, a_names = feats["observation.state"].get("names") or [], feats["action"].get("names") or []
+    common = [n for n in a_names if isinstance(n, str) and n in s_names]
+    S, A = np.asarray(cols["observation.state"], np.float64), np.asarray(cols["action"], np.float64)
+    if not common or S.ndim != 2 or A.ndim != 2:
+        return
+    S = S[:, [s_names.index(n) for n in common]]
+    A = A[:, [a_names.index(n) for n in common]]
+    ep = cols["episode_index"]
+    pairs = np.flatnonzero(ep[1:] == ep[:-1])  # rows t whose next row is the same episode's next frame
+    if not len(pairs):
+        return
+    r = np.abs(A[pairs] - S[pairs + 1]).max(axis=1)
+    tol = max(STATE_ACTION_TOL, 6 * float(np.median(r)))
+    for i in np.flatnonzero(r > tol)[:5]:
+        t = pairs[i]
+        problems.add(
+            f"data: episode {ep[t]} frame {cols['frame_index'][t]}: its action and the next frame's state disagree by "
+            f"{r[i]:.3f} (> {tol:.3f}) in {', '.join(common)}; are rows out of order, or state and action from "
+            "different steps?"
+        )
 
 
 def _check_stats(root: Path, cols: dict, video_stats: dict[str, _ImageStats], problems: _Problems) -> None:

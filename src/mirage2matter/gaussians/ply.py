@@ -22,6 +22,7 @@ import torch
 
 from ..atomic import atomic_write
 from ..errors import M2MError
+from ..inputs import MAX_LOG_SCALE
 from .model import Gaussians
 from .sh import MAX_SH_DEGREE, num_sh_bases
 
@@ -133,6 +134,16 @@ def read_ply(path: str | os.PathLike[str]) -> Gaussians:
         shown += f", ... ({len(ordered)} properties)" if len(ordered) > 8 else ""
         raise _fail(path, f"NaN/Inf values (property: rows affected, of {len(vertex.data)}): {shown}")
 
+    # finite already; rotations that cannot be normalised and km-wide Gaussians are broken files too
+    q = np.linalg.norm(arrays["quats"].astype(np.float64), axis=1)
+    if len(q) and q.min() < 1e-8:
+        raise _fail(path, f"Gaussian {int(np.argmin(q))} has a zero rotation quaternion (rot_0..rot_3)")
+    top = arrays["log_scales"].max(axis=1) if len(q) else np.zeros(0)
+    if len(top) and top.max() > MAX_LOG_SCALE:
+        i = int(np.argmax(top))
+        wide = np.exp(min(float(top[i]), 700.0))
+        raise _fail(path, f"Gaussian {i} has log-scale {top[i]:.1f} (> {MAX_LOG_SCALE}: {wide:.3g} m wide); "
+                    "not a splat of a real scene")  # fmt: skip
     n = len(vertex.data)
     return Gaussians(
         means=torch.from_numpy(arrays["means"]),

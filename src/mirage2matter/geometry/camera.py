@@ -8,7 +8,8 @@ centres at integer coordinates; shift cx, cy by -0.5 when handing K to them.)
 Importers: instant-ngp / nerfstudio ``transforms.json``, whose camera-to-world matrices use the
 OpenGL convention (x right, y up, z backward); they are converted once, here.
 
-Geometry is the bottom of the stack: this module imports nothing else from mirage2matter but ``errors``.
+Geometry is the bottom of the stack: this module imports nothing else from mirage2matter but ``errors`` and
+``inputs`` (the file readers and value checks every command shares).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import M2MError
+from ..inputs import InputError, check_image_size, check_intrinsics, read_json
 from .sim3 import invert_rigid
 
 __all__ = [
@@ -68,11 +70,10 @@ def _matrix(value: Any, shape: tuple[int, int], where: str, name: str) -> np.nda
 
 def _check_K(value: Any, where: str) -> np.ndarray:
     K = _matrix(value, (3, 3), where, "K")
-    if not (K[0, 0] > 0 and K[1, 1] > 0):
-        raise CameraFormatError(f"{where}: K: focal lengths must be positive, got fx={K[0, 0]:g} fy={K[1, 1]:g}")
-    if abs(K[1, 0]) > 1e-9 or np.abs(K[2] - [0.0, 0.0, 1.0]).max() > 1e-9:
-        raise CameraFormatError(f"{where}: K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}")
-    return K
+    try:
+        return check_intrinsics(K, where)
+    except InputError as e:
+        raise CameraFormatError(str(e)) from None
 
 
 def _check_rigid(value: Any, where: str, name: str = "T_world_cam") -> np.ndarray:
@@ -106,11 +107,10 @@ def _check_rigid(value: Any, where: str, name: str = "T_world_cam") -> np.ndarra
 
 
 def _check_size(value: Any, where: str, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise CameraFormatError(f"{where}: {name} must be a positive integer, got {value!r}")
-    if not float(value).is_integer() or value <= 0:
-        raise CameraFormatError(f"{where}: {name} must be a positive integer, got {value!r}")
-    return int(value)
+    try:
+        return check_image_size(value, where, name)
+    except InputError as e:
+        raise CameraFormatError(str(e)) from None
 
 
 # ---- the camera ---------------------------------------------------------------------------------
@@ -301,10 +301,9 @@ def _read_json(path: Path) -> Any:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
     try:
-        with open(path, encoding="utf-8") as f:
-            return json.load(f)
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise CameraFormatError(f"{path}: not valid JSON ({e})") from e
+        return read_json(path, "camera file", expect=None)
+    except InputError as e:
+        raise CameraFormatError(str(e)) from None
 
 
 def load_camera_json(path: str | os.PathLike[str]) -> Camera:
@@ -335,7 +334,7 @@ def save_camera_json(path: str | os.PathLike[str], cam: Camera) -> None:
     path = Path(path)
     if not path.parent.is_dir():
         raise FileNotFoundError(f"cannot write {path}: directory {path.parent} does not exist")
-    # A local temp+rename instead of mirage2matter.atomic: geometry imports nothing of ours but errors.
+    # A local temp+rename instead of mirage2matter.atomic: geometry imports nothing of ours but errors and inputs.
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}")
     try:
         with open(tmp, "w", encoding="utf-8") as f:

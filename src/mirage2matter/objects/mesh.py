@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..geometry.camera import Camera
+from ..inputs import InputError, check_mesh
 from .carve import Grid, carve, surface_mesh
 from .errors import ObjectsError
 from .support import ObjectCluster, Plane
@@ -118,8 +119,10 @@ def load_mesh(path: str | os.PathLike[str], name: str):
         raise ObjectsError(f"object {name!r}: mesh file {path} does not parse ({type(e).__name__}: {e})") from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         raise ObjectsError(f"object {name!r}: mesh file {path} holds no triangles (is it a mesh? obj/stl/glb)")
-    if not np.isfinite(loaded.vertices).all():
-        raise ObjectsError(f"object {name!r}: mesh file {path} has non-finite vertex coordinates")
+    try:  # a user mesh comes in any scale (it is aligned by a similarity): only absurd sizes are refused
+        check_mesh(loaded.vertices, loaded.faces, f"object {name!r}: mesh file {path}", max_extent=1e4)
+    except InputError as e:
+        raise ObjectsError(str(e)) from None
     return loaded
 
 

@@ -91,6 +91,10 @@ def import_colmap_model(
     except Exception as e:  # pycolmap raises plain exceptions on corrupt files
         raise SfMError(f"{model_dir}: COLMAP model does not parse ({e})") from None
     names = sorted(img.name for img in rec.images.values() if img.has_pose)
+    bad = [n for n in names if Path(n).is_absolute() or ".." in Path(n).parts]
+    if bad:
+        raise SfMError(f"{model_dir}: image names must be relative to the images folder and stay inside it, got "
+                       f"{bad[:3]}")  # fmt: skip
     if len(names) < 2:
         raise SfMError(f"{model_dir}: {len(names)} registered image(s); need at least 2")
     _copy_images(names, image_dir, Path(capture_dir), str(model_dir))

@@ -59,6 +59,14 @@ def part_names(cfg: WorldConfig) -> list[str]:
     return out
 
 
+def _part_gaussians(name: str, path) -> Gaussians:
+    g = read_ply(path)
+    if len(g) == 0:
+        raise WorldConfigError(f"{name}: {path} holds no Gaussians; an object is drawn from its Gaussians (rebuild it "
+                               "with `m2m objects`, or give another PLY)")  # fmt: skip
+    return g
+
+
 class WorldGaussians:
     """The scene's Gaussians (base frame) and each part's Gaussians (object frame)."""
 
@@ -71,11 +79,13 @@ class WorldGaussians:
         """Read every PLY the world names (scene optional; every part needs its Gaussians)."""
         validate_world(cfg, need_gaussians=True, overlaps=False)
         scene = read_ply(cfg.scene_gaussians) if cfg.scene_gaussians is not None else None
-        parts = [Part(o.name, read_ply(o.part.gaussians), o.placement, o.part.mesh) for o in cfg.objects]
+        parts = [Part(o.name, _part_gaussians(o.name, o.part.gaussians), o.placement, o.part.mesh)
+                 for o in cfg.objects]  # fmt: skip
         for a in cfg.articulated:
-            parts.append(Part(a.name, read_ply(a.base.gaussians), a.placement, a.base.mesh))
+            parts.append(Part(a.name, _part_gaussians(a.name, a.base.gaussians), a.placement, a.base.mesh))
             cap_placement = a.placement @ Sim3.from_matrix(np.asarray(a.T_base_cap, dtype=np.float64))
-            parts.append(Part(f"{a.name}/cap", read_ply(a.cap.gaussians), cap_placement, a.cap.mesh))
+            cap = _part_gaussians(f"{a.name}/cap", a.cap.gaussians)
+            parts.append(Part(f"{a.name}/cap", cap, cap_placement, a.cap.mesh))
         return cls(scene, parts)
 
     def at(self, poses: dict[str, np.ndarray] | None = None) -> Gaussians:

@@ -4,7 +4,7 @@ Every edit takes a :class:`WorldConfig` and returns a new one (the input is left
 Placements move the Gaussians and the mesh together because both are read through the one Sim3.
 
 - :func:`insert`: a new object from a Gaussian PLY + a mesh (+ convex parts; computed when absent), copied into
-  ``<ws>/objects/<name>/``.
+  ``<world>/assets/<name>/``.
 - :func:`move`, :func:`duplicate`, :func:`delete`.
 - :func:`import_placement`: a person moved an object in SuperSplat and exported the PLY (the object alone or
   the whole ``world.ply``): the Gaussians are the same, only moved, so Umeyama on corresponding means
@@ -15,7 +15,6 @@ Placements move the Gaussians and the mesh together because both are read throug
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 from pathlib import Path
@@ -28,6 +27,7 @@ from ..gaussians.ply import read_ply, write_ply
 from ..gaussians.sh import SH_C0
 from ..geometry.sim3 import Sim3
 from ..geometry.umeyama import umeyama
+from ..inputs import InputError, read_json
 from .config import ObjectConfig, PartConfig, WorldConfig, WorldConfigError
 from .validate import load_mesh, validate_world
 
@@ -41,6 +41,9 @@ __all__ = [
     "placement_from_pose",
     "placement_of",
 ]
+
+
+SCALE_CHANGE = 1.5  # an imported placement that grows or shrinks an object more than this is asked about
 
 
 def placement_from_pose(
@@ -84,6 +87,8 @@ def insert(
     reconstructions) and add it at ``placement``; convex parts are
     computed (CoACD) when no collision folder is given. Raises WorldConfigError on a taken name or an
     overlap with what is there."""
+    from ..objects.errors import ObjectsError
+    from ..objects.mesh import ensure_watertight
     from .sample import convex_parts
 
     if name in cfg.names:
@@ -92,13 +97,22 @@ def insert(
     for p, what in ((gaussians, "Gaussians PLY"), (mesh, "mesh")):
         if not p.is_file():
             raise WorldConfigError(f"{what} {p} not found")
-    read_ply(gaussians)  # fails early with the PLY's own message
-    m = load_mesh(mesh)
+    if len(read_ply(gaussians)) == 0:  # read_ply fails early with the PLY's own message on a broken file
+        raise WorldConfigError(f"Gaussians PLY {gaussians} holds no Gaussians; an object is drawn from them")
+    original = load_mesh(mesh)
+    try:  # the objects stage's rule: a simulated object is a closed solid (repaired when nearly closed)
+        m = ensure_watertight(original, name, source=str(mesh))
+    except ObjectsError as e:
+        raise WorldConfigError(str(e)) from None
     dest = Path(objects_dir) if objects_dir is not None else cfg.root / "assets"
     final = dest / name
+    mesh_name = f"mesh{mesh.suffix}" if m is original else "mesh.obj"
     with atomic_dir(final) as tmp:
         shutil.copy2(gaussians, tmp / "gaussians.ply")
-        shutil.copy2(mesh, tmp / f"mesh{mesh.suffix}")
+        if m is original:
+            shutil.copy2(mesh, tmp / mesh_name)
+        else:
+            m.export(tmp / mesh_name)
         for extra in mesh.parent.glob("*"):  # materials and textures the mesh refers to
             if extra.suffix.lower() in (".mtl", ".png", ".jpg", ".jpeg") and extra.is_file():
                 shutil.copy2(extra, tmp / extra.name)
@@ -113,7 +127,7 @@ def insert(
             for i, part in enumerate(convex_parts(m)):
                 part.export(tmp / "collision" / f"part_{i:02d}.obj")
     new = cfg.copy()
-    part = PartConfig(final / "gaussians.ply", final / f"mesh{mesh.suffix}", final / "collision")
+    part = PartConfig(final / "gaussians.ply", final / mesh_name, final / "collision")
     new.objects.append(ObjectConfig(name, part, placement, mass=mass, density=density, friction=friction))
     try:
         validate_world(new)
@@ -156,13 +170,15 @@ def delete(cfg: WorldConfig, name: str) -> WorldConfig:
 
 
 def import_placement(
-    cfg: WorldConfig, name: str, edited_ply: str | os.PathLike, *, tol: float = 1e-4
+    cfg: WorldConfig, name: str, edited_ply: str | os.PathLike, *, tol: float = 1e-4, allow_scale: bool = False
 ) -> tuple[WorldConfig, Sim3]:
     """New placement of object ``name`` from a PLY a person moved it in (SuperSplat): either the object's own
     Gaussians (same count as its ``gaussians.ply``) or the whole world (same count as ``world.ply``; the
     object's index range comes from ``world.json``). Umeyama (with scale) on corresponding means: the
     rotation/scale/translation that maps the object's Gaussians (object frame) to the edited ones. Raises
-    when the Gaussians were changed other than by one similarity (RMS residual > ``tol`` x their size)."""
+    when the Gaussians were changed other than by one similarity (RMS residual > ``tol`` x their size), and,
+    unless ``allow_scale``, when the object's size changes by more than ``SCALE_CHANGE`` (SuperSplat edits move
+    and turn things; a changed size is usually a slip)."""
     item = _item(cfg, name)
     if not isinstance(item, ObjectConfig):
         raise WorldConfigError(f"{name!r} is an articulated asset; import its placement by moving it instead")
@@ -175,7 +191,10 @@ def import_placement(
                 f"{edited_ply} has {len(edited)} Gaussians, {name}'s PLY {len(local)}, and there is no world.json "
                 "to find it in a whole-world PLY; run `m2m compose` and edit world/world.ply"
             )
-        info = json.loads(manifest.read_text())
+        try:
+            info = read_json(manifest, "world.json")
+        except InputError as e:
+            raise WorldConfigError(str(e)) from None
         if info.get("gaussians") != len(edited) or name not in info.get("ranges", {}):
             raise WorldConfigError(
                 f"{edited_ply} has {len(edited)} Gaussians: neither {name}'s {len(local)} nor world.ply's "
@@ -183,13 +202,23 @@ def import_placement(
             )
         a, b = info["ranges"][name]
         edited = edited[a:b]
-    sim = umeyama(local, edited, with_scale=True)
+    try:
+        sim = umeyama(local, edited, with_scale=True)
+    except ValueError as e:  # the edited Gaussians collapsed to a point or a line
+        raise WorldConfigError(f"{edited_ply}: {name}'s Gaussians there do not span a solid ({e}); export the "
+                               "object as it looks, moved and turned") from None  # fmt: skip
     resid = np.sqrt(np.mean(np.sum((sim.apply(local) - edited) ** 2, axis=1)))
     size = float(np.linalg.norm(np.ptp(edited, axis=0))) or 1.0
     if resid > tol * size:
         raise WorldConfigError(
             f"the Gaussians of {name} in {edited_ply} were changed other than moved/rotated/scaled "
             f"(RMS residual {resid:.2e} m); import needs the same Gaussians, only transformed"
+        )
+    change = sim.scale / item.placement.scale
+    if not allow_scale and not 1 / SCALE_CHANGE <= change <= SCALE_CHANGE:
+        raise WorldConfigError(
+            f"{edited_ply} changes {name}'s size by x{change:.3g} (scale {item.placement.scale:.3g} -> "
+            f"{sim.scale:.3g}); if that is intended, import it again with --allow-scale"
         )
     return move(cfg, name, sim, check=False), sim
 
@@ -213,8 +242,9 @@ def match_lighting(
     the scene's from the scene Gaussians within ``radius`` metres (xy) of the object's placement, the
     asset's from its own. Every SH coefficient is scaled per channel by ``(scene / asset) ** strength`` about
     the DC offset (colour = SH.basis + 0.5), so colours move to the scene's white balance and brightness while
-    view-dependent effects scale with them. Writes ``out_ply`` (default ``<object folder>/gaussians_lit.ply``)
-    and returns the world pointing at it plus the per-channel gain [3].
+    view-dependent effects scale with them. Writes ``out_ply`` (default ``<world>/assets/<name>/gaussians_lit.ply``:
+    inside the world, wherever the object's own PLY is) and returns the world pointing at it plus the
+    per-channel gain [3].
     """
     item = _item(cfg, name)
     if not isinstance(item, ObjectConfig):
@@ -244,7 +274,8 @@ def match_lighting(
     sh = sh * gain[None, None, :]
     sh[:, 0] += (gain - 1.0) * 0.5 / SH_C0
     lit = type(asset)(asset.means, asset.quats, asset.log_scales, asset.logit_opacities, sh)
-    out = Path(out_ply) if out_ply is not None else item.part.gaussians.with_name("gaussians_lit.ply")
+    out = Path(out_ply) if out_ply is not None else cfg.root / "assets" / name / "gaussians_lit.ply"
+    out.parent.mkdir(parents=True, exist_ok=True)
     write_ply(out, lit)
     new = cfg.copy()
     obj = _item(new, name)

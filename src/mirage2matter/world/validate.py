@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from ..inputs import InputError, check_joints, check_mesh
 from .config import _NAME_RE, ArticulatedConfig, ObjectConfig, PartConfig, WorldConfig, WorldConfigError
 
 __all__ = ["check_overlaps", "load_collision_parts", "placed_parts", "validate_world"]
@@ -21,8 +22,9 @@ __all__ = ["check_overlaps", "load_collision_parts", "placed_parts", "validate_w
 OVERLAP_TOL = 0.002
 
 
-def _robot_model(file: str) -> tuple[list[str], list[str]]:
-    """(body names, joint names) of the robot model (MuJoCo loads MJCF and URDF in well under a second)."""
+def _robot_model(file: str) -> tuple[list[str], list[str], dict[str, tuple[float, float]]]:
+    """(body names, joint names, {limited joint: (lo, hi)}) of the robot model (MuJoCo loads MJCF and URDF in
+    well under a second)."""
     import importlib.util
 
     from ..calib.kinematics import resolve_robot_path
@@ -42,7 +44,9 @@ def _robot_model(file: str) -> tuple[list[str], list[str]]:
         model = mujoco.MjModel.from_xml_path(str(path))
     except Exception as e:  # noqa: BLE001 - any parse failure is the same user error
         raise WorldConfigError(f"robot.file: {path} cannot be loaded as a robot model ({e})") from None
-    return [model.body(i).name for i in range(model.nbody)], [model.joint(i).name for i in range(model.njnt)]
+    joints = [model.joint(i).name for i in range(model.njnt)]
+    limits = {joints[i]: tuple(map(float, model.jnt_range[i])) for i in range(model.njnt) if model.jnt_limited[i]}
+    return [model.body(i).name for i in range(model.nbody)], joints, limits
 
 
 def _check_part(p: PartConfig, where: str, need_gaussians: bool) -> None:
@@ -53,17 +57,40 @@ def _check_part(p: PartConfig, where: str, need_gaussians: bool) -> None:
         )
     if not p.mesh.is_file():
         raise WorldConfigError(f"{where}.mesh: {p.mesh} not found")
+    load_mesh(p.mesh)  # a usable mesh (the world's check of every mesh it simulates)
     if p.collision is not None and (not p.collision.is_dir() or not any(p.collision.glob("*.obj"))):
         raise WorldConfigError(f"{where}.collision: {p.collision} is not a folder of convex *.obj parts")
     if need_gaussians and (p.gaussians is None or not p.gaussians.is_file()):
         raise WorldConfigError(f"{where}.gaussians: {p.gaussians} not found")
 
 
+# Where a world's objects may be: a robot's workspace is a few metres; scales far from 1 are a unit mistake.
+MAX_DISTANCE = 10.0  # m from the base
+SCALE_RANGE = (1e-2, 1e2)
+
+
+def _check_placement(sim, where: str) -> None:
+    t = np.asarray(sim.translation, dtype=np.float64)
+    if not np.isfinite(t).all() or np.linalg.norm(t) > MAX_DISTANCE:
+        raise WorldConfigError(f"{where}: translation {t.tolist()} is more than {MAX_DISTANCE} m from the robot base "
+                               "(metres, base frame)")  # fmt: skip
+    if not SCALE_RANGE[0] <= sim.scale <= SCALE_RANGE[1]:
+        raise WorldConfigError(f"{where}: scale {sim.scale:.3g} is outside {SCALE_RANGE[0]:g}..{SCALE_RANGE[1]:g}; "
+                               "an asset in other units than metres? scale its mesh and Gaussians instead")  # fmt: skip
+
+
 def load_mesh(path: Path) -> trimesh.Trimesh:
-    """A mesh file as one Trimesh (scenes are merged)."""
-    mesh = trimesh.load(str(path), force="mesh", process=False)
+    """A mesh file as one Trimesh (scenes are merged); WorldConfigError for a file that is no usable mesh."""
+    try:
+        mesh = trimesh.load(str(path), force="mesh", process=False)
+    except Exception as e:  # noqa: BLE001 - trimesh raises anything on a broken file
+        raise WorldConfigError(f"{path}: not a mesh file trimesh can read ({type(e).__name__}: {e})") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise WorldConfigError(f"{path}: no triangles in this mesh file")
+    try:
+        check_mesh(mesh.vertices, mesh.faces, str(path))
+    except InputError as e:
+        raise WorldConfigError(str(e)) from None
     return mesh
 
 
@@ -134,7 +161,7 @@ def check_overlaps(cfg: WorldConfig, tol: float = OVERLAP_TOL) -> None:
 
 def validate_world(cfg: WorldConfig, need_gaussians: bool = False, overlaps: bool = True) -> None:
     """Raise :class:`WorldConfigError` on the first problem; see the module docstring."""
-    links, joints = _robot_model(cfg.robot.file)
+    links, joints, limits = _robot_model(cfg.robot.file)
     spec = cfg.robot.spec
     missing = [j for j in (*spec.arm_joints, *spec.gripper_joints) if j not in joints]
     if missing:
@@ -142,8 +169,11 @@ def validate_world(cfg: WorldConfig, need_gaussians: bool = False, overlaps: boo
             f"robot.file: {cfg.robot.file} lacks the joints {missing} of robot {spec.name!r}; give the model of that "
             "robot, or set robot.name to the robot this model is"
         )
-    if len(cfg.robot.home) != spec.n_arm:
-        raise WorldConfigError(f"robot.home: {len(cfg.robot.home)} values for the {spec.n_arm} arm joints")
+    lim = np.array([limits.get(j, (-np.inf, np.inf)) for j in spec.arm_joints])
+    try:
+        check_joints(cfg.robot.home, spec.arm_joints, lim, "robot.home")
+    except InputError as e:
+        raise WorldConfigError(str(e)) from None
     if cfg.robot.ee_link not in links:
         raise WorldConfigError(f"robot.ee_link: {cfg.robot.ee_link!r} is not a link of {cfg.robot.file} ({links})")
     for name, cam in cfg.cameras.items():
@@ -160,6 +190,8 @@ def validate_world(cfg: WorldConfig, need_gaussians: bool = False, overlaps: boo
         seen.add(name)
     if cfg.scene_gaussians is not None and need_gaussians and not cfg.scene_gaussians.is_file():
         raise WorldConfigError(f"scene.gaussians: {cfg.scene_gaussians} not found")
+    for it in [*cfg.objects, *cfg.articulated]:
+        _check_placement(it.placement, f"{it.name}.placement")
     for o in cfg.objects:
         _check_part(o.part, f"objects.{o.name}", need_gaussians)
         if o.mass is None and o.density is None:
