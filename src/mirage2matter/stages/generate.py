@@ -99,7 +99,10 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
             + (f", {s.get('demos_per_min')} demos/min" if s.get("demos_per_min") else "")
             + (", valid" if not problems else f", {len(problems)} PROBLEMS")
         )
-    return {"tasks": per_task, "details": lines, "line": "; ".join(lines)}
+    n_ok = sum(not t["validation_problems"] for t in per_task.values())
+    episodes = sum(int(t.get("episodes") or 0) for t in per_task.values())
+    line = f"{len(per_task)} dataset(s), {episodes} episodes, {n_ok} of {len(per_task)} valid (an independent reader)"
+    return {"tasks": per_task, "details": lines, "line": line}
 
 
 def outputs(ws: Workspace, cfg: Config) -> list[Path]:
