@@ -49,7 +49,7 @@ def test_bad_json_is_rejected(tmp_path):
         BoardSpec.from_json({**BoardSpec().to_json(), "legacy": True})
     bad = tmp_path / "board.json"
     bad.write_text("{not json")
-    with pytest.raises(ValueError, match="board.json: not valid JSON"):
+    with pytest.raises(ValueError, match="board.json is not valid JSON"):
         BoardSpec.load(bad)
 
 

@@ -157,5 +157,5 @@ def test_world_validation_checks_the_model_against_the_spec(tmp_path):
     validate_world(WorldConfig(root=tmp_path))
     with pytest.raises(WorldConfigError, match=r"lacks the joints \['joint1'"):
         validate_world(WorldConfig(root=tmp_path, robot=RobotConfig(file=str(hand_only))))
-    with pytest.raises(WorldConfigError, match="robot.home: 3 values"):
+    with pytest.raises(WorldConfigError, match=r"robot\.home: 3 joint value\(s\) for the robot.s 7 joints"):
         validate_world(WorldConfig(root=tmp_path, robot=RobotConfig(home=(0.0, 0.0, 0.0))))
