@@ -189,3 +189,52 @@ def test_unreachable_target_fails_fast(twin):
         ik(twin, T_odd, q0)
     assert time.perf_counter() - t0 < 5.0
     assert np.allclose(twin.robot_state(), q0, atol=1e-6)  # queries leave the robot where it was
+
+
+def test_act_is_one_control_tick(twin):
+    """The arm and gripper commands move linearly to the action over the tick; a closed gripper squeezes."""
+    spec = twin.spec
+    twin.reset(seed=0, randomize=False)
+    home = np.append(twin.home[: spec.n_arm], spec.gripper_open)
+    assert np.allclose(twin.command, home)
+    target = home.copy()
+    target[0] += 0.1
+    target[-1] = 0.5 * (spec.gripper_open + spec.gripper_closed)
+    twin.act(target, 10)
+    assert np.allclose(twin.command, target)
+    q = twin.robot_state()
+    assert 0.03 < q[0] < 0.1  # on its way, lagging the command a little
+    assert abs(q[spec.n_arm] - target[-1]) < 0.5 * abs(spec.gripper_open - target[-1])
+    shut = target.copy()
+    shut[-1] = spec.gripper_closed
+    for _ in range(3):
+        twin.act(shut, 10)
+    assert np.abs(twin.robot_state()[spec.n_arm :] - spec.gripper_closed).max() < 0.002  # squeezed shut
+    lo, hi = twin.action_limits
+    twin.act(hi + 1.0, 10)  # beyond every limit: clipped to them
+    assert np.allclose(twin.command, hi)
+    with pytest.raises(ValueError, match=f"an action has {spec.n_arm + 1} values"):
+        twin.act(np.zeros(3), 10)
+
+
+@pytest.mark.parametrize(
+    "text, seed",
+    [("grasp croissant", 2), ("press button", 3), ("push croissant --direction 0,1 --distance 0.1", 4),
+     ("pull banana --distance 0.1", 5)],
+)  # fmt: skip
+def test_scripted_episode_replays_through_act(twin, text, seed):
+    """The recorded actions, acted from the same reset, reproduce the states and the success of the script."""
+    task = parse_task(text, twin.cfg)
+    twin.reset(seed=seed)
+    r = run_task(twin, task)
+    assert r.success, r.reason
+    twin.reset(seed=seed)
+    monitor = task.monitor(twin, 0.1)
+    worst = 0.0
+    for rec in r.steps:
+        worst = max(worst, float(np.abs(twin.robot_state() - rec.state).max()))
+        assert rec.action.dtype == np.float32 and rec.action.shape == (twin.spec.n_arm + 1,)
+        twin.act(rec.action, 10)
+        monitor.update(twin)
+    # Each tick depends on the state alone (Twin.act): measured 0 on every task (the issue's bar is 1e-3 rad)
+    assert worst < 1e-9 and monitor.success

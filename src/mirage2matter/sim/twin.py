@@ -31,7 +31,13 @@ from ..robots import RobotSpec
 from ..world.config import ArticulatedConfig, ObjectConfig, PartConfig, WorldConfig
 from ..world.validate import load_collision_parts, load_mesh, validate_world
 
-__all__ = ["Twin", "TwinOptions", "ensure_genesis"]
+__all__ = ["CLOSED_MARGIN", "STOPPED_SPEED", "Twin", "TwinOptions", "ensure_genesis"]
+
+# A gripper command within this fraction of the gripper's range of ``gripper_closed`` counts as "closed" and
+# squeezes with the spec's grasp force: a learned policy regresses "closed" only approximately.
+CLOSED_MARGIN = 0.25
+# Fingers closing slower than this (m/s) have stopped on something (free, they close at ~0.1-0.2 m/s).
+STOPPED_SPEED = 0.01
 
 
 def ensure_genesis(backend: str = "cpu") -> object:
@@ -55,6 +61,8 @@ class TwinOptions:
     settle_s       physics time to let objects settle after a reset
     draw_scene     the cameras draw the plane, objects and buttons too (False: only the robot, whose mask is
                    then where the depth is finite: no segmentation pass; what hybrid frames need)
+    draw_objects   with draw_scene False, the cameras draw the objects and buttons too (not the plane); the
+                   "robot" layer is then robot + objects (hybrid frames with mesh objects: the ablation)
     """
 
     backend: str = "cpu"
@@ -65,6 +73,7 @@ class TwinOptions:
     workdir: Path | None = None
     settle_s: float = 0.1
     draw_scene: bool = True
+    draw_objects: bool = False
 
 
 def _rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -185,6 +194,7 @@ class Twin:
         self.bodies: dict[str, _Body] = {}
         self.cameras: dict[str, object] = {}
         self.reset_info: dict = {}
+        self.command: np.ndarray  # [n_arm + 1] the last control command: arm joint targets, gripper target
 
     # ---- construction ----------------------------------------------------------------------------
     @classmethod
@@ -218,6 +228,7 @@ class Twin:
             vis_options=vis,
         )
         draw = opt.draw_scene or not opt.render
+        draw_objects = draw or opt.draw_objects
         self.plane = self.scene.add_entity(gs.morphs.Plane(pos=(0.0, 0.0, cfg.table_z), visualization=draw))
         robot_file = cfg.robot.file
         if robot_file.lower().endswith(".urdf"):
@@ -234,7 +245,7 @@ class Twin:
             ent = self.scene.add_entity(
                 gs.morphs.URDF(
                     file=str(path), pos=tuple(T[:3, 3]), quat=tuple(matrix_to_quat(R)), fixed=False, align=False,
-                    convexify=True, decompose_object_error_threshold=float("inf"), visualization=draw,
+                    convexify=True, decompose_object_error_threshold=float("inf"), visualization=draw_objects,
                 ),
                 material=gs.materials.Rigid(friction=o.friction),
             )  # fmt: skip
@@ -248,7 +259,7 @@ class Twin:
                 gs.morphs.URDF(
                     file=str(path), pos=tuple(T[:3, 3]), quat=tuple(matrix_to_quat(R)), fixed=True,
                     merge_fixed_links=False, convexify=True, decompose_robot_error_threshold=float("inf"),
-                    visualization=draw,
+                    visualization=draw_objects,
                 ),
                 material=gs.materials.Rigid(friction=a.friction),
             )  # fmt: skip
@@ -335,10 +346,11 @@ class Twin:
         return np.asarray(self.robot.get_qpos(), dtype=np.float64)[: self.spec.n_dofs].copy()
 
     def set_robot_state(self, q: np.ndarray) -> None:
-        """Teleport the robot to ``q`` [9] (zero velocity) and hold it there."""
+        """Teleport the robot to ``q`` [n_dofs] (zero velocity) and hold it there (the control command too)."""
         q = np.asarray(q, dtype=np.float64)
         self.robot.set_qpos(q, zero_velocity=True)
         self.robot.control_dofs_position(q)
+        self.command = np.concatenate([q[: self.spec.n_arm], q[self.spec.n_arm : self.spec.n_arm + 1]])
 
     def _body_pose(self, b: _Body) -> np.ndarray:
         return _pose_of(b.entity.get_pos(), b.entity.get_quat())
@@ -353,6 +365,11 @@ class Twin:
                 cap = b.entity.links[1]
                 out[f"{name}/cap"] = _pose_of(cap.get_pos(), cap.get_quat())
         return out
+
+    def object_speed(self, name: str) -> tuple[float, float]:
+        """(linear m/s, angular rad/s) speed of body ``name``."""
+        e = self.bodies[name].entity
+        return float(np.linalg.norm(np.asarray(e.get_vel()))), float(np.linalg.norm(np.asarray(e.get_ang())))
 
     def button_travel(self, name: str) -> float:
         """How far (m, along the press axis) the button's cap is pressed in."""
@@ -431,6 +448,74 @@ class Twin:
                 if v < lin and w < ang:
                     break
         return n * self.dt
+
+    # ---- control ---------------------------------------------------------------------------------
+    @property
+    def action_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """(low, high) [n_arm + 1] of an action: the arm's joint limits (from the model), the gripper's range."""
+        n_arm, spec = self.spec.n_arm, self.spec
+        lo, hi = self.joint_limits
+        g = sorted((spec.gripper_open, spec.gripper_closed))
+        return np.append(lo[:n_arm], g[0]), np.append(hi[:n_arm], g[1])
+
+    def gripper_closed(self, g: float) -> bool:
+        """Whether gripper command ``g`` (m per finger) means "closed" (within :data:`CLOSED_MARGIN`)."""
+        spec = self.spec
+        span = spec.gripper_open - spec.gripper_closed  # signed: which way is open
+        return (g - spec.gripper_closed) / span <= CLOSED_MARGIN
+
+    def act(self, action: np.ndarray, substeps: int) -> None:
+        """One control tick of ``substeps`` physics steps from ``action`` [n_arm + 1] (arm joint targets in rad,
+        gripper target in m per finger; clipped to :attr:`action_limits`).
+
+        The command moves linearly from the previous tick's (:attr:`command`) to ``action`` over the tick, the
+        arm and gripper alike; the arm and the fingers track it under PD position control, except that once the
+        gripper command has reached "closed" (:meth:`gripper_closed`) fingers stopped on something squeeze it
+        with the spec's grasp force. So a gripper closes under position control (a finger driven by force alone
+        crosses a 4 cm gap within a physics step and tunnels through thin objects) and then squeezes what it
+        closed on; shut on nothing, it rests at closed."""
+        n_arm, spec = self.spec.n_arm, self.spec
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != (n_arm + 1,):
+            raise ValueError(f"an action has {n_arm + 1} values (arm joints + gripper), got shape {a.shape}")
+        a = np.clip(a, *self.action_limits)
+        prev = self.command
+        self._forget_warm_starts()
+        for i in range(1, int(substeps) + 1):
+            c = prev + (i / substeps) * (a - prev)
+            if self.gripper_closed(c[n_arm]) and self._fingers_stopped_on_something():
+                self.step(c[:n_arm], finger_force=spec.grasp_force)
+            else:
+                self.step(c[:n_arm], c[n_arm])
+        self.command = a
+
+    def _forget_warm_starts(self) -> None:
+        """Drop what the physics carries between steps besides the state: the constraint solver's warm start and
+        the collider's contact cache. Planning queries between ticks (``set_qpos``, collision checks) drop or
+        change them; dropped at every tick's start, a tick depends on the state alone, so a recorded episode's
+        actions replayed from its reset give back its states exactly (measured on every task: 0 rad, 0 m)."""
+        solver = self.scene.rigid_solver
+        solver.constraint_solver.reset()
+        solver.collider.reset()
+        # Planning restores the robot with set_qpos / set_dofs_velocity, which recompute its links' kinematics
+        # in another order than a physics step does (1e-14 apart, which contacts amplify to centimetres): the
+        # same here at every tick, so a tick sees the same numbers with or without planning before it.
+        q, v = self.robot.get_qpos(), self.robot.get_dofs_velocity()
+        self.robot.set_qpos(q, zero_velocity=False)
+        self.robot.set_dofs_velocity(v)
+
+    def _fingers_stopped_on_something(self) -> bool:
+        """Whether the fingers rest open (by more than half :data:`CLOSED_MARGIN`) and are not closing (slower than
+        :data:`STOPPED_SPEED`): held apart by an object. Only then does a closed gripper squeeze: driven by force,
+        fingers still closing slam shut (1.8 cm in one 10 ms step, measured) and empty ones are pushed through
+        their soft joint limit (to -6 mm); position control brings those to closed."""
+        spec = self.spec
+        span = spec.gripper_open - spec.gripper_closed  # signed: which way is open
+        q = float(np.mean(np.asarray(self.robot.get_dofs_position(self.finger_dofs), dtype=np.float64)))
+        v = float(np.mean(np.asarray(self.robot.get_dofs_velocity(self.finger_dofs), dtype=np.float64)))
+        opening = (q - spec.gripper_closed) / span  # fraction of the range
+        closing_speed = -v * np.sign(span)
+        return opening > 0.5 * CLOSED_MARGIN and closing_speed < STOPPED_SPEED
 
     def step(self, q_target: np.ndarray, finger: float | None = None, finger_force: float | None = None) -> None:
         """One physics step with the arm's PD target ``q_target`` [n_arm]; fingers to position ``finger`` (m per

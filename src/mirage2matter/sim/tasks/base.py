@@ -4,6 +4,9 @@ A task is a frozen dataclass: ``target`` (the name of an object or button in the
 options (fields with a default and a ``help`` text; numeric ones may carry a ``range``). ``parse_task``
 turns ``"<verb> <target> [--option value ...]"`` into the registered class of that verb, reading each
 option by its field's type, so a new task is one new class with ``@register_task``.
+
+A task's success test is a :class:`SuccessMonitor` over the twin's state, updated after every control tick:
+the scripted runs (``run_task``) and the Gymnasium environment (``terminated``) decide success with the same one.
 """
 
 from __future__ import annotations
@@ -21,13 +24,43 @@ from ...errors import M2MError
 
 if TYPE_CHECKING:
     from ...world.config import WorldConfig
+    from ..twin import Twin
     from .motion import Executor
 
-__all__ = ["TASKS", "Task", "TaskError", "option", "parse_task", "register_task", "unit_xy"]
+__all__ = ["TASKS", "SuccessMonitor", "Task", "TaskError", "option", "parse_task", "register_task", "unit_xy"]
 
 
 class TaskError(M2MError, ValueError):
     """An instruction that cannot run in this world (unknown verb, object, option)."""
+
+
+class SuccessMonitor:
+    """A task's success test over one episode, from the twin's state at the episode's start (its constructor)
+    and after every control tick (:meth:`update`). Success is latched: once reached it stays (the episode is
+    done; what the robot does after that does not undo it).
+
+    tick_s   seconds per control tick (for tests that need a duration)
+    success  whether the task has succeeded by now
+    reason   why it succeeded, or (until then) why not yet, in words
+    info     the task's measurements at the last update (JSON-ready numbers)
+    """
+
+    def __init__(self, tick_s: float) -> None:
+        self.tick_s = float(tick_s)
+        self.success = False
+        self.reason = "not started"
+        self.info: dict[str, Any] = {}
+
+    def update(self, twin: Twin) -> bool:
+        """Measure the state after a tick; returns :attr:`success`."""
+        ok, reason = self.measure(twin)
+        if not self.success:
+            self.success, self.reason = bool(ok), reason
+        return self.success
+
+    def measure(self, twin: Twin) -> tuple[bool, str]:
+        """(whether the state now completes the task, why / why not): the subclass' test; updates :attr:`info`."""
+        raise NotImplementedError
 
 
 def option(default: Any, help: str, range: tuple[float, float] | None = None) -> Any:
@@ -71,8 +104,13 @@ class Task:
         if self.target not in objects:
             raise TaskError(f"no object named {self.target!r} in the world; objects: {objects}")
 
-    def run(self, ex: Executor) -> tuple[bool, str, dict[str, Any]]:
-        """The scripted policy from the twin's current state, then the success test: (success, reason, info)."""
+    def monitor(self, twin: Twin, tick_s: float) -> SuccessMonitor:
+        """The success test of an episode starting from the twin's current state (ticks of ``tick_s`` s)."""
+        raise NotImplementedError
+
+    def run(self, ex: Executor) -> tuple[str, dict[str, Any]]:
+        """The scripted policy from the twin's current state, tick by tick through ``ex``: (why it gave up, or ""
+        when it ran to its end; its own measurements). Success is the monitor's (``ex.monitor``), not its."""
         raise NotImplementedError
 
     # ---- shared ---------------------------------------------------------------------------------------

@@ -1,5 +1,10 @@
-"""What the scripted tasks share: the executor that runs joint targets through the physics and records the
-control ticks, the target's geometry, and the motions (planned joint moves, straight-line hand moves).
+"""What the scripted tasks share: the executor that turns their motions into control ticks, the target's
+geometry, and the motions (planned joint moves, straight-line hand moves).
+
+The control tick is the unit: a motion planned as dense joint targets (one per physics step) is sampled at the
+tick ends, and every tick is one action [n_arm + 1] (arm joint targets, gripper target) executed by
+:meth:`Twin.act <mirage2matter.sim.twin.Twin.act>` - the function a policy in the Gymnasium environment acts
+through too - and recorded with the state at the tick's start, so recorded action t leads to state t + 1.
 
 Numbers that belong to the robot (TCP offset, gripper opening, grasp force, limits) come from ``twin.spec``.
 """
@@ -8,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import trimesh
@@ -16,13 +22,21 @@ from ...world.validate import load_mesh
 from ..planning import cartesian_path, plan, time_parameterize
 from ..twin import Twin
 
-__all__ = ["Executor", "StepRecord", "line", "move_to", "placed", "placed_com", "surface_points", "topdown"]
+__all__ = [
+    "Executor", "StepRecord", "line", "move_to", "placed", "placed_com", "steps_per_tick", "surface_points",
+    "tick_ends", "topdown",
+]  # fmt: skip
 
 
 @dataclass
 class StepRecord:
-    """One control tick: time (s), state [n_dofs] (arm joints, fingers), action [n_arm + 1] (arm targets,
-    finger target), object poses {name: T_base_obj [4,4]}."""
+    """One control tick.
+
+    t             time (s) at the tick's start
+    state         [n_dofs] float32 joint positions at the tick's start (arm joints, fingers)
+    action        [n_arm + 1] float32 the tick's action (arm joint targets, gripper target), executed as recorded
+    object_poses  {name: T_base_obj [4,4]} at the tick's start
+    """
 
     t: float
     state: np.ndarray
@@ -30,72 +44,104 @@ class StepRecord:
     object_poses: dict[str, np.ndarray]
 
 
-class Executor:
-    """Runs joint targets through the physics, recording at the control rate."""
+class TickMonitor(Protocol):
+    """What the executor updates after every tick (a task's ``SuccessMonitor``)."""
 
-    def __init__(self, twin: Twin, on_step: Callable[[StepRecord], None] | None, control_hz: float) -> None:
+    def update(self, twin: Twin) -> bool: ...
+
+
+def steps_per_tick(twin: Twin, control_hz: float) -> int:
+    """Physics steps per control tick at ``control_hz``."""
+    return max(1, round(1.0 / (control_hz * twin.dt)))
+
+
+def tick_ends(n_steps: int, substeps: int) -> np.ndarray:
+    """Indices into ``n_steps`` dense (per physics step) targets where each control tick of ``substeps`` steps
+    ends; a last, shorter piece ends at the final target."""
+    ends = np.arange(substeps - 1, n_steps, substeps)
+    if n_steps and (not len(ends) or ends[-1] != n_steps - 1):
+        ends = np.append(ends, n_steps - 1)
+    return ends
+
+
+class Executor:
+    """Runs a scripted task tick by tick: each action is recorded, then executed by ``act`` (default
+    ``twin.act(action, substeps)``; generation passes the environment's ``step``, which ends in the same call),
+    then the task's success monitor is updated."""
+
+    def __init__(
+        self,
+        twin: Twin,
+        on_step: Callable[[StepRecord], None] | None,
+        control_hz: float,
+        monitor: TickMonitor | None = None,
+        act: Callable[[np.ndarray], object] | None = None,
+    ) -> None:
         self.twin = twin
         self.spec = twin.spec
         self.on_step = on_step
-        self.spc = max(1, round(1.0 / (control_hz * twin.dt)))
-        self.n = 0
+        self.spc = steps_per_tick(twin, control_hz)  # physics steps per tick
+        self.tick_s = self.spc * twin.dt
+        self.monitor = monitor
+        self._act = act if act is not None else (lambda a: twin.act(a, self.spc))
+        self.n = 0  # physics steps run
         self.steps: list[StepRecord] = []
-        self.q_cmd = twin.robot_state()[: self.spec.n_arm]
-        self.finger = self.spec.gripper_open
-        self.watch: Callable[[], None] | None = None
+
+    @property
+    def command(self) -> np.ndarray:
+        """[n_arm + 1] the last tick's action (the twin's control command)."""
+        return self.twin.command
 
     def q_now(self) -> np.ndarray:
-        """[n_dofs] the commanded arm joints with the fingers where they are."""
-        return np.concatenate([self.q_cmd, self.twin.robot_state()[self.spec.n_arm :]])
+        """[n_dofs] the commanded arm joints with the fingers where they are (within their joint limits: fingers
+        squeezed shut press past them a little, and the planner refuses a start outside them)."""
+        n_arm, (lo, hi) = self.spec.n_arm, self.twin.joint_limits
+        fingers = np.clip(self.twin.robot_state()[n_arm:], lo[n_arm : self.spec.n_dofs], hi[n_arm : self.spec.n_dofs])
+        return np.concatenate([self.command[:n_arm], fingers])
 
-    def follow(
-        self,
-        targets: np.ndarray,
-        finger: float | np.ndarray,
-        force: float | None = None,
-        stop: Callable[[], bool] | None = None,
-        check_every: int = 5,
-    ) -> bool:
-        """Step through arm targets [T,n_arm] with finger targets (one value or [T]); True if ``stop`` fired."""
+    def tick(self, action: np.ndarray) -> None:
+        """One control tick: record (state now, action), execute the action, update the success monitor."""
         tw = self.twin
-        fingers = np.broadcast_to(np.asarray(finger, dtype=np.float64), (len(targets),))
-        for i, q in enumerate(targets):
-            if self.n % self.spc == 0:
-                k = min(i + self.spc, len(targets) - 1)
-                self._record(targets[k], self.spec.gripper_closed if force is not None else fingers[k])
-            self.q_cmd = q
-            self.finger = float(fingers[i])
-            tw.step(q, self.finger, force)
-            self.n += 1
-            if self.watch is not None:
-                self.watch()
-            if stop is not None and i % check_every == 0 and stop():
-                return True
-        return False
-
-    def hold(self, seconds: float, finger: float, force: float | None = None, stop=None) -> bool:
-        n = max(1, round(seconds / self.twin.dt))
-        return self.follow(np.repeat(self.q_cmd[None], n, axis=0), finger, force, stop)
-
-    def close(self, seconds: float = 0.4, squeeze_s: float = 0.2) -> None:
-        """Close the fingers at ~0.1 m/s under position control (a free finger driven by force alone crosses
-        a 4 cm gap within one physics step and tunnels through thin objects), then squeeze with the spec's
-        grasp force."""
-        n = max(1, round(seconds / self.twin.dt))
-        ramp = np.linspace(self.finger, self.spec.gripper_closed, n + 1)[1:]
-        self.follow(np.repeat(self.q_cmd[None], n, axis=0), ramp)
-        self.hold(squeeze_s, self.spec.gripper_closed, force=self.spec.grasp_force)
-
-    def _record(self, ahead: np.ndarray, finger_target: float) -> None:
-        rec = StepRecord(
-            t=self.n * self.twin.dt,
-            state=self.twin.robot_state().astype(np.float32),
-            action=np.concatenate([ahead, [finger_target]]).astype(np.float32),
-            object_poses=self.twin.object_poses(),
-        )
+        a = np.asarray(action, dtype=np.float32).reshape(-1)  # as a dataset stores it, so a replay is exact
+        rec = StepRecord(t=self.n * tw.dt, state=tw.robot_state().astype(np.float32), action=a.copy(),
+                         object_poses=tw.object_poses())  # fmt: skip
         self.steps.append(rec)
         if self.on_step is not None:
             self.on_step(rec)
+        self._act(a)
+        self.n += self.spc
+        if self.monitor is not None:
+            self.monitor.update(tw)
+
+    def follow(self, targets: np.ndarray, finger: float | np.ndarray, stop: Callable[[], bool] | None = None) -> bool:
+        """Dense arm targets [T,n_arm] (one per physics step) with gripper targets (one value or [T]), as ticks
+        towards the targets at the tick ends; True if ``stop`` (checked after every tick) fired."""
+        targets = np.asarray(targets, dtype=np.float64)
+        fingers = np.broadcast_to(np.asarray(finger, dtype=np.float64), (len(targets),))
+        for k in tick_ends(len(targets), self.spc):
+            self.tick(np.append(targets[k], fingers[k]))
+            if stop is not None and stop():
+                return True
+        return False
+
+    def hold(self, seconds: float, finger: float, stop: Callable[[], bool] | None = None) -> bool:
+        """Keep the arm's command for ``seconds`` (at least one tick) with the gripper at ``finger``."""
+        n = max(1, round(seconds / self.tick_s))
+        arm = self.command[: self.spec.n_arm]
+        for _ in range(n):
+            self.tick(np.append(arm, finger))
+            if stop is not None and stop():
+                return True
+        return False
+
+    def close(self, seconds: float = 0.4, squeeze_s: float = 0.2) -> None:
+        """Close the gripper at ~0.1 m/s (its command ramps to closed over ``seconds``: position control until
+        the last moment, see ``Twin.act``), then squeeze with the spec's grasp force for ``squeeze_s``."""
+        n = max(1, round(seconds / self.tick_s))
+        arm = self.command[: self.spec.n_arm]
+        for g in np.linspace(self.command[-1], self.spec.gripper_closed, n + 1)[1:]:
+            self.tick(np.append(arm, g))
+        self.hold(squeeze_s, self.spec.gripper_closed)
 
 
 # ---- geometry of the target ---------------------------------------------------------------------
@@ -150,9 +196,9 @@ def move_to(
     ex.follow(time_parameterize(path, tw.dt, speed, robot=tw.spec), finger)
 
 
-def line(ex: Executor, T_from, T_to, finger, seconds, force=None, stop=None, allow=()) -> bool:
+def line(ex: Executor, T_from, T_to, finger, seconds, stop=None) -> bool:
     """The end-effector along the straight line ``T_from`` -> ``T_to`` in ``seconds``; True if ``stop`` fired."""
     tw = ex.twin
     path = cartesian_path(tw, T_from, T_to, ex.q_now(), check_collision=False)
     targets = time_parameterize(path, tw.dt, through=True, duration=seconds, robot=tw.spec)
-    return ex.follow(targets, finger, force, stop)
+    return ex.follow(targets, finger, stop)

@@ -8,13 +8,32 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..planning import PlanningError, ik
-from .base import Task, TaskError, register_task
+from ..twin import Twin
+from .base import SuccessMonitor, Task, TaskError, register_task
 from .motion import Executor, line, move_to, surface_points, topdown
 
 if TYPE_CHECKING:
     from ...world.config import WorldConfig
 
-__all__ = ["PressTask"]
+__all__ = ["PressMonitor", "PressTask"]
+
+
+class PressMonitor(SuccessMonitor):
+    """Success once button ``name``'s cap has travelled at least its ``threshold`` (at a tick's end)."""
+
+    def __init__(self, twin: Twin, name: str, tick_s: float) -> None:
+        super().__init__(tick_s)
+        self.name, self.threshold = name, float(twin.bodies[name].cfg.threshold)
+        self.info = {"travel_m": 0.0, "max_travel_m": 0.0, "threshold_m": self.threshold}
+
+    def measure(self, twin: Twin) -> tuple[bool, str]:
+        travel = twin.button_travel(self.name)
+        best = max(self.info["max_travel_m"], travel)
+        self.info = {"travel_m": travel, "max_travel_m": best, "threshold_m": self.threshold}
+        mm = f"(threshold {1000 * self.threshold:.1f} mm)"
+        if travel >= self.threshold:
+            return True, f"{self.name} pressed {1000 * travel:.1f} mm {mm}"
+        return False, f"{self.name} pressed only {1000 * best:.1f} mm {mm}"
 
 
 @register_task
@@ -28,7 +47,8 @@ class PressTask(Task):
 
     **Randomizations:** none of its own; the button's start pose is the twin's reset (``twin.reset(seed)``).
 
-    **Success:** the cap's largest travel during the episode reaches the button's ``threshold``.
+    **Success** (:class:`PressMonitor`, at every control tick): the cap's travel reaches the button's
+    ``threshold``.
     """
 
     verb = "press"
@@ -42,7 +62,10 @@ class PressTask(Task):
         if self.target not in buttons:
             raise TaskError(f"no press button named {self.target!r} in the world; buttons: {buttons}")
 
-    def run(self, ex: Executor) -> tuple[bool, str, dict[str, Any]]:
+    def monitor(self, twin: Twin, tick_s: float) -> PressMonitor:
+        return PressMonitor(twin, self.target, tick_s)
+
+    def run(self, ex: Executor) -> tuple[str, dict[str, Any]]:
         twin, spec, name = ex.twin, ex.spec, self.target
         a = twin.bodies[name].cfg
         closed = spec.gripper_closed
@@ -54,7 +77,7 @@ class PressTask(Task):
         top = cap_T[:3, :3] @ centre_local + cap_T[:3, 3]
         if abs(axis_base[2]) < 0.9:
             axis = axis_base.round(2).tolist()
-            return False, f"{name}: only buttons pressed downwards are supported (axis {axis})", {}
+            return f"{name}: only buttons pressed downwards are supported (axis {axis})", {}
         q_now = twin.robot_state()
         # Closed fingers press with their tips; any hand yaw does, the one of the home pose moves the wrist least.
         tips = top + np.array([0, 0, spec.tip_offset - spec.tcp_offset])
@@ -66,28 +89,13 @@ class PressTask(Task):
         try:
             q_pre = ik(twin, T_pre, q_now)
         except PlanningError as e:
-            return False, f"cannot reach above {name}: {e}", {}
+            return f"cannot reach above {name}: {e}", {}
         move_to(ex, np.concatenate([q_pre, [closed] * len(spec.gripper_joints)]), closed)
         line(ex, T_pre, T_touch, closed, 0.6)
-        best = [0.0]
-
-        def watch() -> None:
-            best[0] = max(best[0], twin.button_travel(name))
-
-        ex.watch = watch
-        line(ex, T_touch, T_deep, closed, 0.6, stop=lambda: best[0] >= a.threshold + 0.001)
+        line(ex, T_touch, T_deep, closed, 0.6, stop=lambda: twin.button_travel(name) >= a.threshold + 0.001)
         ex.hold(0.3, closed)
         T_here = twin.T_base_link()
         T_up = T_here.copy()
         T_up[2, 3] = T_touch[2, 3] + 0.05
         line(ex, T_here, T_up, closed, 0.6)
-        ex.watch = None
-        info = {"max_travel_m": best[0], "threshold_m": a.threshold}
-        return (*self.success(info), info)
-
-    def success(self, info: dict[str, Any]) -> tuple[bool, str]:
-        """The cap travelled at least the threshold."""
-        name, travel, threshold = self.target, info["max_travel_m"], info["threshold_m"]
-        if travel >= threshold:
-            return True, f"{name} pressed {1000 * travel:.1f} mm (threshold {1000 * threshold:.1f} mm)"
-        return False, f"{name} pressed only {1000 * travel:.1f} mm (threshold {1000 * threshold:.1f} mm)"
+        return "", {}

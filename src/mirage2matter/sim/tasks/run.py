@@ -32,19 +32,26 @@ def run_task(
     rng: np.random.Generator | None = None,
     on_step: Callable[[StepRecord], None] | None = None,
     control_hz: float = 10.0,
+    act: Callable[[np.ndarray], object] | None = None,
 ) -> TaskResult:
-    """Run ``task`` from the twin's current state (call ``twin.reset`` first). ``rng`` is reserved for
+    """Run ``task``'s scripted policy from the twin's current state (call ``twin.reset`` first), one control tick
+    at ``control_hz`` at a time: ``on_step`` gets each tick's record before the tick runs (the twin is then in
+    the record's state, so a caller can render), ``act`` executes the action (default ``twin.act``; it must end
+    in that call). Success is the task's monitor (:meth:`Task.monitor`) at any tick. ``rng`` is reserved for
     randomised task choices (the scripted policies are deterministic). Raises TaskError when the twin's world
-    has no target for the task; planning failures end the episode as a failure with the planner's message."""
+    has no target for the task; planning failures end the script with the planner's message."""
     task.check(twin.cfg)
-    ex = Executor(twin, on_step, control_hz)
+    ex = Executor(twin, on_step, control_hz, act=act)
+    ex.monitor = monitor = task.monitor(twin, ex.tick_s)
     t0 = time.perf_counter()
     try:
-        ok, reason, info = task.run(ex)
+        note, info = task.run(ex)
     except PlanningError as e:
-        ok, reason, info = False, f"planning failed: {e}", {}
-    info = {**info, "wall_s": time.perf_counter() - t0, "sim_s": ex.n * twin.dt}
-    return TaskResult(bool(ok), reason, ex.steps, info)
+        note, info = f"planning failed: {e}", {}
+    ok = monitor.success
+    reason = monitor.reason if ok or not note else note
+    info = {**info, **monitor.info, "wall_s": time.perf_counter() - t0, "sim_s": ex.n * twin.dt}
+    return TaskResult(ok, reason, ex.steps, info)
 
 
 def evaluate(twin: Twin, task: Task, episodes: int, seed: int = 0, progress: bool = False) -> dict:
