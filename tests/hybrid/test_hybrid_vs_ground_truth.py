@@ -44,7 +44,7 @@ def twin_world(sample_world_ws):
 
 
 def test_hybrid_frame_matches_ground_truth_and_objects_hide_the_gripper(twin_world) -> None:
-    from mirage2matter.datagen.sim_source import render_K
+    from mirage2matter.env.hybrid import render_K
     from mirage2matter.geometry.rotation import matrix_to_quat
     from mirage2matter.geometry.sim3 import invert_rigid
     from mirage2matter.render import composite

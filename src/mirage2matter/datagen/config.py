@@ -5,28 +5,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from ..env.config import Randomization  # the environment's: generation draws its episodes through it
+
 __all__ = ["GenerateConfig", "Randomization"]
-
-
-@dataclass(frozen=True)
-class Randomization:
-    """Half-ranges of the per-episode jitter (0 disables one). Object start poses follow the world's
-    ``randomize`` region (world.yaml).
-
-    camera_deg  rotation (degrees) of each camera mount about a random axis
-    camera_m    translation (m) of each camera mount
-    brightness  brightness jitter of the splat world
-    contrast    contrast jitter of the splat world
-    gain        per-channel light colour jitter
-    objects     random object start poses (False: the world's placements)
-    """
-
-    camera_deg: float = 0.5
-    camera_m: float = 0.005
-    brightness: float = 0.06
-    contrast: float = 0.08
-    gain: float = 0.05
-    objects: bool = True
 
 
 @dataclass(frozen=True)
@@ -45,6 +26,7 @@ class GenerateConfig:
     max_attempts   give up after this many attempts (None: 3 * episodes + 5)
     preview        episodes shown in preview.mp4 / contact_sheet.png (0: none)
     randomization  per-episode camera-mount and colour jitter, random object start poses
+    objects        how objects are drawn: "gaussians" (the method) or "meshes" (the mesh-only ablation)
     """
 
     episodes: int
@@ -58,3 +40,4 @@ class GenerateConfig:
     max_attempts: int | None = None
     preview: int = 4
     randomization: Randomization = field(default_factory=Randomization)
+    objects: str = "gaussians"

@@ -42,11 +42,12 @@ def world_fingerprint(world: WorldConfig) -> dict[str, Any]:
 
 
 def _source(world: WorldConfig, task: Task, cfg: GenerateConfig):
+    from ..env.config import HybridOptions
     from .sim_source import SimSourceConfig
 
     return SimSourceConfig(
         world=world, task=task, size=tuple(cfg.size), fps=cfg.fps, cameras=tuple(cfg.cameras),
-        randomization=cfg.randomization,
+        randomization=cfg.randomization, hybrid=HybridOptions(objects=cfg.objects),
     )  # fmt: skip
 
 
@@ -69,6 +70,7 @@ def dataset_fingerprint(world: WorldConfig, task: Task, cfg: GenerateConfig) -> 
 
 def _check(world: WorldConfig, task: Task, cfg: GenerateConfig) -> None:
     """Fail fast, in the parent, with the message a user can act on."""
+    from ..env.config import EnvError, check_config
     from ..sim.tasks import TaskError
 
     missing = [c for c in cfg.cameras if c not in world.cameras]
@@ -81,6 +83,10 @@ def _check(world: WorldConfig, task: Task, cfg: GenerateConfig) -> None:
         task.check(world)
     except TaskError as e:
         raise GenerateError(f"task {task.text!r}: {e}") from None
+    try:  # what the environment the episodes run in checks (frame size, fps against the physics rate)
+        check_config(_source(world, task, cfg).env_config())
+    except EnvError as e:
+        raise GenerateError(str(e)) from None
 
 
 def generate(
@@ -94,16 +100,14 @@ def generate(
     """Generate ``cfg.episodes`` demonstrations of ``task`` in ``world`` into the dataset folder ``out``;
     returns the summary (summary.json) with ``"dataset"`` the dataset folder. A rerun of a finished run is a
     no-op; a killed run resumes (the fingerprint: world content, task, frame settings, seed, count, format)."""
-    from .robot_proxy import lowpoly_robot
-    from .sim_source import SimSourceFactory, robot_cache_dir
+    from ..env.robot_proxy import render_robot_file
+    from .sim_source import SimSourceFactory
 
     _check(world, task, cfg)
     out = Path(out)
     source = _source(world, task, cfg)
     run = _run_config(cfg)
-    if source.robot_render_faces and world.robot.file.lower().endswith(".xml"):
-        # build the render copy of the robot once, before workers race for it
-        lowpoly_robot(world.robot.file, robot_cache_dir(), source.robot_render_faces)
+    render_robot_file(world.robot.file, source.hybrid.robot_render_faces)  # built once, before workers race for it
     return generate_dataset(out, SimSourceFactory(source), source.spec(), run, _source_fingerprint(world, source),
                             {"task": task.text, "dataset": str(out)}, log, progress)  # fmt: skip
 

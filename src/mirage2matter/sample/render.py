@@ -42,11 +42,13 @@ __all__ = [
     "HandeyeCheck",
     "RenderConfig",
     "SampleRenderer",
+    "add_asset",
     "board_face",
     "check_handeye_configuration",
     "default_T_base_headcam",
     "default_T_hand_board",
     "ensure_genesis",
+    "new_scene",
     "sample_handeye_configurations",
 ]
 
@@ -215,6 +217,40 @@ def ensure_genesis(backend: str = "cpu") -> object:
     return gs
 
 
+def new_scene(config: RenderConfig) -> object:
+    """An empty Genesis rasterizer scene with the look of the sample's images: ``config``'s ambient light,
+    background, directional lights and shadows (its camera fields are not used here); entity-level
+    segmentation. Every renderer of the sample's world builds its scene here, so their pixels agree."""
+    gs = ensure_genesis()
+    return gs.Scene(
+        show_viewer=False,
+        renderer=gs.renderers.Rasterizer(),
+        vis_options=gs.options.VisOptions(
+            ambient_light=tuple(config.ambient),
+            background_color=tuple(config.background),
+            lights=[
+                {"type": "directional", "dir": tuple(li.dir), "color": tuple(li.color), "intensity": li.intensity}
+                for li in config.lights
+            ],
+            shadow=config.shadow,
+            segmentation_level="entity",
+        ),
+    )
+
+
+def add_asset(scene: object, asset: PlacedAsset, folder: Path) -> object:
+    """Add ``asset`` to an unbuilt ``scene`` as a fixed, non-colliding textured mesh at its ``T_base_obj``
+    (its OBJ is exported into ``folder``). It can be moved later with ``set_pos`` / ``set_quat`` (a render
+    with ``force_render=True`` shows the new pose). Returns the Genesis entity."""
+    gs = ensure_genesis()
+    obj = _export_obj(asset.mesh, Path(folder))
+    pos, quat = _pos_quat(np.asarray(asset.T_base_obj, dtype=np.float64))
+    return scene.add_entity(
+        gs.morphs.Mesh(file=str(obj), pos=tuple(pos), quat=tuple(quat), fixed=True, collision=False),
+        surface=gs.surfaces.Default(),
+    )
+
+
 def _slug(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "asset"
 
@@ -260,30 +296,12 @@ class SampleRenderer:
         workdir = Path(workdir)
         gs = ensure_genesis()
 
-        self._scene = gs.Scene(
-            show_viewer=False,
-            renderer=gs.renderers.Rasterizer(),
-            vis_options=gs.options.VisOptions(
-                ambient_light=tuple(cfg.ambient),
-                background_color=tuple(cfg.background),
-                lights=[
-                    {"type": "directional", "dir": tuple(li.dir), "color": tuple(li.color), "intensity": li.intensity}
-                    for li in cfg.lights
-                ],
-                shadow=cfg.shadow,
-                segmentation_level="entity",
-            ),
-        )
+        self._scene = new_scene(cfg)
         self.entity_names: list[str] = []  # segmentation label i <-> entity_names[i]
         self._entities: dict[str, object] = {}
 
         def add_mesh(asset: PlacedAsset, index: int) -> object:
-            obj = _export_obj(asset.mesh, workdir / f"{index:03d}_{_slug(asset.name)}")
-            pos, quat = _pos_quat(np.asarray(asset.T_base_obj, dtype=np.float64))
-            entity = self._scene.add_entity(
-                gs.morphs.Mesh(file=str(obj), pos=tuple(pos), quat=tuple(quat), fixed=True, collision=False),
-                surface=gs.surfaces.Default(),
-            )
+            entity = add_asset(self._scene, asset, workdir / f"{index:03d}_{_slug(asset.name)}")
             self._register(asset.name, entity)
             return entity
 

@@ -20,6 +20,23 @@ import numpy as np
 
 from ..atomic import atomic_dir
 
+__all__ = ["genesis_asset", "lowpoly_robot", "render_robot_file", "robot_cache_dir"]
+
+
+def robot_cache_dir() -> Path:
+    """Where render copies of robots are kept (``$M2M_CACHE/robots``, default ``~/.cache/mirage2matter/robots``)."""
+    import os
+
+    return Path(os.environ.get("M2M_CACHE", Path.home() / ".cache" / "mirage2matter")) / "robots"
+
+
+def render_robot_file(robot_file: str, max_faces: int | None) -> str:
+    """The robot model to build a rendering twin from: the low-polygon copy of an MJCF ``robot_file`` (built once,
+    under :func:`robot_cache_dir`), or ``robot_file`` itself (``max_faces`` None, or a URDF)."""
+    if not max_faces or not robot_file.lower().endswith(".xml"):
+        return robot_file
+    return str(lowpoly_robot(robot_file, robot_cache_dir(), max_faces))
+
 
 def genesis_asset(path: str) -> Path:
     """A robot file given relative to Genesis' bundled assets (as world.yaml does) as an absolute path."""

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import trimesh
 
-from mirage2matter.datagen.robot_proxy import _visual_mesh_files, genesis_asset, lowpoly_robot
+from mirage2matter.env.robot_proxy import _visual_mesh_files, genesis_asset, lowpoly_robot
 
 PANDA = "xml/franka_emika_panda/panda.xml"
 pytestmark = pytest.mark.slow  # decimating 55 meshes and comparing every file takes ~1 min here

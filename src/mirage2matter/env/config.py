@@ -1,0 +1,145 @@
+"""Settings of a twin environment (and of a generated episode, which is an environment episode with the scripted
+expert acting): the per-episode randomisation, the hybrid renderer's knobs, the whole configuration.
+
+No heavy imports (no torch, no Genesis): the command line and ``datagen.config`` read these before anything is
+built.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ..errors import M2MError
+
+if TYPE_CHECKING:
+    from ..render.splat_world import SplatRenderOptions
+    from ..sim.tasks import Task
+    from ..world.config import WorldConfig
+
+__all__ = ["CAMERAS", "EnvConfig", "EnvError", "HybridOptions", "Randomization", "check_config"]
+
+CAMERAS = ("head", "wrist")
+
+
+class EnvError(M2MError, ValueError):
+    """Bad environment input (a world without the cameras, an unknown renderer, an action of the wrong size);
+    the message says what was wrong and what to do."""
+
+
+@dataclass(frozen=True)
+class Randomization:
+    """Half-ranges of the per-episode jitter (0 disables one). Object start poses follow the world's
+    ``randomize`` region (world.yaml).
+
+    camera_deg  rotation (degrees) of each camera mount about a random axis
+    camera_m    translation (m) of each camera mount
+    brightness  brightness jitter of the splat world
+    contrast    contrast jitter of the splat world
+    gain        per-channel light colour jitter
+    objects     random object start poses (False: the world's placements)
+    """
+
+    camera_deg: float = 0.5
+    camera_m: float = 0.005
+    brightness: float = 0.06
+    contrast: float = 0.08
+    gain: float = 0.05
+    objects: bool = True
+
+
+def _fast_splats() -> SplatRenderOptions:
+    # Measured on a wrist-camera episode of the reconstructed sample world at 224 px: SH band 1 instead of 3 is
+    # 43.5 dB from the full render and poses a part 2.4x faster; dropping Gaussians below opacity 0.02 (most
+    # of an object reconstruction's are fainter) is 40 dB from it and renders ~12% faster.
+    from ..render.splat_world import SplatRenderOptions
+
+    return SplatRenderOptions(sh_degree=1, min_opacity=0.02)
+
+
+@dataclass(frozen=True)
+class HybridOptions:
+    """The hybrid renderer: the Gaussian world posed by physics, the Genesis robot composited over it.
+
+    splat                    per-frame splat render settings
+    depth_aware              the robot shows only where it is nearer than the splat surface (False: the paper's
+                             mask pasted over everything)
+    background               colour (RGB in [0, 1]) where no Gaussian covers a pixel
+    robot_render_faces       the robot drawn from a copy with visual meshes decimated to this many faces each
+                             (None: the original meshes); render speed on the CPU, physics unchanged
+    reuse_hand_camera_robot  cameras on the hand reuse the robot layer while the fingers keep their opening (the
+                             hand and fingers do not move in such a camera; only their shading would, slightly)
+    objects                  how objects are drawn: "gaussians" (their 3DGS, the method) or "meshes" (Genesis draws
+                             their meshes, vertex-coloured from their Gaussians: the paper's mesh-only ablation)
+    """
+
+    splat: SplatRenderOptions = field(default_factory=_fast_splats)
+    depth_aware: bool = True
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    robot_render_faces: int | None = 1500
+    reuse_hand_camera_robot: bool = True
+    objects: str = "gaussians"
+
+
+@dataclass(frozen=True, eq=False)
+class EnvConfig:
+    """What an environment is; picklable (the world and the task are parsed once, at the border).
+
+    world          the loaded world (the environment copies it before changing anything)
+    task           the parsed task (``sim.tasks.parse_task``): its success test is ``terminated``
+    renderer       observation renderer: "hybrid" (what generation records) or "ground_truth"
+    size           (width, height) of every camera's frames
+    fps            control and video rate (Hz); one step is one control tick
+    horizon        steps after which an episode is truncated (None: never)
+    cameras        which world cameras are observed (``observation.images.<camera>``)
+    randomization  per-episode jitter, drawn from the episode's seed exactly as generation draws it
+    hybrid         the hybrid renderer's settings
+    ground_truth   a sample folder holding ``ground_truth.json`` (the ``ground_truth`` renderer's world)
+    backend        Genesis backend: "cpu" or "gpu"
+    """
+
+    world: WorldConfig
+    task: Task
+    renderer: str = "hybrid"
+    size: tuple[int, int] = (224, 224)
+    fps: int = 10
+    horizon: int | None = 200
+    cameras: tuple[str, ...] = CAMERAS
+    randomization: Randomization = field(default_factory=Randomization)
+    hybrid: HybridOptions = field(default_factory=HybridOptions)
+    ground_truth: Path | None = None
+    backend: str = "cpu"
+
+
+def check_config(cfg: EnvConfig, dt: float = 0.01) -> None:
+    """Raise :class:`EnvError` (or the task's ``TaskError``) naming what is wrong with ``cfg`` before anything is
+    built; ``dt`` is the twin's physics step."""
+    world = cfg.world
+    missing = [c for c in cfg.cameras if c not in world.cameras]
+    if missing or not cfg.cameras:
+        raise EnvError(
+            f"the world has no calibrated camera {', '.join(missing) or '(none asked for)'} (cameras: "
+            f"{sorted(world.cameras) or 'none'}); calibrate it (`m2m calibrate-handeye`) and compose the world again"
+        )
+    cfg.task.check(world)
+    if cfg.renderer == "ground_truth" and (
+        cfg.ground_truth is None or not (cfg.ground_truth / "ground_truth.json").is_file()
+    ):
+        where = f"{cfg.ground_truth} has no ground_truth.json" if cfg.ground_truth is not None else "none was given"
+        raise EnvError(
+            f"the ground_truth renderer needs a sample's ground truth (a sample folder with ground_truth.json, such "
+            f"as samples/tabletop, given as ground_truth=...): {where}. A world reconstructed from your own capture "
+            "has no ground truth: use renderer='hybrid'"
+        )
+    w, h = cfg.size
+    if not all(isinstance(v, int) and v >= 2 for v in (w, h)):
+        raise EnvError(f"size must be (width, height) in pixels, each >= 2, got {cfg.size!r}")
+    per_tick = 1.0 / (cfg.fps * dt) if isinstance(cfg.fps, int) and cfg.fps > 0 else 0.0
+    if per_tick < 1 or not math.isclose(per_tick, round(per_tick), abs_tol=1e-6):
+        raise EnvError(f"fps must be a positive integer dividing the physics rate ({1 / dt:g} Hz), got {cfg.fps!r}")
+    if cfg.hybrid.objects not in ("gaussians", "meshes"):
+        raise EnvError(f"hybrid objects must be 'gaussians' or 'meshes', got {cfg.hybrid.objects!r}")
+    if cfg.horizon is not None and (not isinstance(cfg.horizon, int) or cfg.horizon < 1):
+        raise EnvError(f"horizon must be a positive number of steps (or None), got {cfg.horizon!r}")

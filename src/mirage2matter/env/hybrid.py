@@ -1,0 +1,145 @@
+"""The "hybrid" observation renderer (paper section 3.3): the Gaussian world with every part at its physics pose,
+the Genesis robot rendered over it, depth-aware (``render.composite``), the episode's colour jitter on the splats.
+What generation records and what the environment observes by default: the same code makes both.
+
+The twin it renders is built for it (:func:`build_hybrid`): cameras at the frame size, only the robot drawn
+(its mask is where its depth is finite), the robot's visual meshes decimated (``robot_proxy``).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .config import EnvConfig, HybridOptions
+from .robot_proxy import render_robot_file
+
+if TYPE_CHECKING:
+    from ..sim.twin import Twin
+    from .episode import EpisodeDraw
+
+__all__ = ["TIMING_KEYS", "HybridRenderer", "build_hybrid", "render_K"]
+
+TIMING_KEYS = ("pose_splats", "splat_render", "robot_render", "composite")
+
+
+def render_K(K: np.ndarray, width: int, height: int, out_w: int, out_h: int) -> np.ndarray:
+    """Intrinsics of the ``out_w`` x ``out_h`` render of a camera (the Genesis twin's convention: the
+    vertical field of view kept, square pixels, principal point at the centre)."""
+    f = float(K[1, 1]) * out_h / height
+    return np.array([[f, 0.0, out_w / 2.0], [0.0, f, out_h / 2.0], [0.0, 0.0, 1.0]])
+
+
+class HybridRenderer:
+    """Hybrid frames of a twin's current state from the named cameras.
+
+    Use :meth:`start_episode` after every reset (it forgets the per-episode caches and takes the episode's colour
+    jitter), then :meth:`render` per control tick. ``timings`` holds the episode's seconds per part so far.
+    """
+
+    def __init__(self, twin: Twin, cameras: tuple[str, ...], size: tuple[int, int], options: HybridOptions) -> None:
+        from ..gaussians.ply import read_ply
+        from ..render.composite import ColorJitter
+        from ..render.splat_world import MovablePart, SplatWorld
+
+        world = twin.cfg
+        self.twin, self.cameras, self.size, self.options = twin, tuple(cameras), tuple(size), options
+        self.static_cameras = {c for c in cameras if world.cameras[c].mount == "base"}
+        self.hand_cameras = {c for c in cameras if world.cameras[c].mount == world.robot.ee_link}
+        parts = []
+        if options.objects == "gaussians":  # else Genesis draws them, in the robot layer (``build_hybrid``)
+            parts = [MovablePart(o.name, read_ply(o.part.gaussians), o.placement.scale) for o in world.objects]
+            for a in world.articulated:
+                parts.append(MovablePart(a.name, read_ply(a.base.gaussians), a.placement.scale))
+                parts.append(MovablePart(f"{a.name}/cap", read_ply(a.cap.gaussians), a.placement.scale))
+        static = read_ply(world.scene_gaussians) if world.scene_gaussians is not None else None
+        self.splat = SplatWorld(static, parts, options.splat)
+        self.jitter = ColorJitter()
+        self._robot_cache: dict[str, tuple] = {}
+        self.timings = dict.fromkeys(TIMING_KEYS, 0.0)
+
+    def start_episode(self, draw: EpisodeDraw) -> None:
+        """A new episode: its colour jitter; every cache forgotten, so a frame depends on this episode alone."""
+        self.jitter = draw.jitter
+        self.splat.reset_cache()
+        self.splat.poses.clear()  # re-pose every part exactly (not "unchanged within tolerance" of the last episode)
+        self._robot_cache = {}
+        self.timings = dict.fromkeys(TIMING_KEYS, 0.0)
+
+    def _robot_layer(self, camera: str, state: np.ndarray) -> dict[str, np.ndarray]:
+        w, h = self.size
+        # with mesh objects the layer holds the objects too, which move in a hand camera
+        reuse = self.options.reuse_hand_camera_robot and self.options.objects == "gaussians"
+        if not (reuse and camera in self.hand_cameras):
+            return self.twin.render_robot(camera, w, h)
+        fingers = np.asarray(state[self.twin.spec.n_arm :], np.float64)
+        key = tuple(np.round(fingers / 5e-4).astype(int))  # 0.5 mm finger steps
+        hit = self._robot_cache.get(camera)
+        if hit is None or hit[0] != key:
+            hit = (key, self.twin.render_robot(camera, w, h))
+            self._robot_cache[camera] = hit
+        return hit[1]
+
+    def render(self) -> dict[str, np.ndarray]:
+        """{camera: uint8 [H,W,3]} hybrid frames of the twin's current state."""
+        from ..geometry.sim3 import invert_rigid
+        from ..render.composite import composite, to_uint8
+
+        twin, opt, (w, h) = self.twin, self.options, self.size
+        t0 = time.perf_counter()
+        self.splat.set_poses(twin.object_poses())
+        self.timings["pose_splats"] += time.perf_counter() - t0
+        state = twin.robot_state()
+        frames = {}
+        for c in self.cameras:
+            T_base_cam, K, cw, ch = twin.camera(c)
+            t1 = time.perf_counter()
+            view, Kr = invert_rigid(T_base_cam), render_K(K, cw, ch, w, h)
+            if c in self.static_cameras:  # fixed in the base: the scene is drawn once per episode
+                rgb, alpha, depth = self.splat.render_static_camera(c, view, Kr, w, h, opt.background)
+            else:
+                rgb, alpha, depth = self.splat.render_camera(c, view, Kr, w, h, opt.background)
+            t2 = time.perf_counter()
+            robot = self._robot_layer(c, state)
+            t3 = time.perf_counter()
+            splat8 = to_uint8(self.jitter.apply(rgb))
+            # Mesh objects share the robot's z-buffer, and a splat table's blurred surface would hide their lower
+            # half under a depth test: the Genesis layer is pasted whole then.
+            if opt.depth_aware and opt.objects == "gaussians":
+                im, _ = composite(splat8, robot["rgb"], robot["robot_mask"], robot["depth"], depth, alpha)
+            else:
+                im, _ = composite(splat8, robot["rgb"], robot["robot_mask"])
+            frames[c] = im
+            self.timings["splat_render"] += t2 - t1
+            self.timings["robot_render"] += t3 - t2
+            self.timings["composite"] += time.perf_counter() - t3
+        return frames
+
+    def close(self) -> None:
+        """Nothing of its own to free (the twin is the environment's)."""
+
+
+def build_hybrid(cfg: EnvConfig) -> tuple[Twin, HybridRenderer]:
+    """The twin a hybrid renderer needs (render cameras at the frame size, only the robot drawn, the low-polygon
+    robot copy) and the renderer."""
+    from ..sim.twin import Twin, TwinOptions
+
+    meshes = cfg.hybrid.objects == "meshes"
+    if meshes:
+        from .mesh_objects import mesh_object_world
+
+        world = mesh_object_world(cfg.world)
+    else:
+        world = cfg.world.copy()
+    world.robot.file = render_robot_file(world.robot.file, cfg.hybrid.robot_render_faces)
+    w, h = cfg.size
+    options = TwinOptions(backend=cfg.backend, render=True, camera_sizes={c: (w, h) for c in cfg.cameras},
+                          draw_scene=False, draw_objects=meshes)  # fmt: skip
+    twin = Twin.build(world, options)
+    try:
+        return twin, HybridRenderer(twin, cfg.cameras, cfg.size, cfg.hybrid)
+    except BaseException:
+        twin.close()
+        raise

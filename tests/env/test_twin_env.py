@@ -1,0 +1,121 @@
+"""The Gymnasium environment of the sample world's twin: Gymnasium's own checker, spaces that are the datasets'
+features, episodes, and bad input refused with a clear M2MError (most before Genesis is started)."""
+
+from __future__ import annotations
+
+import warnings
+
+import gymnasium
+import numpy as np
+import pytest
+
+import mirage2matter.env  # noqa: F401  (registers mirage2matter/Twin-v0)
+from mirage2matter.env import ENV_ID, EnvError
+from mirage2matter.errors import M2MError
+from mirage2matter.sim.tasks import GraspTask, TaskError
+from mirage2matter.world import load_world
+
+SIZE = (32, 24)  # (width, height): small frames keep the renders cheap
+
+
+@pytest.fixture(scope="module")
+def ws(sample_world_ws):
+    return sample_world_ws(gaussians_per_object=3000, scene_density_per_m2=4000.0)
+
+
+@pytest.fixture(scope="module")
+def world(ws):
+    return load_world(ws / "world")
+
+
+@pytest.fixture(scope="module")
+def env(ws):
+    e = gymnasium.make(ENV_ID, world=ws, task="grasp banana", size=SIZE, horizon=4)  # a workspace path
+    yield e
+    e.close()
+
+
+def test_gymnasium_env_checker_passes(env):
+    from gymnasium.utils.env_checker import check_env
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped)  # also makes one environment per render mode and one to close twice
+    # joint targets in radians are not a [-1, 1] box, and should not be: they are the datasets' actions
+    others = [str(w.message) for w in caught if "symmetric and normalized" not in str(w.message)]
+    assert not [m for m in others if "WARN" in m], others
+
+
+def test_spaces_are_the_datasets_features(env, world):
+    from mirage2matter.datagen.sim_source import SimSourceConfig
+
+    features = SimSourceConfig(world=world, task=GraspTask("banana"), size=SIZE).spec().features()
+    obs_space = env.observation_space
+    assert set(obs_space.spaces) == {k for k in features if k.startswith("observation.")}
+    for key, space in obs_space.spaces.items():
+        assert list(space.shape) == features[key]["shape"], key
+        assert space.dtype == (np.uint8 if features[key]["dtype"] == "video" else np.dtype(features[key]["dtype"]))
+    assert list(env.action_space.shape) == features["action"]["shape"] and env.action_space.dtype == np.float32
+    spec = world.robot.spec
+    assert env.unwrapped.action_names == tuple(features["action"]["names"]) == spec.action_names
+    lo, hi = env.action_space.low, env.action_space.high
+    assert lo[-1] == pytest.approx(min(spec.gripper_open, spec.gripper_closed))
+    assert hi[-1] == pytest.approx(max(spec.gripper_open, spec.gripper_closed))
+    assert env.unwrapped.metadata["render_fps"] == 10
+
+
+def test_an_episode_steps_ticks_and_truncates_at_the_horizon(env):
+    obs, info = env.reset(seed=7)
+    assert info == {"seed": 7, "task": "pick up the banana"}
+    q0 = obs["observation.state"]
+    n_arm = env.unwrapped.twin.spec.n_arm
+    hold = np.append(q0[:n_arm], q0[n_arm]).astype(np.float32)  # stay where it is, gripper open
+    for t in range(1, 5):
+        obs, reward, terminated, truncated, info = env.step(hold)
+        assert info["step"] == t and info["sim_s"] == pytest.approx(0.1 * t)
+        assert not terminated and reward == 0.0 and truncated == (t == 4)
+    assert {"reset", "physics", "splat_render", "robot_render"} <= set(info["timings"])
+    assert np.abs(obs["observation.state"] - q0).max() < 0.01
+    assert obs["observation.images.head"].shape == (SIZE[1], SIZE[0], 3)
+    # the same seed, the same episode; another seed, other start poses
+    a, _ = env.reset(seed=7)
+    b, _ = env.reset(seed=7)
+    c, _ = env.reset(seed=8)
+    assert all(np.array_equal(a[k], b[k]) for k in a)
+    assert not np.array_equal(a["observation.images.head"], c["observation.images.head"])
+
+
+def test_bad_actions_are_clear_errors(env):
+    env.reset(seed=0)
+    n = env.action_space.shape[0]
+    with pytest.raises(M2MError, match=rf"an action is float32 \[{n}\].*got shape \(3,\)"):
+        env.step(np.zeros(3, np.float32))
+    with pytest.raises(M2MError, match="NaN"):
+        env.step(np.full(n, np.nan, np.float32))
+
+
+def test_bad_input_is_refused_before_genesis_starts(world, ws, tmp_path):
+    from mirage2matter.env.twin_env import TwinEnv
+
+    with pytest.raises(TaskError, match="no press button named 'banana'"):
+        TwinEnv(world, "press banana")
+    with pytest.raises(TaskError, match="no object named 'kiwi'"):
+        TwinEnv(world, GraspTask("kiwi"))
+    blind = world.copy()
+    del blind.cameras["wrist"]
+    with pytest.raises(EnvError, match="no calibrated camera wrist.*calibrate"):
+        TwinEnv(blind, "grasp banana")
+    with pytest.raises(EnvError, match="ground_truth renderer needs a sample's ground truth.*none was given"):
+        TwinEnv(world, "grasp banana", renderer="ground_truth")
+    with pytest.raises(EnvError, match="has no ground_truth.json.*use renderer='hybrid'"):
+        TwinEnv(world, "grasp banana", renderer="ground_truth", ground_truth=ws)  # a capture of one's own
+    with pytest.raises(EnvError, match="unknown renderer 'raytraced'"):
+        TwinEnv(world, "grasp banana", renderer="raytraced")
+    with pytest.raises(EnvError, match=r"unknown option\(s\) \['sise'\]"):
+        TwinEnv(world, "grasp banana", sise=64)
+    with pytest.raises(EnvError, match="fps must be a positive integer dividing the physics rate"):
+        TwinEnv(world, "grasp banana", fps=30)
+    with pytest.raises(EnvError, match="neither a world folder"):
+        TwinEnv(tmp_path, "grasp banana")
+    with pytest.raises(EnvError, match="render_mode"):
+        TwinEnv(world, "grasp banana", render_mode="human")
