@@ -1,0 +1,61 @@
+"""Image augmentation for sim-to-real, on whole batches (one ``grid_sample`` and a few elementwise ops).
+
+What differs between our hybrid renders and the real camera (or the ground-truth world) is mostly where the
+camera sits by a few pixels, the exposure, white balance, saturation and noise; the geometry of the scene is
+the same. So: a small random affine warp (shift, scale, rotation; DrQ's random shift generalised) and colour
+jitter (brightness, contrast, saturation, hue, per-channel gain), plus pixel noise. Every random number
+comes from the caller's generator, so a resumed run draws exactly what an uninterrupted one would.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+from .config import AugmentConfig
+
+__all__ = ["AugmentConfig", "augment"]
+
+
+def _u(n: int, half: float, g: torch.Generator, device: torch.device) -> torch.Tensor:
+    """[n] uniform in [-half, half] (drawn on the CPU generator, then moved: CUDA gets the same numbers)."""
+    return ((torch.rand(n, generator=g) * 2 - 1) * half).to(device)
+
+
+# YIQ: luma + a chroma plane in which a hue change is a rotation.
+_RGB2YIQ = torch.tensor([[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.523, 0.312]])
+
+
+def augment(images: torch.Tensor, cfg: AugmentConfig, g: torch.Generator) -> torch.Tensor:
+    """uint8 or float [B, 3, S, S] -> float [B, 3, S, S] in [0, 1], each image changed at random."""
+    x = images.float() / 255.0 if images.dtype == torch.uint8 else images.float()
+    b, dev = x.shape[0], x.device
+
+    # geometry: one affine warp per image; border replication avoids black edges the real camera never shows
+    ang = _u(b, math.radians(cfg.rotate_deg), g, dev)
+    s = 1.0 + _u(b, cfg.scale, g, dev)
+    tx, ty = _u(b, 2 * cfg.shift, g, dev), _u(b, 2 * cfg.shift, g, dev)  # grid units: the side spans 2
+    cos, sin = torch.cos(ang) / s, torch.sin(ang) / s
+    theta = torch.stack([torch.stack([cos, -sin, tx], -1), torch.stack([sin, cos, ty], -1)], 1)  # [B, 2, 3]
+    grid = F.affine_grid(theta, list(x.shape), align_corners=False)
+    x = F.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
+
+    # colour: a per-image 3x3 matrix in YIQ (saturation scales chroma, hue rotates it), then gain/brightness
+    sat = 1.0 + _u(b, cfg.saturation, g, dev)
+    h = _u(b, 2 * math.pi * cfg.hue, g, dev)
+    m = torch.zeros(b, 3, 3, device=dev)
+    m[:, 0, 0] = 1.0
+    m[:, 1, 1], m[:, 1, 2] = sat * torch.cos(h), -sat * torch.sin(h)
+    m[:, 2, 1], m[:, 2, 2] = sat * torch.sin(h), sat * torch.cos(h)
+    fwd = _RGB2YIQ.to(dev)
+    mat = torch.linalg.inv(fwd) @ m @ fwd  # [B, 3, 3] acting on RGB
+    gain = (1.0 + _u(3 * b, cfg.gain, g, dev).view(b, 3, 1)) * (1.0 + _u(b, cfg.brightness, g, dev).view(b, 1, 1))
+    x = torch.einsum("bij,bjp->bip", gain * mat, x.flatten(2)).view_as(x)
+    mean = x.mean(dim=(1, 2, 3), keepdim=True)
+    x = (x - mean) * (1.0 + _u(b, cfg.contrast, g, dev).view(b, 1, 1, 1)) + mean
+    if cfg.noise > 0:
+        sigma = (torch.rand(b, generator=g) * cfg.noise).to(dev).view(b, 1, 1, 1)
+        x = x + sigma * torch.randn(x.shape, generator=g).to(dev)
+    return x.clamp(0.0, 1.0)

@@ -1,0 +1,118 @@
+"""The settings of policy training (no torch here: the command line and the stages read them before anything heavy
+is imported)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+__all__ = ["CHECKPOINT_FILE", "CHECKPOINT_FORMAT", "POLICY_FILE", "AugmentConfig", "PolicyTrainConfig"]
+
+CHECKPOINT_FORMAT = "mirage2matter-policy/1"
+POLICY_FILE = "policy.pt"
+CHECKPOINT_FILE = "checkpoint.pt"
+
+
+@dataclass(frozen=True)
+class AugmentConfig:
+    """Ranges of the random image changes (each drawn uniformly in [-x, x] per image unless said).
+
+    shift       translation, fraction of the image side (0.06 of 96 px: ~6 px)
+    scale       zoom, relative
+    rotate_deg  in-plane rotation, degrees
+    brightness  relative change of intensity
+    contrast    relative change of contrast about the image mean
+    saturation  relative change of saturation
+    hue         rotation of the chroma plane, fraction of a turn
+    gain        per-channel multiplicative white-balance change
+    noise       std of additive Gaussian pixel noise, drawn in [0, noise] per image (intensity in [0, 1])
+    """
+
+    shift: float = 0.06
+    scale: float = 0.05
+    rotate_deg: float = 3.0
+    brightness: float = 0.25
+    contrast: float = 0.25
+    saturation: float = 0.25
+    hue: float = 0.02
+    gain: float = 0.06
+    noise: float = 0.02
+
+
+@dataclass
+class PolicyTrainConfig:
+    """train-policy settings.
+
+    image_size        square side (px) every camera is resized to (area filter), for training and deployment
+    episodes          the first N episodes of each dataset (0: all); a data-scale curve trains on prefixes of one set
+    cameras           cameras to use, in order (empty: all of the first dataset's)
+    chunk             K: actions predicted per observation (a[t : t+K]; 10 = 1 s at 10 Hz)
+    batch_size        samples per step
+    lr                peak AdamW learning rate (linear warm-up, then cosine decay to 0)
+    weight_decay      AdamW weight decay
+    warmup_steps      steps of linear learning-rate warm-up
+    steps             training steps (0: plan them from ``minutes`` and a measured step time)
+    minutes           training-time budget when ``steps`` is 0
+    widths            encoder channels per stage (each stage after the first halves the resolution)
+    keypoints         spatial-softmax keypoints per camera
+    hidden            width of the MLP head
+    ema_decay         decay of the exponential moving average of the weights that is deployed (0: none)
+    val_fraction      fraction of episodes held out for the validation loss (rounded down; 0: none)
+    eval_every        steps between validation losses
+    checkpoint_every  steps between checkpoints a killed run resumes from
+    seed              initialisation, split, batch and augmentation seed
+    device            "auto" (CUDA when available, else CPU), "cpu", "cuda" or "cuda:N"
+    augment           random image changes during training (sim-to-real)
+    """
+
+    image_size: int = 96
+    episodes: int = 0
+    cameras: tuple[str, ...] = ()
+    chunk: int = 10
+    batch_size: int = 64
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    warmup_steps: int = 200
+    steps: int = 0
+    minutes: float = 20.0
+    widths: tuple[int, ...] = (16, 32, 64)
+    keypoints: int = 32
+    hidden: int = 256
+    ema_decay: float = 0.995
+    val_fraction: float = 0.05
+    eval_every: int = 250
+    checkpoint_every: int = 250
+    seed: int = 0
+    device: str = "auto"
+    augment: AugmentConfig = field(default_factory=AugmentConfig)
+
+    def problems(self) -> list[str]:
+        """Every invalid value, worded for the user (empty: valid)."""
+        p = []
+        ints = {"image_size": (16, 512), "chunk": (1, 1000), "batch_size": (1, 1 << 16), "warmup_steps": (0, None),
+                "steps": (0, None), "keypoints": (1, 1024), "hidden": (4, 1 << 14), "eval_every": (1, None),
+                "checkpoint_every": (1, None), "episodes": (0, None)}  # fmt: skip
+        for name, (lo, hi) in ints.items():
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < lo or (hi is not None and v > hi):
+                p.append(f"{name} must be an integer in [{lo}, {hi if hi is not None else 'inf'}], got {v!r}")
+        if not self.lr > 0:
+            p.append(f"lr must be > 0, got {self.lr!r}")
+        if not self.weight_decay >= 0:
+            p.append(f"weight_decay must be >= 0, got {self.weight_decay!r}")
+        if self.steps == 0 and not self.minutes > 0:
+            p.append(f"minutes must be > 0 when steps is 0, got {self.minutes!r}")
+        if not 0 <= self.ema_decay < 1:
+            p.append(f"ema_decay must be in [0, 1), got {self.ema_decay!r}")
+        if not 0 <= self.val_fraction < 1:
+            p.append(f"val_fraction must be in [0, 1), got {self.val_fraction!r}")
+        if not self.widths or any(isinstance(w, bool) or not isinstance(w, int) or w < 1 for w in self.widths):
+            p.append(f"widths must be positive integers, got {self.widths!r}")
+        if len(set(self.cameras)) != len(self.cameras):
+            p.append(f"cameras are repeated: {self.cameras!r}")
+        if not (self.device in ("auto", "cpu", "cuda") or self.device.startswith("cuda:")):
+            p.append(f"device must be auto, cpu, cuda or cuda:N, got {self.device!r}")
+        return p
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)

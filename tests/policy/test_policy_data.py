@@ -1,0 +1,112 @@
+"""Reading our LeRobot datasets for training: frames, chunks, statistics, and datasets that do not belong."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from fixtures.policy_datasets import spec_for
+from mirage2matter.policy import AugmentConfig, PolicyError, chunk_indices, load_episodes, normalization_stats
+from mirage2matter.policy.augment import augment
+from mirage2matter.policy.data import MIN_STD, resize_area
+
+
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)
+    return 10 * np.log10(255.0**2 / max(mse, 1e-12))
+
+
+@pytest.mark.parametrize("fmt", ["lerobot-v3.0", "lerobot-v2.1"])
+def test_load_episodes_reads_our_format(make_dataset, fmt):
+    root, eps = make_dataset(seeds=(0, 1, 2), fmt=fmt)
+    d = load_episodes(root, image_size=24)
+    assert d.meta.cameras == ("head", "wrist") and d.meta.fps == 10
+    assert d.meta.state_names == spec_for().state_names and d.meta.action_names == spec_for().action_names
+    assert d.n_episodes == 3 and list(d.lengths) == [e.length for e in eps]
+    assert list(d.starts) == [0, eps[0].length, eps[0].length + eps[1].length]
+    np.testing.assert_array_equal(d.state, np.concatenate([e.state for e in eps]))  # exact, float32 parquet
+    np.testing.assert_array_equal(d.action, np.concatenate([e.action for e in eps]))
+    assert d.images["head"].shape == (d.n_frames, 3, 24, 24) and d.images["head"].dtype == np.uint8
+    # each frame is its own episode frame (after H.264 and the same area resize), not a neighbour's
+    for e, ep in enumerate(eps):
+        for i in range(ep.length):
+            got = d.images["head"][d.starts[e] + i].transpose(1, 2, 0)
+            want = resize_area(ep.images["head"][i], 24)
+            assert _psnr(got, want) > 30, (e, i)
+            if i:
+                assert _psnr(got, want) > _psnr(got, resize_area(ep.images["head"][i - 1], 24)), (e, i)
+    assert d.tasks == ["grasp banana"] * 3 and [s[1] for s in d.sources] == [0, 1, 2]
+
+
+def test_several_datasets_and_camera_choice(make_dataset):
+    a, eps_a = make_dataset("a", seeds=(0,))
+    b, eps_b = make_dataset("b", seeds=(5, 6), fmt="lerobot-v2.1")
+    d = load_episodes([a, b], image_size=16, cameras=["wrist"])
+    assert d.meta.cameras == ("wrist",) and set(d.images) == {"wrist"}
+    assert d.n_episodes == 3 and [s[0] for s in d.sources] == [str(a), str(b), str(b)]
+    np.testing.assert_array_equal(d.state, np.concatenate([e.state for e in eps_a + eps_b]))
+
+
+def test_datasets_of_another_robot_rate_or_layout_are_refused(make_dataset):
+    a, _ = make_dataset("a", seeds=(0,))
+    fast, _ = make_dataset("fast", seeds=(1,), spec=spec_for(fps=20))
+    other, _ = make_dataset("other", seeds=(2,), spec=spec_for(robot_type="ur5e"))
+    with pytest.raises(PolicyError, match=r"fast/meta/info.json: fps 20 differs from 10"):
+        load_episodes([a, fast], 16)
+    with pytest.raises(PolicyError, match=r"other/meta/info.json: robot_type 'ur5e'"):
+        load_episodes([a, other], 16)
+    info = json.loads((a / "meta" / "info.json").read_text())
+    info["features"]["action"]["names"] = ["x"] * 8
+    (other / "meta" / "info.json").write_text(json.dumps(info))
+    with pytest.raises(PolicyError, match="action names"):
+        load_episodes([a, other], 16)
+    with pytest.raises(PolicyError, match="no video feature for camera"):
+        load_episodes(a, 16, cameras=["side"])
+    with pytest.raises(PolicyError, match="not a LeRobot dataset"):
+        load_episodes(a / "meta", 16)
+    with pytest.raises(PolicyError, match="image_size"):
+        load_episodes(a, 3)
+    (a / "videos" / "observation.images.head" / "chunk-000" / "file-000.mp4").write_bytes(b"not a video")
+    with pytest.raises(PolicyError, match="file-000.mp4.*re-export"):
+        load_episodes(a, 16)
+    (fast / "data" / "chunk-000" / "file-000.parquet").unlink()
+    with pytest.raises(PolicyError, match=r"file-000.parquet not found: the dataset is incomplete"):
+        load_episodes(fast, 16)
+
+
+def test_chunk_indices_pad_with_the_last_action():
+    idx, mask = chunk_indices(np.array([0, 3]), np.array([3, 2]), 4)
+    np.testing.assert_array_equal(idx, [[0, 1, 2, 2], [1, 2, 2, 2], [2, 2, 2, 2], [3, 4, 4, 4], [4, 4, 4, 4]])
+    np.testing.assert_array_equal(mask.sum(1), [3, 2, 1, 2, 1])
+    assert mask[:, 0].all()  # the current step is always real
+
+
+def test_normalization_stats():
+    rng = np.random.default_rng(0)
+    state = rng.normal(2.0, 3.0, (500, 9)).astype(np.float32)
+    action = rng.normal(-1.0, 0.5, (500, 8)).astype(np.float32)
+    action[:, 7] = 0.0  # a gripper that never moves (press button)
+    st = normalization_stats(state, action)
+    np.testing.assert_allclose(st["state_mean"], state.mean(0), rtol=1e-5)
+    np.testing.assert_allclose(st["state_std"], state.std(0), rtol=1e-4)
+    np.testing.assert_allclose(st["action_std"][:7], action[:, :7].std(0), rtol=1e-4)
+    assert st["action_std"][7] == np.float32(MIN_STD) and st["action_mean"][7] == 0.0
+    assert all(v.dtype == np.float32 for v in st.values())
+
+
+def test_resize_area_and_augment_shapes():
+    im = np.zeros((48, 64, 3), np.uint8)
+    im[:, 32:] = 200
+    out = resize_area(im, 16)
+    assert out.shape == (16, 16, 3) and out[:, :7].max() == 0 and out[:, 9:].min() == 200
+    with pytest.raises(PolicyError, match="uint8"):
+        resize_area(im.astype(np.float32), 16)
+    x = torch.randint(0, 256, (5, 3, 16, 16), dtype=torch.uint8)
+    a1 = augment(x, AugmentConfig(), torch.Generator().manual_seed(3))
+    a2 = augment(x, AugmentConfig(), torch.Generator().manual_seed(3))
+    assert a1.shape == (5, 3, 16, 16) and torch.equal(a1, a2) and 0 <= a1.min() and a1.max() <= 1
+    off = AugmentConfig(0, 0, 0, 0, 0, 0, 0, 0, 0)
+    torch.testing.assert_close(augment(x, off, torch.Generator()), x.float() / 255, atol=1e-5, rtol=0)

@@ -1,0 +1,132 @@
+"""Deployment: observations in our datasets' keys, chunk execution, robot checks, bad checkpoints, user callables."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from fixtures.policy_datasets import ROBOT
+from mirage2matter.policy import CallablePolicy, Policy, PolicyError, load_policy, load_policy_callable, open_policy
+
+
+def _obs(rng, h=224, w=224, s=9) -> dict:
+    return {
+        "observation.images.head": rng.integers(0, 256, (h, w, 3), dtype=np.uint8),
+        "observation.images.wrist": rng.integers(0, 256, (h // 2, w // 2, 3), dtype=np.uint8),
+        "observation.state": rng.normal(size=s).astype(np.float32),
+    }
+
+
+def test_policy_takes_any_image_size_and_checks_observations(tiny_run):
+    _, out, _, _ = tiny_run
+    policy = load_policy(out, robot_type=ROBOT.robot_type, state_names=ROBOT.state_names,
+                         action_names=ROBOT.action_names, fps=10, cameras=("head", "wrist"))  # fmt: skip
+    rng = np.random.default_rng(0)
+    a = policy(_obs(rng))
+    assert a.shape == (8,) and a.dtype == np.float32 and np.isfinite(a).all()
+    assert policy.observation_keys == ("observation.images.head", "observation.images.wrist", "observation.state")
+    obs = _obs(rng)
+    with pytest.raises(PolicyError, match=r"lacks \['observation.images.wrist'\]"):
+        policy({k: v for k, v in obs.items() if k != "observation.images.wrist"})
+    with pytest.raises(PolicyError, match="observation.state must be 9 finite numbers"):
+        policy({**obs, "observation.state": np.zeros(7, np.float32)})
+    with pytest.raises(PolicyError, match="uint8"):
+        policy({**obs, "observation.images.head": obs["observation.images.head"].astype(np.float32)})
+
+
+def test_temporal_ensembling_and_replanning(tiny_run):
+    _, out, _, _ = tiny_run
+    k = 4  # the tiny run's chunk
+    chunks = [np.full((k, 8), float(10 * i), np.float32) + np.arange(k, dtype=np.float32)[:, None]
+              for i in range(6)]  # fmt: skip
+    policy = load_policy(out, ensemble_decay=0.5)
+    calls = iter(chunks)
+    policy.predict_chunk = lambda obs: next(calls)
+    got = [float(policy({})[0]) for _ in range(6)]
+    # step t averages chunk j's entry t - j over the last k chunks, oldest weighted most: exp(-0.5 i)
+    for t in range(6):
+        js = [j for j in range(max(0, t - k + 1), t + 1)]
+        w = np.exp(-0.5 * np.arange(len(js)))
+        assert got[t] == pytest.approx(sum(wi * (10 * j + t - j) for wi, j in zip(w, js, strict=True)) / w.sum())
+    policy.reset()
+    calls = iter(chunks)
+    assert float(policy({})[0]) == 0.0  # after reset, only the new chunk counts
+
+    replan = load_policy(out, replan_every=2)
+    calls = iter(chunks)
+    replan.predict_chunk = lambda obs: next(calls)
+    # a chunk every 2 steps, executed in order: chunk0[0], chunk0[1], chunk1[0], chunk1[1], ...
+    assert [float(replan({})[0]) for _ in range(5)] == [0.0, 1.0, 10.0, 11.0, 20.0]
+    with pytest.raises(PolicyError, match="replan_every"):
+        load_policy(out, replan_every=k + 1)
+
+
+def test_checkpoint_of_another_robot_or_that_does_not_load(tiny_run, tmp_path):
+    _, out, _, _ = tiny_run
+    with pytest.raises(PolicyError, match=r"policy.pt: this policy was trained for robot_type 'franka_panda'.*"
+                                          r"not 'ur5e'.*Train one on datasets of this robot"):  # fmt: skip
+        load_policy(out, robot_type="ur5e")
+    with pytest.raises(PolicyError, match=r"action 8 .* not 7"):
+        load_policy(out, action_names=ROBOT.action_names[:7])
+    with pytest.raises(PolicyError, match="20 Hz"):
+        load_policy(out, fps=20)
+    with pytest.raises(PolicyError, match=r"camera\(s\) \['wrist'\]"):
+        load_policy(out, cameras=["head"])
+    with pytest.raises(PolicyError, match="holds no policy.pt"):
+        load_policy(tmp_path)
+    with pytest.raises(PolicyError, match="not found"):
+        load_policy(tmp_path / "nothing.pt")
+    (tmp_path / "policy.pt").write_bytes(b"garbage")
+    with pytest.raises(PolicyError, match=r"policy.pt does not load as a policy checkpoint.*re-train"):
+        load_policy(tmp_path)
+    torch.save({"format": "lerobot", "weights": {}}, tmp_path / "policy.pt")
+    with pytest.raises(PolicyError, match="load_policy_callable"):
+        load_policy(tmp_path)
+    blob = torch.load(out / "policy.pt", weights_only=True)
+    blob["weights"] = {k: v[:1] if v.ndim else v for k, v in blob["weights"].items()}
+    torch.save(blob, tmp_path / "policy.pt")
+    with pytest.raises(PolicyError, match="do not fit its model"):
+        load_policy(tmp_path)
+    # an unfinished run's folder (checkpoint only) says how to finish it
+    (tmp_path / "policy.pt").unlink()
+    torch.save(torch.load(out / "checkpoint.pt", weights_only=True), tmp_path / "checkpoint.pt")
+    with pytest.raises(PolicyError, match="unfinished run"):
+        load_policy(tmp_path)
+
+
+def test_user_callables(tmp_path, tiny_run):
+    mod = tmp_path / "my_policy.py"
+    mod.write_text(
+        "import numpy as np\n"
+        "class Replay:\n"
+        "    def __init__(self): self.t = 0\n"
+        "    def reset(self): self.t = 0\n"
+        "    def __call__(self, obs):\n"
+        "        self.t += 1\n"
+        "        return np.full(8, self.t)\n"
+        "replay = Replay()\n"
+        "def bad(obs): return [0.0] * 3\n"
+        "def nan(obs): return [float('nan')] * 8\n"
+        "not_callable = 3\n"
+    )
+    p = load_policy_callable(f"{mod}:replay", action_dim=8)
+    assert isinstance(p, CallablePolicy)
+    assert p({})[0] == 1 and p({})[0] == 2 and p({}).dtype == np.float32
+    p.reset()
+    assert p({})[0] == 1
+    with pytest.raises(PolicyError, match="returned 3 action values; the robot takes 8"):
+        load_policy_callable(f"{mod}:bad", action_dim=8)({})
+    with pytest.raises(PolicyError, match="NaN"):
+        load_policy_callable(f"{mod}:nan")({})
+    with pytest.raises(PolicyError, match="not callable"):
+        load_policy_callable(f"{mod}:not_callable")
+    with pytest.raises(PolicyError, match="has no attribute 'missing'"):
+        load_policy_callable(f"{mod}:missing")
+    with pytest.raises(PolicyError, match="importing no_such_module_xyz failed"):
+        load_policy_callable("no_such_module_xyz:fn")
+    with pytest.raises(PolicyError, match="expected 'module:function'"):
+        load_policy_callable("just_a_name")
+    assert callable(load_policy_callable("numpy:zeros_like"))  # an installed module by name
+    assert isinstance(open_policy(f"{mod}:replay"), CallablePolicy)
+    assert isinstance(open_policy(tiny_run[1]), Policy)

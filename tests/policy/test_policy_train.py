@@ -1,0 +1,114 @@
+"""Training: a tiny network overfits two episodes, a killed run resumes to the same result, outputs are whole."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+import mirage2matter.policy.train as train_mod
+from fixtures.policy_datasets import tiny_config
+from mirage2matter.policy import PolicyError, load_episodes, load_policy, train_policy
+
+
+def _obs(d, i: int) -> dict:
+    return {**{f"observation.images.{c}": d.images[c][i].transpose(1, 2, 0) for c in d.meta.cameras},
+            "observation.state": d.state[i]}  # fmt: skip
+
+
+def test_tiny_run_overfits_and_reproduces_the_demonstrations(tiny_run):
+    ds, out, eps, summary = tiny_run
+    assert summary["steps"] == 150
+    assert summary["loss"]["last"] < 0.2 * summary["loss"]["first"], summary["loss"]
+    for name in ("policy.pt", "checkpoint.pt", "loss_curve.png", "summary.json"):
+        assert (out / name).is_file(), name
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".")]  # no temporaries left behind
+    assert json.loads((out / "summary.json").read_text())["steps"] == 150
+
+    # the policy, fed the training observations (frames as the dataset stores them), gives the demo's actions
+    d = load_episodes(ds, image_size=32)
+    policy = load_policy(out)
+    act_std = d.action.std(0).clip(1e-2)
+    errs = np.stack([np.abs(policy.predict_chunk(_obs(d, i))[0] - d.action[i]) / act_std for i in range(d.n_frames)])
+    assert errs.mean() < 0.15, errs.mean(0)
+    # and the executed (ensembled) actions along each episode too
+    for e in range(d.n_episodes):
+        policy.reset()
+        got = np.stack([policy(_obs(d, i)) for i in d.frames_of([e])])
+        assert got.shape == (d.lengths[e], 8) and got.dtype == np.float32
+        assert (np.abs(got - d.action[d.frames_of([e])]) / act_std).mean() < 0.2
+
+
+def test_resume_after_a_kill_gives_the_uninterrupted_result(make_dataset, tmp_path, monkeypatch):
+    ds, _ = make_dataset(seeds=(0,), length=10)
+    cfg = tiny_config(steps=24, checkpoint_every=10, eval_every=8, val_fraction=0.0, widths=(4,), keypoints=4,
+                      hidden=16, batch_size=8)  # fmt: skip
+    quiet = dict(log=lambda s: None, progress=False)
+    whole = train_policy(ds, tmp_path / "whole", cfg, **quiet)
+
+    # kill it in step 16 (after the checkpoint at step 10): what is left is the last checkpoint, no policy
+    real, calls = train_mod.masked_l1, {"n": 0}
+
+    def dies_at_step_16(*a):
+        calls["n"] += 1
+        if calls["n"] == 16:
+            raise KeyboardInterrupt
+        return real(*a)
+
+    monkeypatch.setattr(train_mod, "masked_l1", dies_at_step_16)
+    with pytest.raises(KeyboardInterrupt):
+        train_policy(ds, tmp_path / "cut", cfg, **quiet)
+    monkeypatch.setattr(train_mod, "masked_l1", real)
+    left = sorted(p.name for p in (tmp_path / "cut").iterdir())
+    assert left == ["checkpoint.pt"], left
+    assert torch.load(tmp_path / "cut" / "checkpoint.pt", weights_only=True)["step"] == 10
+
+    logs = []
+    resumed = train_policy(ds, tmp_path / "cut", cfg, log=logs.append, progress=False)
+    assert any("resuming at step 10/24" in s for s in logs), logs
+    assert resumed["steps"] == whole["steps"] == 24 and resumed["resumed_from_step"] == 10
+    assert resumed["loss"] == whole["loss"]  # the same batches, augmentations and optimiser state: same numbers
+    a = torch.load(tmp_path / "whole" / "policy.pt", weights_only=True)["weights"]
+    b = torch.load(tmp_path / "cut" / "policy.pt", weights_only=True)["weights"]
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=1e-6, atol=1e-7)
+
+    # a finished run started again does no more steps; a changed config starts afresh
+    again = train_policy(ds, tmp_path / "cut", cfg, **quiet)
+    assert again["steps"] == 24 and again["steps_per_second"] is None
+    logs.clear()
+    train_policy(ds, tmp_path / "cut", tiny_config(steps=5, widths=(4,), keypoints=4, hidden=16, batch_size=8),
+                 log=logs.append, progress=False)  # fmt: skip
+    assert any("training from scratch" in s for s in logs), logs
+
+
+def test_minutes_budget_plans_steps_and_keeps_the_plan(make_dataset, tmp_path):
+    ds, _ = make_dataset(seeds=(0,), length=8)
+    cfg = tiny_config(steps=0, minutes=0.01, widths=(4,), keypoints=4, hidden=16, batch_size=4)
+    s = train_policy(ds, tmp_path / "run", cfg, log=lambda s: None, progress=False)
+    plan = json.loads((tmp_path / "run" / "plan.json").read_text())
+    assert s["steps"] == plan["steps"] >= 1 and plan["step_seconds"] > 0
+
+
+def test_bad_config_and_inputs(make_dataset, tmp_path):
+    ds, _ = make_dataset(seeds=(0,), length=8)
+    with pytest.raises(PolicyError, match=r"chunk must be .*; lr must be > 0"):
+        train_policy(ds, tmp_path / "x", tiny_config(chunk=0, lr=0.0), progress=False)
+    with pytest.raises(PolicyError, match="no datasets given"):
+        train_policy([], tmp_path / "x", tiny_config(), progress=False)
+    if not torch.cuda.is_available():
+        with pytest.raises(PolicyError, match="no CUDA GPU"):
+            train_policy(ds, tmp_path / "x", tiny_config(device="cuda"), progress=False)
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_trains_and_runs_on_cuda(make_dataset, tmp_path):
+    ds, _ = make_dataset(seeds=(0,), length=10)
+    s = train_policy(ds, tmp_path / "gpu", tiny_config(steps=30, device="cuda"), log=lambda s: None, progress=False)
+    assert s["device"].startswith("cuda") and s["loss"]["last"] < s["loss"]["first"]
+    d = load_episodes(ds, image_size=32)
+    policy = load_policy(tmp_path / "gpu", device="cuda")
+    assert policy.device.type == "cuda" and policy(_obs(d, 0)).shape == (8,)
