@@ -12,6 +12,8 @@ knows where things live in a workspace. Below them, libraries receive typed obje
     objects/   <name>/ (masks/, mesh.obj, collision/, gaussians.ply, align.json, figure.png), summary.json
     world/     world.yaml, world.ply, scene.ply, assets/, reconstruction.json, task_summary.json
     datasets/  <task>/ (a LeRobot dataset)
+    policies/  <name>/ (policy.pt, checkpoint.pt, summary.json, loss_curve.png)
+    evals/     <name>/ (summary.json, episodes.jsonl, rollout.mp4, contact_sheet.png)
 """
 
 from __future__ import annotations
@@ -215,6 +217,21 @@ class Workspace:
 
     def dataset_dir(self, slug: str) -> Path:
         return self.path("datasets", slug)
+
+    # ---- policies, evaluations -----------------------------------------------------------------------
+    @property
+    def policies_dir(self) -> Path:
+        return self.path("policies")
+
+    def policy_dir(self, name: str) -> Path:
+        return self.path("policies", name)
+
+    @property
+    def evals_dir(self) -> Path:
+        return self.path("evals")
+
+    def eval_dir(self, name: str) -> Path:
+        return self.path("evals", name)
 
     # ---- reading ---------------------------------------------------------------------------------
     def require(self, path: Path, stage: str) -> Path:

@@ -17,7 +17,7 @@ from typing import Any
 from .. import __version__, configure_threads
 from ..configs import add_flags, from_flags
 from ..sample.inspect import BUNDLED_SAMPLE
-from ..stages import STAGES
+from ..stages import PIPELINE
 from ..workspace import Workspace, WorkspaceError
 from .args import info, show
 
@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     d.add_argument("-w", "--workspace", default="workspaces/demo", metavar="DIR", help="default ./workspaces/demo")
     d.add_argument("--sample", type=Path, default=BUNDLED_SAMPLE, metavar="DIR",
                    help="a capture in the bundled sample's layout, with its m2m.yaml (default: the bundled one)")
-    names = [s.name for s in STAGES]
+    names = [s.name for s in PIPELINE]
     d.add_argument("--until", choices=names, help="last stage to run (default: all)")
     d.add_argument("--from", dest="start", choices=names, help="first stage to run (default: the first)")
     if full:  # every stage's settings as --<stage>.<field> (imports every stage's libraries)

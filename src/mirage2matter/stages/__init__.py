@@ -10,23 +10,43 @@ from __future__ import annotations
 from ..errors import M2MError
 from .base import Input, Stage, run_stage
 
-__all__ = ["STAGES", "Input", "Stage", "get_stage", "run_stage"]
+__all__ = ["PIPELINE", "STAGES", "Input", "Stage", "get_stage", "run_stage"]
 
 STAGES: tuple[Stage, ...] = (
     Stage("capture", "capture", "pick keyframes (sharpness + parallax) from a video or an image folder", "capture"),
     Stage("sfm", "sfm", "camera poses and points of the keyframes (COLMAP SfM), or imported ones", "sfm"),
     Stage("align", "align-scene", "the SfM scene in the robot-base frame, metric, via the ChArUco board", "align"),
-    Stage("handeye", "calibrate-handeye", "the camera's mount from board images + the robot's joint angles",
-          "handeye"),  # fmt: skip
+    Stage(
+        "handeye", "calibrate-handeye", "the camera's mount from board images + the robot's joint angles", "handeye"
+    ),  # fmt: skip
     Stage("scene", "train-scene", "scene 3D Gaussian Splatting from the posed keyframes", "scene"),
-    Stage("head_view", "head-view", "the scene through the calibrated head camera, against a head photo",
-          "head_view"),  # fmt: skip
-    Stage("objects", "objects", "per object: masks, object 3DGS, watertight mesh + collision parts, aligned",
-          "objects"),  # fmt: skip
-    Stage("world", "compose", "the world (robot, cameras, scene, objects) and its one Gaussian world.ply",
-          "world"),  # fmt: skip
+    Stage(
+        "head_view", "head-view", "the scene through the calibrated head camera, against a head photo", "head_view"
+    ),  # fmt: skip
+    Stage(
+        "objects", "objects", "per object: masks, object 3DGS, watertight mesh + collision parts, aligned", "objects"
+    ),  # fmt: skip
+    Stage(
+        "world", "compose", "the world (robot, cameras, scene, objects) and its one Gaussian world.ply", "world"
+    ),  # fmt: skip
     Stage("generate", "generate", "demonstrations of tasks in the world -> LeRobot datasets", "generate"),
+    Stage(
+        "train_policy",
+        "train-policy",
+        "a visuomotor policy trained on the workspace's datasets",
+        "train_policy",
+        pipeline=False,
+    ),  # fmt: skip
+    Stage(
+        "eval_policy",
+        "eval-policy",
+        "a policy run closed-loop in the twin: success rate, video, report",
+        "eval_policy",
+        pipeline=False,
+    ),  # fmt: skip
 )
+# The stages a pipeline run (``m2m demo``, ``m2m run``) goes through, in order.
+PIPELINE: tuple[Stage, ...] = tuple(s for s in STAGES if s.pipeline)
 
 
 def get_stage(name: str) -> Stage:

@@ -68,12 +68,15 @@ class Stage:
               ``run(ws, cfg, log) -> summary`` (JSON-ready, with a one-line "line") and optionally
               ``compare(ws, cfg, ground_truth) -> summary fields`` (how close the stage came to a sample's
               ground truth, with a "line" suffix)
+    pipeline  part of a pipeline run (``m2m demo``, ``m2m run``); False: run on its own only (the policy stages,
+              the user's experiment after the twin is built)
     """
 
     name: str
     command: str
     help: str
     module: str
+    pipeline: bool = True
 
     @property
     def code(self) -> Any:
@@ -94,6 +97,12 @@ class Stage:
 
     def run(self, ws: Workspace, cfg: Any, log: Log) -> dict[str, Any]:
         return self.code.run(ws, cfg, log)
+
+    def record_key(self, ws: Workspace, cfg: Any) -> str:
+        """Its key in pipeline.json: the stage's name, or (a stage run once per output, e.g. one policy per
+        name) the module's ``record_key(ws, cfg)``."""
+        fn = getattr(self.code, "record_key", None)
+        return self.name if fn is None else fn(ws, cfg)
 
     def compare(self, ws: Workspace, cfg: Any, ground_truth: dict) -> dict[str, Any] | None:
         fn = getattr(self.code, "compare", None)
@@ -155,26 +164,39 @@ def run_stage(
     stage_fingerprint(stage, ws, cfg)  # missing inputs are errors before anything is written
     with workspace_lock(ws):
         key = stage_fingerprint(stage, ws, cfg)  # under the lock: what the stage will read
-        done = None if force else StageRecord(ws).get(stage.name, key, stage.outputs(ws, cfg))
+        record_key = stage.record_key(ws, cfg)
+        done = None if force else StageRecord(ws).get(record_key, key, stage.outputs(ws, cfg))
         if done is not None:
             return done["summary"], True
-        txn = Transaction(ws, stage.name, [_inside(ws, p, stage) for p in stage.writes(ws, cfg)])
+        txn = Transaction(ws, record_key.replace("/", "-"), [_inside(ws, p, stage) for p in stage.writes(ws, cfg)])
         t0 = time.perf_counter()
         # a failed stage leaves the workspace as it was; a killed (or interrupted) one, its staging to resume
         with txn.staging_of(key) as staged:
             if txn.resumed:
                 log(f"{stage.name}: resuming the interrupted run")
             summary = stage.run(staged, cfg, log)
-            missing = [str(p.relative_to(txn.staging)) for p in stage.outputs(staged, cfg) if not p.exists()]
+            # an output the stage found up to date and left in place (not rewritten into the staging) counts
+            missing = [str(_relative(p, txn.staging, ws.root)) for p in stage.outputs(staged, cfg)
+                       if not p.exists() and not (ws.root / _relative(p, txn.staging, ws.root)).exists()]  # fmt: skip
             if missing:
                 raise WorkspaceError(f"{stage.command} finished without writing {', '.join(missing)}")
             extra = None if ground_truth is None else stage.compare(staged, cfg, ground_truth)
             if extra is not None:
                 summary = {**summary, **extra, "line": summary["line"] + extra["line"]}
             summary = jsonable(_unstaged(summary, txn.staging, ws.root))
-        StageRecord(ws).put(stage.name, {"fingerprint": key, "config": to_dict(cfg), "summary": summary,
+        StageRecord(ws).put(record_key, {"fingerprint": key, "config": to_dict(cfg), "summary": summary,
                                          "seconds": round(time.perf_counter() - t0, 1)})  # fmt: skip
     return summary, False
+
+
+def _relative(p: Path, staging: Path, root: Path) -> Path:
+    """``p`` (in the staging or the workspace) relative to the workspace root."""
+    for base in (staging, root):
+        try:
+            return p.relative_to(base)
+        except ValueError:
+            pass
+    return p
 
 
 def _inside(ws: Workspace, path: Path, stage: Stage) -> Path:

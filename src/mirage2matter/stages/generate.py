@@ -28,6 +28,8 @@ class Config:
     size         square frame side of every camera (pixels)
     fps          control and video rate (Hz)
     out          dataset folder (one task only; default <workspace>/datasets/<task>)
+    objects      how objects are drawn: gaussians (their 3DGS) or meshes (vertex-coloured meshes: the paper's
+                 mesh-only ablation)
     """
 
     task: tuple[str, ...] = ()
@@ -39,6 +41,7 @@ class Config:
     size: int = GenerateConfig.size[0]
     fps: int = GenerateConfig.fps
     out: Path | None = field(default=None)
+    objects: Literal["gaussians", "meshes"] = "gaussians"
 
     def validate(self) -> None:
         if not self.task:
@@ -51,7 +54,7 @@ class Config:
     def generation(self) -> GenerateConfig:
         return GenerateConfig(
             episodes=self.episodes, workers=self.workers, ray_address=self.ray_address, format=self.format,
-            seed=self.seed, size=(self.size, self.size), fps=self.fps,
+            seed=self.seed, size=(self.size, self.size), fps=self.fps, objects=self.objects,
         )  # fmt: skip
 
 

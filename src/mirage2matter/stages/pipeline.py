@@ -17,7 +17,20 @@ from ..atomic import atomic_write
 from ..configs import ConfigError, from_dict, to_dict
 from ..inputs import read_yaml
 from ..workspace import Workspace
-from . import STAGES, align, capture, generate, handeye, head_view, objects, scene, sfm, world
+from . import (
+    PIPELINE,
+    align,
+    capture,
+    eval_policy,
+    generate,
+    handeye,
+    head_view,
+    objects,
+    scene,
+    sfm,
+    train_policy,
+    world,
+)
 from .base import Log, run_stage
 from .transaction import workspace_lock
 
@@ -38,7 +51,9 @@ class PipelineConfig:
     head_view  the scene through the calibrated head camera, against a head photo
     objects    object splats, meshes and collision parts
     world      the world and its twin
-    generate   demonstrations per task
+    generate      demonstrations per task
+    train_policy  a policy trained on the datasets (run on its own: ``m2m train-policy``)
+    eval_policy   a policy run in the twin (run on its own: ``m2m eval-policy``)
     """
 
     capture: capture.Config = field(default_factory=capture.Config)
@@ -50,6 +65,8 @@ class PipelineConfig:
     objects: objects.Config = field(default_factory=objects.Config)
     world: world.Config = field(default_factory=world.Config)
     generate: generate.Config = field(default_factory=generate.Config)
+    train_policy: train_policy.Config = field(default_factory=train_policy.Config)
+    eval_policy: eval_policy.Config = field(default_factory=eval_policy.Config)
 
     @classmethod
     def load(cls, path: str | Path) -> PipelineConfig:
@@ -86,12 +103,12 @@ def run_pipeline(
 ) -> dict[str, Any]:
     """Run (or resume) the stages from ``start`` through ``until`` (names; default: all); returns
     {"stages": {name: summary}, "seconds": ...}. ``ground_truth``: a sample's, compared with where it can."""
-    names = [s.name for s in STAGES]
+    names = [s.name for s in PIPELINE]
     lo = names.index(start) if start else 0
     hi = names.index(until) + 1 if until else len(names)
     if lo >= hi:
         raise ConfigError(f"--from {start} comes after --until {until}")
-    chosen = STAGES[lo:hi]
+    chosen = PIPELINE[lo:hi]
     with workspace_lock(ws):  # one writer for the whole run
         return _run(ws, cfg, chosen, log, ground_truth)
 

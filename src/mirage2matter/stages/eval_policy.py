@@ -1,0 +1,279 @@
+"""Stage ``eval_policy`` (``m2m eval-policy``): a policy run closed-loop in the workspace's twin
+(``mirage2matter/Twin-v0``) for N episodes -> ``evals/<name>/``: summary.json (success rate with its 95 % Wilson
+interval, where the time went), episodes.jsonl (seed, success, steps, seconds, reason per episode), rollout.mp4
+(the first episodes, every camera side by side) and contact_sheet.png.
+
+The policy is one trained here (a name under ``policies/``), a checkpoint folder, or any callable
+``obs -> action`` named as ``module:function`` (e.g. a LeRobot checkpoint behind a few lines of your own). Two
+observation renderers: ``hybrid`` (the reconstructed world, as generation renders it) and ``ground_truth`` (on a
+sample: its own textured-mesh world, as its video was rendered; the sim-to-real analogue of issue 16). Episode
+seeds start far from generation's (those are 32-bit hashes, ``datagen.runner.attempt_seed``), so the episodes are
+unseen. A killed evaluation resumes at the episode it was on.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+from ..policy.config import POLICY_FILE
+from ..policy.data import PolicyError
+from ..workspace import Workspace
+from .base import Input, Log
+
+__all__ = ["Config", "record_key", "inputs", "outputs", "run", "writes"]
+
+EPISODES_FILE = "episodes.jsonl"
+
+
+@dataclass
+class Config:
+    """eval-policy settings.
+
+    policy          the policy: a name under <workspace>/policies, a policy folder, or module:function (obs -> action)
+    task            the task instruction (default: the task of the datasets the policy was trained on, when one)
+    renderer        observations: hybrid (the reconstructed world, as generation renders it) or ground_truth (a
+                    sample's own world, as its video was rendered)
+    ground_truth    the sample folder (with ground_truth.json) the ground_truth renderer draws (default: the folder
+                    of the workspace's capture, when it is a sample)
+    episodes        episodes to run
+    seed            seed of the first episode (then seed + 1, ...)
+    horizon         steps before an episode is truncated (a failure)
+    size            frame side in pixels (0: the frame size of the datasets the policy was trained on)
+    name            the report's folder: <workspace>/evals/<name> (default: <policy>-<renderer>-<task>)
+    video_episodes  episodes shown in rollout.mp4 and contact_sheet.png
+    device          where a trained policy runs: auto, cpu, cuda
+    """
+
+    policy: str = "policy"
+    task: str | None = None
+    renderer: Literal["hybrid", "ground_truth"] = "hybrid"
+    ground_truth: Path | None = None
+    episodes: int = 50
+    seed: int = 1_000_000
+    horizon: int = 150
+    size: int = 0
+    name: str | None = None
+    video_episodes: int = 4
+    device: str = "auto"
+
+    def validate(self) -> None:
+        bad = []
+        if self.episodes < 1:
+            bad.append(f"episodes must be >= 1, got {self.episodes}")
+        if self.horizon < 1:
+            bad.append(f"horizon must be >= 1, got {self.horizon}")
+        if self.size != 0 and self.size < 16:
+            bad.append(f"size must be 0 (the datasets') or >= 16, got {self.size}")
+        if self.video_episodes < 0:
+            bad.append(f"video_episodes must be >= 0, got {self.video_episodes}")
+        if self.name is not None and (not self.name or Path(self.name).name != self.name):
+            bad.append(f"name must be a plain folder name, got {self.name!r}")
+        if bad:
+            raise PolicyError("eval-policy: " + "; ".join(bad))
+
+
+# ---- what the config names --------------------------------------------------------------------------------------
+def _is_callable_ref(ref: str) -> bool:
+    return ":" in ref and not Path(ref).exists()
+
+
+def policy_path(ws: Workspace, cfg: Config) -> Path | None:
+    """The trained policy's folder (None for a module:function callable)."""
+    if _is_callable_ref(cfg.policy):
+        return None
+    named = ws.committed.policy_dir(cfg.policy)
+    if Path(cfg.policy).name == cfg.policy and (named / POLICY_FILE).is_file():
+        return named
+    p = Path(cfg.policy)
+    if p.is_file():
+        p = p.parent
+    if not (p / POLICY_FILE).is_file():
+        have = sorted(q.parent.name for q in ws.committed.policies_dir.glob(f"*/{POLICY_FILE}"))
+        raise PolicyError(f"policy {cfg.policy!r}: neither a policy in {ws.committed.policies_dir} (have: "
+                          f"{have or 'none'}; `m2m train-policy -w {ws.root}`), nor a folder with {POLICY_FILE}, nor "
+                          "module:function")  # fmt: skip
+    return p
+
+
+def _trained_on(path: Path | None) -> list[Path]:
+    """The dataset folders a policy of ours was trained on (its summary.json), when they are still there."""
+    if path is None or not (path / "summary.json").is_file():
+        return []
+    try:
+        return [Path(d) for d in json.loads((path / "summary.json").read_text())["datasets"]]
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+
+
+def task_of(ws: Workspace, cfg: Config) -> str:
+    if cfg.task:
+        return cfg.task
+    tasks = set()
+    for d in _trained_on(policy_path(ws, cfg)):
+        try:
+            tasks.add(json.loads((d / "summary.json").read_text())["task"])
+        except (OSError, ValueError, KeyError, TypeError):
+            tasks.add(None)
+    if len(tasks) == 1 and None not in tasks:
+        return tasks.pop()
+    raise PolicyError(f"eval-policy: which task? The policy {cfg.policy!r} was not trained on one task's dataset "
+                      "of this workspace; give --task, e.g. --task 'grasp banana'")  # fmt: skip
+
+
+def _size_of(ws: Workspace, cfg: Config) -> int:
+    from ..policy.data import dataset_meta
+
+    if cfg.size:
+        return cfg.size
+    for d in _trained_on(policy_path(ws, cfg)):
+        if (d / "meta" / "info.json").is_file():
+            return dataset_meta(d)[1][1]
+    return 224
+
+
+def ground_truth_dir(ws: Workspace, cfg: Config) -> Path:
+    """The sample folder the ground_truth renderer draws; PolicyError when the workspace has none."""
+    if cfg.ground_truth is not None:
+        gt = Path(cfg.ground_truth)
+    else:
+        from ..inputs import read_yaml
+
+        source = None
+        path = ws.committed.config_file
+        if path.is_file():  # m2m.yaml's capture.source, relative to its folder (not the pipeline: it imports us)
+            capture = (read_yaml(path, "pipeline settings (m2m.yaml)") or {}).get("capture") or {}
+            if isinstance(capture, dict) and isinstance(capture.get("source"), str):
+                source = path.parent / capture["source"]
+        gt = Path(source).parent if source is not None else None
+        if gt is None or not (gt / "ground_truth.json").is_file():
+            raise PolicyError(
+                f"eval-policy --renderer ground_truth: this workspace's capture ({source or 'not recorded'}) has no "
+                "ground truth: only a sample made by `m2m sample make` (such as samples/tabletop) has its own world "
+                "to render. Use --renderer hybrid, or name the sample with --ground-truth DIR"
+            )
+    if not (gt / "ground_truth.json").is_file():
+        raise PolicyError(f"--ground-truth {gt}: no ground_truth.json there; give a sample folder (samples/tabletop) "
+                          "or use --renderer hybrid")  # fmt: skip
+    return gt
+
+
+def report_name(ws: Workspace, cfg: Config) -> str:
+    from ..datagen import task_slug
+
+    if cfg.name:
+        return cfg.name
+    p = policy_path(ws, cfg)
+    who = p.name if p is not None else task_slug(cfg.policy)
+    return f"{who}-{cfg.renderer}-{task_slug(task_of(ws, cfg))}"
+
+
+# ---- the stage --------------------------------------------------------------------------------------------------
+def inputs(ws: Workspace, cfg: Config) -> list[Input]:
+    files = [Input(ws.committed.world_yaml, made_by="compose")]
+    p = policy_path(ws, cfg)
+    if p is not None:
+        files.append(Input(p / POLICY_FILE, made_by="train-policy"))
+    if cfg.renderer == "ground_truth":
+        files.append(Input(ground_truth_dir(ws, cfg) / "ground_truth.json", field="ground_truth"))
+    return files
+
+
+def _open_policy(ws: Workspace, cfg: Config, world: Any):
+    """The policy, checked against the world's robot before anything is built (a policy of another robot, rate
+    or cameras is an error naming its file)."""
+    from ..env.config import CAMERAS
+    from ..policy import load_policy, load_policy_callable
+
+    spec = world.robot.spec
+    p = policy_path(ws, cfg)
+    if p is None:
+        return load_policy_callable(cfg.policy, action_dim=len(spec.action_names))
+    policy = load_policy(p, device=cfg.device)
+    policy.check_matches(robot_type=spec.robot_type, state_names=spec.state_names, action_names=spec.action_names,
+                         fps=10, cameras=[c for c in CAMERAS if c in world.cameras])  # fmt: skip
+    return policy
+
+
+def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
+    import time
+
+    from ..atomic import atomic_write
+    from ..env.twin_env import TwinEnv, make_config
+    from ..evaluation import contact_sheet, evaluate_policy
+    from ..video import write_video
+
+    task = task_of(ws, cfg)
+    size = _size_of(ws, cfg)
+    gt = ground_truth_dir(ws, cfg) if cfg.renderer == "ground_truth" else None
+    # every check (the task, the renderer's ground truth, the policy against the robot) before the twin's build
+    env_cfg = make_config(ws.committed.world_dir, task, renderer=cfg.renderer, size=size, horizon=cfg.horizon,
+                          ground_truth=gt)  # fmt: skip
+    policy = _open_policy(ws, cfg, env_cfg.world)
+    out = ws.eval_dir(report_name(ws, cfg))
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    env = TwinEnv.from_config(env_cfg)
+    build_s = time.perf_counter() - t0
+    try:
+        rows_file = out / EPISODES_FILE
+        done = []
+        if rows_file.is_file():  # a killed run of these settings (the staging is keyed on them)
+            done = [json.loads(line) for line in rows_file.read_text().splitlines() if line.strip()]
+            log(f"eval-policy: resuming after {len(done)} episodes")
+
+        def save(row: dict) -> None:
+            with open(rows_file, "a", encoding="utf-8") as f:
+                f.write(json.dumps(row) + "\n")
+
+        log(f"eval-policy: {cfg.episodes} episodes of {task!r}, {cfg.renderer} frames at {size} px, seeds "
+            f"{cfg.seed}..{cfg.seed + cfg.episodes - 1}, horizon {cfg.horizon}")  # fmt: skip
+        t1 = time.perf_counter()
+        summary, kept = evaluate_policy(env, policy, cfg.episodes, seed=cfg.seed, log=log,
+                                        keep_frames=cfg.video_episodes, done=done, on_episode=save)  # fmt: skip
+        eval_s = time.perf_counter() - t1
+    finally:
+        env.close()
+    with atomic_write(rows_file, "w", encoding="utf-8") as f:  # in seed order
+        f.writelines(json.dumps(r) + "\n" for r in summary["runs"])
+    if kept:
+        pad = lambda f: f[: f.shape[0] // 2 * 2, : f.shape[1] // 2 * 2]  # H.264 wants even sides
+        write_video(out / "rollout.mp4", (pad(f) for ep in kept for f in [*ep, *[ep[-1]] * 5]), fps=env.config.fps)
+        contact_sheet(kept, out / "contact_sheet.png")
+    steps = sum(r["steps"] for r in summary["runs"])
+    lo, hi = summary["wilson95"]
+    result = {
+        **{k: v for k, v in summary.items() if k != "runs"},
+        "task": task,
+        "renderer": cfg.renderer,
+        "policy": cfg.policy,
+        "size": size,
+        "seeds": [cfg.seed, cfg.seed + cfg.episodes - 1],
+        "seconds": {"build": round(build_s, 1), "episodes": round(eval_s, 1),
+                    "per_step": round(eval_s / max(steps, 1), 4)},  # fmt: skip
+        "files": {"episodes": EPISODES_FILE, **({"video": "rollout.mp4", "contact_sheet": "contact_sheet.png"}
+                                                 if kept else {})},  # fmt: skip
+        "report": str(out),
+    }
+    result["line"] = (f"{task!r} ({cfg.renderer}): {summary['successes']}/{summary['episodes']} = "
+                      f"{100 * summary['success_rate']:.1f}% (95% CI {100 * lo:.0f}-{100 * hi:.0f}%), "
+                      f"{summary['mean_steps']:.0f} steps per episode")  # fmt: skip
+    with atomic_write(out / "summary.json", "w", encoding="utf-8") as f:
+        json.dump({**result, "runs": summary["runs"]}, f, indent=1)
+
+    return result
+
+
+def record_key(ws: Workspace, cfg: Config) -> str:
+    return f"eval_policy/{report_name(ws, cfg)}"
+
+
+def outputs(ws: Workspace, cfg: Config) -> list[Path]:
+    d = ws.eval_dir(report_name(ws, cfg))
+    return [d / "summary.json", d / EPISODES_FILE]
+
+
+def writes(ws: Workspace, cfg: Config) -> list[Path]:
+    return [ws.eval_dir(report_name(ws, cfg))]

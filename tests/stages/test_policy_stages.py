@@ -1,0 +1,126 @@
+"""``m2m train-policy`` -> ``m2m eval-policy`` on two generated demos of the sample world: the closed loop runs (not
+its success rate), its report is complete and consistent, and bad input is a clear error that leaves no report."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fixtures.policy_datasets import CAMERAS, build_dataset, tiny_config
+from mirage2matter.cli import main
+from mirage2matter.evaluation import wilson_interval
+from mirage2matter.export import DatasetSpec
+
+TASK = "grasp banana"
+
+
+@pytest.fixture(scope="module")
+def ws(sample_world_ws, tmp_path_factory) -> Path:
+    """A workspace with the sample world, two 48-px demos of the grasp and a policy trained on them (6 steps)."""
+    src = sample_world_ws(gaussians_per_object=3000, scene_density_per_m2=4000.0)
+    ws = tmp_path_factory.mktemp("policy_ws")
+    shutil.copytree(src / "world", ws / "world")
+    assert main(["generate", "-w", str(ws), "--task", TASK, "--episodes", "2", "--size", "48", "--workers", "1"]) == 0
+    assert main(["train-policy", "-w", str(ws), "--steps", "6", "--batch-size", "8", "--image-size", "32",
+                 "--val-fraction", "0", "--name", "tiny"]) == 0  # fmt: skip
+    return ws
+
+
+def test_train_then_eval_in_the_hybrid_world(ws: Path, capsys) -> None:
+    policy = ws / "policies" / "tiny"
+    for f in ("policy.pt", "summary.json", "loss_curve.png"):
+        assert (policy / f).is_file(), f
+    trained = json.loads((policy / "summary.json").read_text())
+    assert trained["steps"] == 6 and trained["episodes"]["train"] == 2
+    assert trained["meta"]["robot_type"] == "franka_panda" and len(trained["meta"]["action_names"]) == 8
+
+    assert main(["eval-policy", "-w", str(ws), "--policy", "tiny", "--episodes", "2", "--horizon", "4",
+                 "--video-episodes", "1"]) == 0  # fmt: skip
+    assert "'grasp banana' (hybrid):" in capsys.readouterr().out  # the task came from the policy's dataset
+    report = ws / "evals" / "tiny-hybrid-grasp_banana"
+    s = json.loads((report / "summary.json").read_text())
+    rows = [json.loads(x) for x in (report / "episodes.jsonl").read_text().splitlines()]
+    assert [r["seed"] for r in rows] == [1_000_000, 1_000_001] and s["episodes"] == 2
+    assert all(1 <= r["steps"] <= 4 for r in rows) and s["size"] == 48  # the datasets' frame size
+    assert s["successes"] == sum(r["success"] for r in rows)
+    assert s["wilson95"] == pytest.approx(list(wilson_interval(s["successes"], 2)))
+    from mirage2matter.video import read_video_frames
+
+    frames = [f for _, _, f in read_video_frames(report / "rollout.mp4")]
+    assert len(frames) == 1 + rows[0]["steps"] + 5 and frames[0].shape == (48, 96, 3)  # head | wrist, last held
+    assert (report / "contact_sheet.png").is_file()
+
+    # the same settings again: nothing to do
+    assert main(["eval-policy", "-w", str(ws), "--policy", "tiny", "--episodes", "2", "--horizon", "4",
+                 "--video-episodes", "1"]) == 0  # fmt: skip
+    assert "up to date" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_eval_in_the_ground_truth_world(ws: Path, sample_dir: Path) -> None:
+    assert main(["eval-policy", "-w", str(ws), "--policy", "tiny", "--episodes", "1", "--horizon", "3",
+                 "--renderer", "ground_truth", "--ground-truth", str(sample_dir)]) == 0  # fmt: skip
+    s = json.loads((ws / "evals" / "tiny-ground_truth-grasp_banana" / "summary.json").read_text())
+    assert s["renderer"] == "ground_truth" and s["episodes"] == 1 and s["runs"][0]["steps"] <= 3
+
+
+def _error(capsys, *argv: str) -> str:
+    assert main(list(argv)) == 2
+    return capsys.readouterr().err
+
+
+def test_bad_input_is_a_clear_error_and_leaves_no_report(ws: Path, tmp_path: Path, capsys) -> None:
+    w = str(ws)
+    before = sorted(p.name for p in (ws / "evals").iterdir()) if (ws / "evals").is_dir() else []
+    # ground truth on a capture without one (this workspace records no capture)
+    err = _error(capsys, "eval-policy", "-w", w, "--policy", "tiny", "--renderer", "ground_truth")
+    assert "has no ground truth" in err and "--renderer hybrid" in err
+    err = _error(capsys, "eval-policy", "-w", w, "--policy", "tiny", "--renderer", "ground_truth",
+                 "--ground-truth", str(tmp_path))  # fmt: skip
+    assert "no ground_truth.json" in err
+    # a task the world cannot run
+    assert "no press button named 'banana'" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",
+                                                      "--task", "press banana")  # fmt: skip
+    # a checkpoint that does not load
+    broken = ws / "policies" / "broken"
+    broken.mkdir(parents=True)
+    (broken / "policy.pt").write_bytes(b"not a checkpoint")
+    err = _error(capsys, "eval-policy", "-w", w, "--policy", "broken", "--task", TASK)
+    assert "policy.pt does not load as a policy checkpoint" in err
+    # a policy of another robot (6 joints)
+    joints = tuple(f"j{i}" for i in range(6))
+    build_dataset(tmp_path / "so100", DatasetSpec(joints, joints, "so100", fps=10, cameras=CAMERAS), length=12)
+    from mirage2matter.policy import train_policy
+
+    train_policy(tmp_path / "so100", tmp_path / "so100_policy", tiny_config(steps=3), log=lambda s: None,
+                 progress=False)  # fmt: skip
+    err = _error(capsys, "eval-policy", "-w", w, "--policy", str(tmp_path / "so100_policy"), "--task", TASK)
+    assert "so100_policy" in err and "trained for robot_type 'so100', not 'franka_panda'" in err
+    # an unknown policy name
+    assert "neither a policy in" in _error(capsys, "eval-policy", "-w", w, "--policy", "nope", "--task", TASK)
+    after = sorted(p.name for p in (ws / "evals").iterdir()) if (ws / "evals").is_dir() else []
+    assert after == before  # no half-written report
+
+    # training: a dataset of another robot, more episodes than there are
+    shutil.copytree(tmp_path / "so100", ws / "datasets" / "so100")
+    try:
+        err = _error(capsys, "train-policy", "-w", w, "--datasets", "so100", "--steps", "1", "--name", "x")
+        assert "datasets/so100/meta/info.json" in err and "train on datasets generated in this world" in err
+    finally:
+        shutil.rmtree(ws / "datasets" / "so100")
+    err = _error(capsys, "train-policy", "-w", w, "--datasets", TASK, "--episodes", "5", "--steps", "1", "--name", "x")
+    assert "fewer than the 5 asked for" in err
+    assert "dataset 'push kiwi'" in _error(capsys, "train-policy", "-w", w, "--datasets", "push kiwi", "--name", "x")
+    assert not (ws / "policies" / "x").exists()
+
+
+def test_policy_stages_are_not_part_of_a_pipeline_run() -> None:
+    from mirage2matter.stages import PIPELINE, STAGES
+
+    names = [s.name for s in PIPELINE]
+    assert names[-1] == "generate" and {"train_policy", "eval_policy"} <= {s.name for s in STAGES}
+    assert np.all([s.pipeline for s in PIPELINE])
