@@ -96,6 +96,8 @@ def test_bad_config_and_inputs(make_dataset, tmp_path):
     ds, _ = make_dataset(seeds=(0,), length=8)
     with pytest.raises(PolicyError, match=r"chunk must be .*; lr must be > 0"):
         train_policy(ds, tmp_path / "x", tiny_config(chunk=0, lr=0.0), progress=False)
+    with pytest.raises(PolicyError, match="state_noise must be >= 0"):
+        train_policy(ds, tmp_path / "x", tiny_config(state_noise=-0.1), progress=False)
     with pytest.raises(PolicyError, match="no datasets given"):
         train_policy([], tmp_path / "x", tiny_config(), progress=False)
     if not torch.cuda.is_available():

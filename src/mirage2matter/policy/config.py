@@ -63,6 +63,10 @@ class PolicyTrainConfig:
     seed              initialisation, split, batch and augmentation seed
     device            "auto" (CUDA when available, else CPU), "cpu", "cuda" or "cuda:N"
     augment           random image changes during training (sim-to-real)
+    state_noise       std of Gaussian noise added to the normalised state input in training: without it the
+                      network copies the joints' progress and all but ignores the cameras (measured: swapping a
+                      frame's pictures for another episode's moved the action 0.01-0.08 rad where the demos
+                      differ by 0.3-3.4 rad; the grasps closed 10-15 cm from the banana)
     """
 
     image_size: int = 96
@@ -85,6 +89,7 @@ class PolicyTrainConfig:
     seed: int = 0
     device: str = "auto"
     augment: AugmentConfig = field(default_factory=AugmentConfig)
+    state_noise: float = 0.5
 
     def problems(self) -> list[str]:
         """Every invalid value, worded for the user (empty: valid)."""
@@ -104,6 +109,8 @@ class PolicyTrainConfig:
             p.append(f"minutes must be > 0 when steps is 0, got {self.minutes!r}")
         if not 0 <= self.ema_decay < 1:
             p.append(f"ema_decay must be in [0, 1), got {self.ema_decay!r}")
+        if not self.state_noise >= 0:
+            p.append(f"state_noise must be >= 0, got {self.state_noise!r}")
         if not 0 <= self.val_fraction < 1:
             p.append(f"val_fraction must be in [0, 1), got {self.val_fraction!r}")
         if not self.widths or any(isinstance(w, bool) or not isinstance(w, int) or w < 1 for w in self.widths):

@@ -270,6 +270,8 @@ def train_policy(
             g = _step_generator(cfg.seed, step)
             frames = train_idx[torch.randint(len(train_idx), (cfg.batch_size,), generator=g)]
             images, state, target, mask = batches.get(frames, cfg.augment, g)
+            if cfg.state_noise > 0:  # blur what the joints tell, so the network must look (see the config)
+                state = state + cfg.state_noise * torch.randn(state.shape, generator=g).to(state.device)
             loss = masked_l1(model(images, state), target, mask)
             opt.zero_grad(set_to_none=True)
             loss.backward()
