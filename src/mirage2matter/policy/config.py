@@ -17,7 +17,7 @@ CHECKPOINT_FILE = "checkpoint.pt"
 class AugmentConfig:
     """Ranges of the random image changes (each drawn uniformly in [-x, x] per image unless said).
 
-    shift       translation, fraction of the image side (0.06 of 96 px: ~6 px)
+    shift       translation, fraction of the image side (0.1 of 96 px: ~10 px)
     scale       zoom, relative
     rotate_deg  in-plane rotation, degrees
     brightness  relative change of intensity
@@ -28,15 +28,19 @@ class AugmentConfig:
     noise       std of additive Gaussian pixel noise, drawn in [0, noise] per image (intensity in [0, 1])
     """
 
-    shift: float = 0.06
+    # Strong on purpose: the pictures a policy is deployed on are not the reconstruction's. Measured on the sample
+    # (300 hybrid grasp demos, 5,000 steps each, 50 unseen episodes in its ground-truth world): 22 % [13-35 %]
+    # with these ranges against 8 % [3-19 %] with the earlier, milder ones (shift 0.06, brightness, contrast
+    # and saturation 0.25, hue 0.02, gain 0.06, noise 0.02).
+    shift: float = 0.1
     scale: float = 0.05
     rotate_deg: float = 3.0
-    brightness: float = 0.25
-    contrast: float = 0.25
-    saturation: float = 0.25
-    hue: float = 0.02
-    gain: float = 0.06
-    noise: float = 0.02
+    brightness: float = 0.4
+    contrast: float = 0.4
+    saturation: float = 0.4
+    hue: float = 0.05
+    gain: float = 0.1
+    noise: float = 0.04
 
 
 @dataclass
