@@ -35,6 +35,7 @@ import json
 import math
 import shutil
 import tempfile
+import time
 import weakref
 from collections.abc import Mapping
 from pathlib import Path
@@ -509,11 +510,8 @@ class GroundTruthFrames:
     """
 
     def __init__(self, twin: Any, sample_dir: str | Path, cameras: tuple[str, ...], size: tuple[int, int]) -> None:
-        import time as _time
-
         self.twin, self.cameras = twin, tuple(cameras)
         self.timings: dict[str, float] = {"ground_truth_render": 0.0}
-        self._time = _time.perf_counter
         T_base_body0 = twin.object_poses()  # at the placements, straight after the build
         w, h = size
         views = {c: (twin.camera(c)[1], w, h) for c in self.cameras}
@@ -541,10 +539,10 @@ class GroundTruthFrames:
         return {n: T @ self.T_body_asset[n] for n, T in self.twin.object_poses().items()}
 
     def render(self) -> dict[str, np.ndarray]:
-        t0 = self._time()
+        t0 = time.perf_counter()
         views = {c: self.twin.camera(c)[0] for c in self.cameras}
         frames = self.renderer.render(views, robot_q=self.twin.robot_state(), object_poses=self.asset_poses())
-        self.timings["ground_truth_render"] += self._time() - t0
+        self.timings["ground_truth_render"] += time.perf_counter() - t0
         return frames
 
     def close(self) -> None:

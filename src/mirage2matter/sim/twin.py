@@ -497,12 +497,11 @@ class Twin:
         solver = self.scene.rigid_solver
         solver.constraint_solver.reset()
         solver.collider.reset()
-        # Planning restores the robot with set_qpos / set_dofs_velocity, which recompute its links' kinematics
-        # in another order than a physics step does (1e-14 apart, which contacts amplify to centimetres): the
-        # same here at every tick, so a tick sees the same numbers with or without planning before it.
-        q, v = self.robot.get_qpos(), self.robot.get_dofs_velocity()
-        self.robot.set_qpos(q, zero_velocity=False)
-        self.robot.set_dofs_velocity(v)
+        # Planning's restore (``restoring``) recomputes the robot's link kinematics in another order than a
+        # physics step does (1e-14 apart, which contacts amplify to centimetres): the same restore here at every
+        # tick, so a tick sees the same numbers with or without planning before it.
+        with self.restoring():
+            pass
 
     def _fingers_stopped_on_something(self) -> bool:
         """Whether the fingers rest open (by more than half :data:`CLOSED_MARGIN`) and are not closing (slower than
