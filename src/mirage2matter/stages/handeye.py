@@ -1,5 +1,6 @@
-"""Stage ``handeye``: the camera's mount in the robot's kinematic chain from images of a ChArUco board and
-the robot's joint angles (Tsai-Lenz + reprojection refinement) -> ``calib/handeye.json``."""
+"""Stage ``handeye``: the camera's mount in the robot's kinematic chain from images of a calibration board and
+the robot's poses (joint angles or end-effector poses): Tsai-Lenz on lens-corrected corners, refined with each
+view's robot pose error modelled, judged by its leave-one-out corner error -> ``calib/handeye.json``."""
 
 from __future__ import annotations
 
@@ -22,17 +23,23 @@ from .base import Input, Log
 class Config:
     """calibrate-handeye settings.
 
-    images      folder of the camera's images of the ChArUco board
-    joints      JSON {"robot", "link", "views": [{"image", "joints"}]}: the robot's joint angles per image
+    images      folder of the camera's images of the board
+    joints      JSON of the robot's pose per image: {"robot", "link", "units", "views": [{"image", "joints": [rad]}
+                or {"image", "T_base_link": 4x4} or {"image", "position", "quaternion_xyzw" | "quaternion_wxyz" |
+                "rpy"}]}; units (default m, rad): {"position": "m"|"mm", "rotation": "rad"|"deg", "joints": ...}
     board       the board's spec JSON
-    intrinsics  the camera's intrinsics: a JSON with K (3x3), width and height (or such an object under
-                "head_camera")
+    intrinsics  the camera's intrinsics with its lens distortion (a JSON with K, width, height, distortion, or such
+                an object under "head_camera")
     mount       head: eye-to-hand, the camera fixed in the base (T_base_headcam); wrist: eye-in-hand
     method      OpenCV's closed-form hand-eye solver
     robot       robot model file (default: the joints file's, else the default robot's)
     link        the link holding the board (head) or the camera (wrist) (default: the joints file's, else the
                 robot's end-effector link)
-    refine      refine the closed form by the board corners' reprojection error
+    refine      auto: pose_error or none, whichever has the lower leave-one-out corner error; pose_error: refine on
+                the corner pixels with each view's robot pose error modelled (~1 mm / 0.1 deg); exact: refine taking
+                the robot poses as exact (wrong on real arms, kept to compare); none: the closed form
+    poses       which robot poses to use: joints (forward kinematics), ee (end-effector poses), auto (joints when
+                every view has them)
     """
 
     images: Path | None = None
@@ -43,7 +50,8 @@ class Config:
     method: Literal["tsai", "park", "horaud", "andreff", "daniilidis"] = "tsai"
     robot: str | None = None
     link: str | None = None
-    refine: bool = True
+    refine: Literal["auto", "pose_error", "exact", "none"] = "auto"
+    poses: Literal["auto", "joints", "ee"] = "auto"
 
     def validate(self) -> None:
         missing = [n for n in ("images", "joints", "board", "intrinsics") if getattr(self, n) is None]
@@ -59,19 +67,24 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     cam = load_intrinsics(cfg.intrinsics, keys=("head_camera",))
     result, out = calibrate_from_files(
-        cfg.images, cfg.joints, BoardSpec.load(cfg.board), cam.K, mount=cfg.mount, method=cfg.method,
-        robot=cfg.robot, link=cfg.link, refine=cfg.refine,
+        cfg.images, cfg.joints, BoardSpec.load(cfg.board), cam, mount=cfg.mount, method=cfg.method,
+        robot=cfg.robot, link=cfg.link, refine=cfg.refine, poses=cfg.poses,
     )  # fmt: skip
-    out.update(width=cam.width, height=cam.height)
+    out.update(width=cam.width, height=cam.height, distortion=dict(cam.distortion))
     ws.calib_dir.mkdir(parents=True, exist_ok=True)
     with atomic_write(ws.handeye_file, "w", encoding="utf-8") as f:
         json.dump(out, f, indent=1)
-    how = f"{cfg.mount}, {cfg.method}{' + reprojection refinement' if cfg.refine else ''}"
+    refined = {"pose_error": " + refinement modelling robot pose error", "exact": " + refinement (exact robot poses)",
+               "none": ""}[result.refine]  # fmt: skip
+    how = f"{cfg.mount}, {cfg.method}{refined}, from {out['poses']}"
+    outliers = f"; views that stand out: {', '.join(out['outlier_views'])}" if out["outlier_views"] else ""
     return {
-        "views": len(out["per_view"]), "skipped": len(out["skipped"]),
+        "views": len(out["per_view"]), "skipped": len(out["skipped"]), "refine": result.refine,
+        "loo_px_median": out["loo_px_median"], "loo_px_p90": out["loo_px_p90"], "outlier_views": out["outlier_views"],
         "residual_deg": out["residual_deg_median"], "residual_mm": out["residual_mm_median"],
-        "line": f"camera mount ({how}) from {len(out['per_view'])} views ({len(out['skipped'])} skipped); residual "
-        f"median {out['residual_deg_median']:.3f} deg / {out['residual_mm_median']:.2f} mm",
+        "line": f"camera mount ({how}) from {len(out['per_view'])} views ({len(out['skipped'])} skipped); "
+        f"leave-one-out corner error {out['loo_px_median']:.2f} px median, {out['loo_px_p90']:.2f} px p90; loop "
+        f"residual {out['residual_deg_median']:.3f} deg / {out['residual_mm_median']:.2f} mm{outliers}",
     }  # fmt: skip
 
 
