@@ -150,6 +150,8 @@ def from_dict(cls: type, data: Any, where: str = "", base_dir: Path | None = Non
         return base
     if not isinstance(data, dict):
         raise ConfigError(f"{where or cls.__name__}: expected a mapping of settings, got {type(data).__name__}")
+    if hasattr(cls, "upgrade"):  # settings an earlier version wrote, in their current form
+        data = cls.upgrade(dict(data))
     hints = _hints(cls)
     known = {f.name: f for f in dataclasses.fields(cls)}
     unknown = [k for k in data if k not in known]

@@ -134,3 +134,11 @@ def test_bad_pose_files_are_clear_errors(tmp_path):
     small = cam.scaled(0.5)
     with pytest.raises(HandEyeError, match="intrinsics are for 320x240"):
         calibrate_from_files(images, SAMPLE / "handeye" / "joints.json", board, small)
+
+
+def test_a_workspace_from_before_the_refine_variants_still_loads():
+    from mirage2matter.configs import from_dict
+    from mirage2matter.stages import handeye
+
+    assert from_dict(handeye.Config, {"refine": True}).refine == "auto"  # the default then -> the default now
+    assert from_dict(handeye.Config, {"refine": False}).refine == "none"

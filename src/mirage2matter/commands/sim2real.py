@@ -126,9 +126,10 @@ def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[s
         return s
 
     def evaluate(policy: str, task: str, renderer: str) -> dict:
+        # absolute: the stage records it in m2m.yaml, where a relative path would mean the workspace's folder
+        sample = Path(cfg.sample).resolve() if renderer == "ground_truth" else None
         c = eval_policy.Config(policy=policy, task=task, renderer=renderer, episodes=cfg.episodes, seed=cfg.seed,
-                               size=cfg.size, ground_truth=Path(cfg.sample) if renderer == "ground_truth" else None,
-                               name=f"{policy}-{renderer}")  # fmt: skip
+                               size=cfg.size, ground_truth=sample, name=f"{policy}-{renderer}")  # fmt: skip
         s, dt = _run("eval_policy", ws, c, log)
         seconds["evaluation"] += dt
         return s

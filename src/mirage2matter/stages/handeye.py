@@ -53,6 +53,14 @@ class Config:
     refine: Literal["auto", "pose_error", "exact", "none"] = "auto"
     poses: Literal["auto", "joints", "ee"] = "auto"
 
+    @staticmethod
+    def upgrade(data: dict[str, Any]) -> dict[str, Any]:
+        """A workspace's settings from before ``refine`` had variants: true (the default then) -> the default now,
+        false -> none."""
+        if isinstance(data.get("refine"), bool):
+            data["refine"] = "auto" if data["refine"] else "none"
+        return data
+
     def validate(self) -> None:
         missing = [n for n in ("images", "joints", "board", "intrinsics") if getattr(self, n) is None]
         if missing:

@@ -54,6 +54,13 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         raise WorkspaceError(f"{cfg.photo} is {photo.shape[1]}x{photo.shape[0]} but the head camera is "
                              f"{width}x{height}; give a photo the head camera took")  # fmt: skip
     cam = Camera(he["K"], he["T_base_headcam"], width, height, "head")
+    if photo is not None and he.get("distortion"):
+        # the render is an ideal pinhole with the same K: take the lens out of the photo before comparing
+        from ..gaussians.dataset import undistort_image
+
+        lens = Camera(he["K"], np.eye(4), width, height, "head", he["distortion"])
+        ideal, _ = undistort_image(photo.astype(np.float32) / 255.0, lens)
+        photo = np.clip(np.round(ideal * 255.0), 0, 255).astype(np.uint8)
     check = check_head_view(read_ply(ws.scene_ply), cam, photo, BoardSpec.from_json(al["board"]),
                             np.asarray(al["T_base_board"]), backend=cfg.backend)  # fmt: skip
     save_head_view(ws.head_view_png, check, photo)
