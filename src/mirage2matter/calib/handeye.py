@@ -102,27 +102,16 @@ def _coplanar(points: np.ndarray) -> bool:
 
 def _detect(board, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(ids [M], uv [M,2] OpenCV convention) of the target's points found in ``gray``."""
-    if hasattr(board, "detect"):
-        ids, uv = board.detect(gray)
-        return np.asarray(ids, np.int64).ravel(), np.asarray(uv, np.float64).reshape(-1, 2)
-    import cv2
-
-    corners, ids, _, _ = cv2.aruco.CharucoDetector(board.cv_board()).detectBoard(gray)
-    if ids is None:
-        return np.zeros(0, np.int64), np.zeros((0, 2))
-    return ids.ravel().astype(np.int64), corners.reshape(-1, 2).astype(np.float64)
+    ids, uv = board.detect(gray)
+    return np.asarray(ids, np.int64).ravel(), np.asarray(uv, np.float64).reshape(-1, 2)
 
 
 def _points_board(board, ids: np.ndarray) -> np.ndarray:
-    if hasattr(board, "points_board"):
-        return np.asarray(board.points_board(ids), np.float64)
-    return board.corner_points_board()[ids].astype(np.float64)
+    return np.asarray(board.points_board(ids), np.float64)
 
 
 def _describe(board) -> str:
-    if hasattr(board, "describe"):
-        return board.describe()
-    return f"ChArUco {board.squares_x}x{board.squares_y}, {board.square * 100:g} cm squares, {board.dictionary}"
+    return board.describe()
 
 
 def check_motion_diversity(T_base_link: list[np.ndarray], min_angle_deg: float = 2.0) -> None:

@@ -21,13 +21,10 @@ __all__ = ["HeadViewCheck", "check_head_view", "detect_corners"]
 
 
 def detect_corners(image_rgb: np.ndarray, board: BoardSpec) -> dict[int, np.ndarray]:
-    """ChArUco corner id -> pixel [2] (pixel centres at +0.5) in ``image_rgb`` [H,W,3] uint8."""
+    """The target's point id -> pixel [2] (pixel centres at +0.5) in ``image_rgb`` [H,W,3] uint8."""
     import cv2
 
-    gray = cv2.cvtColor(image_rgb, cv2.COLOR_RGB2GRAY)
-    corners, ids, _, _ = cv2.aruco.CharucoDetector(board.cv_board()).detectBoard(gray)
-    if ids is None:
-        return {}
+    ids, corners = board.detect(cv2.cvtColor(image_rgb, cv2.COLOR_RGB2GRAY))
     return {int(i): c + 0.5 for i, c in zip(ids.ravel(), corners.reshape(-1, 2), strict=True)}
 
 
@@ -95,9 +92,10 @@ def check_head_view(
         if photo is not None:
             result.corners_vs_photo_px = _offsets(seen, detect_corners(photo[..., :3], board))
         if T_base_board is not None:
-            pts = board.corner_points_board() @ T_base_board[:3, :3].T + T_base_board[:3, 3]
+            ids = sorted(seen)
+            pts = board.points_board(np.asarray(ids, np.int64)) @ T_base_board[:3, :3].T + T_base_board[:3, 3]
             uv, z = camera.project(pts)
-            known = {i: uv[i] for i in range(len(pts)) if z[i] > 0}
+            known = {pid: uv[k] for k, pid in enumerate(ids) if z[k] > 0}
             result.corners_vs_known_px = _offsets(seen, known)
     return result
 

@@ -22,6 +22,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     sm.add_argument("dir", help="output directory (must not exist, or be empty)")
     sm.add_argument("--seed", type=int_at_least(0), default=0, help="scene and trajectory seed (default 0)")
     sm.add_argument("--short", action="store_true", help="a quick version: 4 s of video at 5 fps, 6 hand-eye views")
+    sm.add_argument("--marker", choices=("charuco", "aruco", "apriltag", "aruco_grid"), default="charuco",
+                    help="the target on the table: the ChArUco board (default), an 18 cm ArUco marker or AprilTag, or "
+                    "an ArUco grid")
     sm.set_defaults(func=run)
     he = sample_sub.add_parser(
         "handeye",
@@ -42,9 +45,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..sample.make import SampleConfig, make_sample
+    from ..sample.make import SampleConfig, make_sample, with_marker
 
     config = SampleConfig.short(args.seed) if args.short else SampleConfig(seed=args.seed)
+    config = with_marker(config, args.marker)
     make_sample(args.dir, config, log=info)
     print(f"wrote the sample to {args.dir} (ground_truth.json, scene.mp4, handeye/, gt/, contact_sheet.jpg)")
     return 0

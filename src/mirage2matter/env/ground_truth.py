@@ -207,14 +207,14 @@ class GroundTruthRenderer:
         self.sample_dir = Path(sample_dir)
         self.ground_truth = gt
 
-        from ..calib.board import BoardSpec
+        from ..calib.board import target_from_json
         from ..sample.assets import build_assets
         from ..sample.render import RenderConfig, _pos_quat, add_asset, ensure_genesis, new_scene
 
         self.config = config if config is not None else RenderConfig()
         self._pos_quat = _pos_quat
         try:
-            board = BoardSpec.from_json(gt["board"]["spec"])
+            board = target_from_json(gt["board"]["spec"])
         except (KeyError, TypeError, ValueError) as exc:
             raise GroundTruthError(f"{self.sample_dir / 'ground_truth.json'}: bad board spec ({exc})") from None
         assets = build_assets(seed=int(gt["seed"]), board=board)

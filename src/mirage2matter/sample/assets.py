@@ -604,6 +604,8 @@ def _table(seed: int) -> PlacedAsset:
 def board_asset(spec: BoardSpec) -> PlacedAsset:
     """A 1 mm slab of the printed board (with margin); frame at the centre of the printed (top) face."""
     pps, margin_sq = BOARD_PX_PER_SQUARE, BOARD_MARGIN_SQUARES
+    if spec.kind != "charuco":  # a marker is one big square: keep the texture as sharp as the board's (2.5 px / mm)
+        pps = max(pps, 2 * int(round(spec.feature_size * 1250)))
     gray = spec.render_image(pps, margin_sq)
     img = Image.fromarray(np.ascontiguousarray(np.repeat(gray[..., None], 3, axis=2)))
     h_px, w_px = gray.shape

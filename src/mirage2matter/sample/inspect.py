@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..calib.board import BoardSpec
+from ..calib.board import target_from_json
 from ..video import read_video_frames
 
 # Where the repository ships its sample (an editable install keeps src/ beside samples/).
@@ -15,7 +15,7 @@ BUNDLED_SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "tabletop"
 
 
 def inspect_sample(sample: str | Path = BUNDLED_SAMPLE, n_checked: int = 24) -> dict:
-    """Decode ``scene.mp4``, detect the ChArUco board in ``n_checked`` evenly spaced frames and compare
+    """Decode ``scene.mp4``, detect the calibration target in ``n_checked`` evenly spaced frames and compare
     the detected corners with the ground-truth projection. Returns a JSON-ready summary."""
     import cv2
 
@@ -24,11 +24,9 @@ def inspect_sample(sample: str | Path = BUNDLED_SAMPLE, n_checked: int = 24) -> 
     if not gt_path.is_file():
         raise FileNotFoundError(f"{gt_path} not found; make a sample with `m2m sample make {sample}`")
     gt = json.loads(gt_path.read_text())
-    board = BoardSpec.from_json(gt["board"]["spec"])
+    board = target_from_json(gt["board"]["spec"])
     T_base_board = np.asarray(gt["board"]["T_base_board"])
-    corners_base = board.corner_points_board() @ T_base_board[:3, :3].T + T_base_board[:3, 3]
     K = np.asarray(gt["camera"]["K"])
-    detector = cv2.aruco.CharucoDetector(board.cv_board())
     n_frames = 0
     checked = detected = 0
     errors: list[float] = []
@@ -38,12 +36,13 @@ def inspect_sample(sample: str | Path = BUNDLED_SAMPLE, n_checked: int = 24) -> 
         if i % every:
             continue
         checked += 1
-        corners, ids, _, _ = detector.detectBoard(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY))
-        if ids is None or len(ids) < 4:
+        ids, corners = board.detect(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY))
+        if len(ids) < 4:
             continue
         detected += 1
         T_cam_base = np.linalg.inv(np.asarray(gt["frames"][i]["T_base_cam"]))
-        p = corners_base[ids.ravel()] @ T_cam_base[:3, :3].T + T_cam_base[:3, 3]
+        corners_base = board.points_board(ids) @ T_base_board[:3, :3].T + T_base_board[:3, 3]
+        p = corners_base @ T_cam_base[:3, :3].T + T_cam_base[:3, 3]
         uv = p @ K.T
         errors.extend(np.linalg.norm(corners.reshape(-1, 2) + 0.5 - uv[:, :2] / uv[:, 2:], axis=1).tolist())
     return {

@@ -23,11 +23,12 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..atomic import atomic_dir
-from ..calib.board import BoardSpec
+from ..calib.board import BoardSpec, GridSpec, MarkerSpec
 from ..errors import M2MError
 from .inspect import BUNDLED_SAMPLE
 from .trajectory import OrbitConfig, orbit_poses
@@ -44,7 +45,8 @@ class SampleConfig:
     # The board lies where the robot base will stand. At 640x480 a 5x7 board of 4 cm squares is
     # too small to detect beyond ~1 m at the orbit's grazing angles; 7 cm squares with 4x4-bit
     # markers (bigger cells) and a higher, closer orbit put it in every sampled frame (probe: 30/30).
-    board: BoardSpec = field(default_factory=lambda: BoardSpec(square=0.07, marker=0.055, dictionary="DICT_4X4_50"))
+    # Any calibration target (calib.board): the ChArUco board by default; see `with_marker` for the others.
+    board: Any = field(default_factory=lambda: BoardSpec(square=0.07, marker=0.055, dictionary="DICT_4X4_50"))
     # The board the robot holds for hand-eye calibration: smaller, so the arm can show it at many poses.
     handeye_board: BoardSpec = field(default_factory=lambda: BoardSpec(square=0.06, marker=0.045))
     orbit: OrbitConfig = field(
@@ -58,6 +60,21 @@ class SampleConfig:
         """A quick version for tests: a few seconds of video at a low frame rate, fewer hand-eye views."""
         full = cls(seed=seed)
         return replace(full, orbit=replace(full.orbit, duration_s=4.0, fps=5.0), handeye_views=6)
+
+
+MARKERS = {  # the table target of `with_marker`: the sizes labs tape down
+    "charuco": None,
+    "aruco": lambda: MarkerSpec(0.18, 0, "DICT_6X6_250", "aruco"),
+    "apriltag": lambda: MarkerSpec(0.18, 0, "DICT_APRILTAG_36h11", "apriltag"),
+    "aruco_grid": lambda: GridSpec(4, 5, 0.06, 0.015, "DICT_4X4_50"),
+}
+
+
+def with_marker(config: SampleConfig, marker: str) -> SampleConfig:
+    """``config`` with the table's ChArUco board replaced by another kind of target (see MARKERS)."""
+    if marker not in MARKERS:
+        raise SampleError(f"marker must be one of {', '.join(MARKERS)}, got {marker!r}")
+    return config if MARKERS[marker] is None else replace(config, board=MARKERS[marker]())
 
 
 class SampleError(M2MError, ValueError):

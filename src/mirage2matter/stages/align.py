@@ -13,7 +13,7 @@ import numpy as np
 
 from ..atomic import atomic_write
 from ..calib.align import AlignError, align_scene, default_T_base_board, draw_base_overlay
-from ..calib.board import BoardSpec
+from ..calib.board import load_target
 from ..robots import DEFAULT_ROBOT
 from ..workspace import Workspace
 from .base import Input, Log
@@ -23,22 +23,26 @@ from .base import Input, Log
 class Config:
     """align settings.
 
-    board        the board's spec JSON (from `m2m board`)
-    board_pose   a JSON with T_base_board (4x4, or under "board") when the board is not centred on the base
+    board        the calibration target's spec JSON (from `m2m board`: ChArUco, ArUco marker, AprilTag, ArUco grid)
+    board_pose   a JSON with T_base_board (4x4, or under "board") when the target is not centred on the base
                  with its x along base x
-    icp          refine with scaled ICP of the SfM points around the board onto the robot-base surface
+    icp          refine with scaled ICP of the SfM points around the target onto the robot-base surface, where the
+                 SfM saw that surface near the base (otherwise the target alone places the scene; the summary says)
     robot        the robot (a name from `mirage2matter.robots`) whose base footprint bounds the ICP region and
                  is drawn in the overlay; "none" for a 10 cm circle
+    unaligned    no target: keep the SfM frame (not metric, not the robot's) for scene-only use
     """
 
     board: Path | None = None
     board_pose: Path | None = None
     icp: bool = True
     robot: str = DEFAULT_ROBOT
+    unaligned: bool = False
 
     def validate(self) -> None:
-        if self.board is None:
-            raise AlignError("align-scene: no board; give the board spec JSON (--board, from `m2m board`)")
+        if self.board is None and not self.unaligned:
+            raise AlignError("align-scene: no calibration target; give its spec JSON (--board, from `m2m board`), "
+                             "or --unaligned to keep the SfM frame for a scene-only capture")  # fmt: skip
 
 
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
@@ -70,9 +74,22 @@ def _footprint(robot: str) -> np.ndarray | None:
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     from PIL import Image
 
-    board = BoardSpec.load(cfg.board)
-    T_base_board = _board_pose(cfg.board_pose) if cfg.board_pose is not None else default_T_base_board(board)
     posed = ws.posed_capture(frame="sfm")  # a rerun aligns from the SfM frame again
+    if cfg.unaligned:
+        from ..calib.align import unaligned_result
+
+        result = unaligned_result(posed.cameras)
+        _save(ws, result, np.eye(4), None, posed)
+        import cv2  # the overlay says so, rather than an earlier alignment's overlay staying
+
+        first = np.asarray(Image.open(posed.image_dir / posed.cameras[0].name).convert("RGB")).copy()
+        cv2.putText(first, "UNALIGNED: SfM frame", (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.0, (255, 0, 0), 2)
+        with atomic_write(ws.overlay_png, "wb") as f:
+            Image.fromarray(first).save(f, format="PNG")
+        return {"method": "unaligned", "scale": 1.0, "line": "UNALIGNED: the scene stays in the SfM frame (not "
+                "metric, not the robot's base); fine for viewing the scene, not for a robot twin"}  # fmt: skip
+    board = load_target(cfg.board)
+    T_base_board = _board_pose(cfg.board_pose) if cfg.board_pose is not None else default_T_base_board(board)
     images = [np.asarray(Image.open(posed.image_dir / c.name).convert("RGB")) for c in posed.cameras]
     footprint = _footprint(cfg.robot)
     result = align_scene(posed.cameras, images, posed.points, board, T_base_board, icp=cfg.icp,
@@ -82,23 +99,25 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     overlay = draw_base_overlay(images, cameras_base, result.triangulation.frames_with_board, footprint)
     with atomic_write(ws.overlay_png, "wb") as f:
         Image.fromarray(overlay).save(f, format="PNG")
-    icp = "" if result.icp_rmse_mm is None else f", ICP {result.icp_rmse_mm:.1f} mm over {result.icp_points} points"
+    icp = "" if result.icp_rmse_mm is None else f", ICP {result.icp_rmse_mm:.1f} mm"
     return {
-        "scale": sim.scale, "corner_rms_mm": result.corner_rms_mm, "icp_rmse_mm": result.icp_rmse_mm,
-        "line": f"SfM -> robot base: scale {sim.scale:.5f}, board corners {result.corner_rms_mm:.2f} mm RMS from "
-        f"{len(result.triangulation.ids)} corners in {len(result.triangulation.frames_with_board)} keyframes{icp}",
+        "method": result.method, "note": result.note, "scale": sim.scale, "corner_rms_mm": result.corner_rms_mm,
+        "icp_rmse_mm": result.icp_rmse_mm,
+        "line": f"SfM -> robot base ({board.describe()}): scale {sim.scale:.5f}, corners {result.corner_rms_mm:.2f} "
+        f"mm RMS from {len(result.triangulation.ids)} corners in {len(result.triangulation.frames_with_board)} "
+        f"keyframes{icp}; {result.note}",
     }  # fmt: skip
 
 
-def _save(ws: Workspace, result, T_base_board: np.ndarray, board: BoardSpec, posed) -> list:
+def _save(ws: Workspace, result, T_base_board: np.ndarray, board, posed) -> list:
     """The alignment, the cameras and points in the base frame (each file atomically)."""
     from ..calib.align import apply_to_cameras
 
     ws.calib_dir.mkdir(parents=True, exist_ok=True)
     sim = result.sim3_sfm_to_base
     with atomic_write(ws.alignment_file, "w", encoding="utf-8") as f:
-        json.dump({**result.to_json(), "T_base_board": np.asarray(T_base_board).tolist(), "board": board.to_json()},
-                  f, indent=1)  # fmt: skip
+        json.dump({**result.to_json(), "T_base_board": np.asarray(T_base_board).tolist(),
+                   "board": board.to_json() if board is not None else None}, f, indent=1)  # fmt: skip
     cameras_base = apply_to_cameras(sim, posed.cameras)
     with atomic_write(ws.cameras_base_file, "w", encoding="utf-8") as f:
         json.dump([c.to_json() for c in cameras_base], f, indent=1)

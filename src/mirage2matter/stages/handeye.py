@@ -12,7 +12,7 @@ from typing import Any, Literal
 import numpy as np
 
 from ..atomic import atomic_write
-from ..calib.board import BoardSpec
+from ..calib.board import load_target
 from ..calib.handeye import HandEyeError, calibrate_from_files
 from ..geometry.camera import load_intrinsics
 from ..workspace import Workspace
@@ -75,7 +75,7 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     cam = load_intrinsics(cfg.intrinsics, keys=("head_camera",))
     result, out = calibrate_from_files(
-        cfg.images, cfg.joints, BoardSpec.load(cfg.board), cam, mount=cfg.mount, method=cfg.method,
+        cfg.images, cfg.joints, load_target(cfg.board), cam, mount=cfg.mount, method=cfg.method,
         robot=cfg.robot, link=cfg.link, refine=cfg.refine, poses=cfg.poses,
     )  # fmt: skip
     out.update(width=cam.width, height=cam.height, distortion=dict(cam.distortion))

@@ -34,7 +34,7 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
 
 
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
-    from ..calib.board import BoardSpec
+    from ..calib.board import target_from_json
     from ..calib.headview import check_head_view, save_head_view
     from ..gaussians.ply import read_ply
     from ..geometry.camera import Camera
@@ -61,7 +61,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         lens = Camera(he["K"], np.eye(4), width, height, "head", he["distortion"])
         ideal, _ = undistort_image(photo.astype(np.float32) / 255.0, lens)
         photo = np.clip(np.round(ideal * 255.0), 0, 255).astype(np.uint8)
-    check = check_head_view(read_ply(ws.scene_ply), cam, photo, BoardSpec.from_json(al["board"]),
+    check = check_head_view(read_ply(ws.scene_ply), cam, photo, target_from_json(al["board"]),
                             np.asarray(al["T_base_board"]), backend=cfg.backend)  # fmt: skip
     save_head_view(ws.head_view_png, check, photo)
     known, seen = check.corners_vs_known_px, check.corners_vs_photo_px

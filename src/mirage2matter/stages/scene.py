@@ -98,6 +98,9 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
     from . import get_stage
 
     posed = ws.posed_capture()
+    frame_note = _frame_note(ws, posed.frame)
+    if frame_note:
+        log(f"scene: {frame_note}")
     if len(posed.points) < 100:
         raise WorkspaceError(f"{ws.sfm_dir}: only {len(posed.points)} SfM points; rerun sfm with more keyframes / "
                              "texture")  # fmt: skip
@@ -168,12 +171,31 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
         json.dump(result, f, indent=1)
     ckpt.unlink(missing_ok=True)  # finished: the PLY and metrics are the result (checkpoints are ~3x the PLY)
     keys = ("psnr_heldout", "ssim_heldout", "iterations", "gaussians", "train_minutes", "frame")
+    from ..capture.coverage import scene_coverage
+
+    coverage = scene_coverage(posed.cameras, posed.points)
     return {
-        **{k: result[k] for k in keys},
+        **{k: result[k] for k in keys}, "coverage": coverage.to_json(), "unaligned": bool(frame_note),
         "line": f"held-out PSNR {result['psnr_heldout']:.2f} dB / SSIM {result['ssim_heldout']:.3f} over "
         f"{len(views_eval)} keyframes, {result['iterations']} iterations, {result['gaussians']:,} Gaussians "
-        f"({result['train_minutes']:.1f} min, {posed.frame} frame)",
-    }
+        f"({result['train_minutes']:.1f} min, {posed.frame} frame){'; ' + frame_note if frame_note else ''}; "
+        f"{coverage.line}",
+    }  # fmt: skip
+
+
+def _frame_note(ws: Workspace, frame: str) -> str:
+    """A loud word when the scene is not in the robot's metric base frame ("" when it is)."""
+    if frame == "sfm":
+        return ("UNALIGNED: align-scene has not run, so the scene is in the SfM frame (not metric, not the robot's "
+                "base); run `m2m align-scene --board ...` for a robot twin, or `--unaligned` to say it is meant")
+    if ws.alignment_file.is_file():
+        try:
+            method = json.loads(ws.alignment_file.read_text()).get("method")
+        except (OSError, ValueError):
+            method = None
+        if method == "unaligned":
+            return "UNALIGNED (align-scene --unaligned): the scene is in the SfM frame, not metric, not the robot's"
+    return ""
 
 
 def outputs(ws: Workspace, cfg: Config) -> list[Path]:

@@ -71,10 +71,14 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     else:
         result = run_sfm(ws.capture_dir, ws.sfm_dir, config)
         how = f"registered {result.registered}/{result.total} keyframes"
+    from ..capture.coverage import scene_coverage
+
+    coverage = scene_coverage(result.cameras, result.points)  # what to film more, while the user still can
     return {
         "registered": result.registered, "total": result.total, "points": len(result.points),
-        "reprojection_px": result.mean_reprojection_error, "seconds": result.seconds,
-        "line": f"{how}, {len(result.points):,} points, reprojection {result.mean_reprojection_error:.2f} px (mean)",
+        "reprojection_px": result.mean_reprojection_error, "seconds": result.seconds, "coverage": coverage.to_json(),
+        "line": f"{how}, {len(result.points):,} points, reprojection {result.mean_reprojection_error:.2f} px (mean); "
+        f"{coverage.line}",
     }  # fmt: skip
 
 
