@@ -65,7 +65,7 @@ def _errors_vs_truth(keyframes, cameras_base, gt) -> tuple[float, float, float]:
 @pytest.fixture(scope="module")
 def small_reconstruction(tmp_path_factory):
     # one thread: multi-threaded pycolmap mapping differs run to run; this way the test is repeatable
-    return _reconstruct(tmp_path_factory.mktemp("align16"), 16, num_threads=1)
+    return _reconstruct(tmp_path_factory.mktemp("align16"), 16, num_threads=1, known_intrinsics=True)
 
 
 def test_sample_aligns_to_the_base(small_reconstruction):
@@ -79,11 +79,37 @@ def test_sample_aligns_to_the_base(small_reconstruction):
     assert scale_err < 0.01 and rot < 0.6 and trans < 12.0, (scale_err, rot, trans)
 
 
+def test_robot_base_out_of_view_keeps_the_marker_alignment(small_reconstruction):
+    """A capture that never saw the table around the robot base: no ICP on the few points there (on a real capture
+    it slid the cameras 11 mm); the target alone must place the cameras."""
+    keyframes, sfm, images = small_reconstruction
+    gt = _gt()
+    board = BoardSpec.from_json(gt["board"]["spec"])
+    T_base_board = np.asarray(gt["board"]["T_base_board"])
+    first = align_scene(sfm.cameras, images, sfm.points, board, T_base_board, icp=False)
+    base_xy = first.sim3_sfm_to_base.apply(sfm.points)[:, :2]
+    kept = sfm.points[np.linalg.norm(base_xy, axis=1) > 0.35]  # nothing within 35 cm of the base's origin
+    footprint = np.array([[-0.1, -0.1], [0.1, 0.1]])
+    result = align_scene(sfm.cameras, images, kept, board, T_base_board, footprint_xy=footprint)
+    assert result.method == "marker" and "ICP skipped" in result.note, result.note
+    _, rot, trans = _errors_vs_truth(keyframes, apply_to_cameras(result.sim3_sfm_to_base, sfm.cameras), gt)
+    assert rot <= 0.3 and trans <= 2.0, (rot, trans)
+
+
+def test_unaligned_is_the_identity_and_says_so(small_reconstruction):
+    from mirage2matter.calib.align import unaligned_result
+
+    _, sfm, _ = small_reconstruction
+    result = unaligned_result(sfm.cameras)
+    assert result.method == "unaligned" and result.sim3_sfm_to_base.scale == 1.0 and "not metric" in result.note
+    assert json.dumps(result.to_json())  # valid JSON (no NaN)
+
+
 def test_wrong_board_or_too_few_views_are_clear_errors(small_reconstruction):
     _, sfm, images = small_reconstruction
     gt = _gt()
     wrong = BoardSpec(5, 7, 0.07, 0.055, "DICT_5X5_100")  # right size, wrong dictionary
-    with pytest.raises(AlignError, match="detected in 0 of 16 keyframes"):
+    with pytest.raises(AlignError, match="detected in 0 of 16 keyframes.*--unaligned"):
         align_scene(sfm.cameras, images, sfm.points, wrong, np.asarray(gt["board"]["T_base_board"]))
     board = BoardSpec.from_json(gt["board"]["spec"])
     with pytest.raises(AlignError, match="needs >= 3"):

@@ -50,19 +50,7 @@ def ideal_pixels(camera, uv: np.ndarray) -> np.ndarray:
     """Measured pixels [M,2] -> the pixels an ideal pinhole with the same K would see (our +0.5 convention).
     ``camera``: a Camera (its lens is undone) or a bare K [3,3] (no lens)."""
     uv = np.asarray(uv, np.float64)
-    if isinstance(camera, np.ndarray):
-        return uv
-    if hasattr(camera, "undistort_pixels"):
-        return np.asarray(camera.undistort_pixels(uv), np.float64)
-    import cv2
-
-    coeffs = camera.opencv_distortion()
-    if coeffs is None:
-        return uv
-    K_cv = opencv_K(camera.K)
-    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
-    out = cv2.undistortPointsIter((uv - 0.5).reshape(-1, 1, 2), K_cv, coeffs, None, K_cv, criteria)
-    return out.reshape(-1, 2) + 0.5
+    return uv if isinstance(camera, np.ndarray) else camera.undistort_pixels(uv)
 
 
 def _K_of(camera) -> np.ndarray:

@@ -47,7 +47,7 @@ GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 RIGID_TOL = 1e-4  # accepted deviation of the last row from 0 0 0 1
 ORTHO_REPAIR_TOL = 1e-3  # max |R^T R - I| that is re-orthonormalised rather than rejected
-_DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+_DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2")
 _INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y", *_DISTORTION_KEYS)
 
 
@@ -167,15 +167,59 @@ class Camera:
         return opencv_K(self.K)
 
     def opencv_distortion(self) -> np.ndarray | None:
-        """OpenCV's (k1, k2, p1, p2, k3) from the named coefficients; None when all are zero.
-        Fisheye coefficients (k4) have no place in this model: CameraFormatError."""
+        """OpenCV's (k1, k2, p1, p2, k3), or with the rational terms (..., k4, k5, k6), from the named coefficients;
+        None when all are zero. A k4 without k5 / k6 is a fisheye lens (nerfstudio's k1..k4), which this
+        radial-tangential model is not: CameraFormatError."""
         d = {k: float(v) for k, v in (self.distortion or {}).items()}
-        if abs(d.get("k4", 0.0)) > 0:
+        unknown = sorted(set(d) - set(_DISTORTION_KEYS))
+        if unknown:
+            raise CameraFormatError(f"{self.name or 'camera'}: unknown distortion terms {unknown}; radial-tangential "
+                                    "takes k1..k6, p1, p2")  # fmt: skip
+        rational = "k5" in d or "k6" in d
+        if abs(d.get("k4", 0.0)) > 0 and not rational:
             raise CameraFormatError(
                 f"{self.name or 'camera'}: fisheye distortion (k4) is not supported; undistort the images beforehand"
             )
-        coeffs = np.array([d.get("k1", 0.0), d.get("k2", 0.0), d.get("p1", 0.0), d.get("p2", 0.0), d.get("k3", 0.0)])
+        keys = ("k1", "k2", "p1", "p2", "k3") + (("k4", "k5", "k6") if rational else ())
+        coeffs = np.array([d.get(k, 0.0) for k in keys])
         return coeffs if np.any(coeffs) else None
+
+    @property
+    def has_distortion(self) -> bool:
+        return self.opencv_distortion() is not None
+
+    def undistort_pixels(self, uv: np.ndarray) -> np.ndarray:
+        """Measured pixels [N, 2] -> where an ideal pinhole with the same K sees the same rays [N, 2] (both in our
+        +0.5 convention). Iterative, to well under 1e-3 px over the image."""
+        import cv2
+
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        coeffs = self.opencv_distortion()
+        if coeffs is None or not len(uv):
+            return uv.copy()
+        K_cv = self.K_opencv
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+        out = cv2.undistortPointsIter((uv - 0.5).reshape(-1, 1, 2), K_cv, coeffs, None, K_cv, criteria)
+        return out.reshape(-1, 2) + 0.5
+
+    def distort_pixels(self, uv: np.ndarray) -> np.ndarray:
+        """Ideal pinhole pixels [N, 2] -> where this lens images the same rays [N, 2] (our +0.5 convention)."""
+        import cv2
+
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        coeffs = self.opencv_distortion()
+        if coeffs is None or not len(uv):
+            return uv.copy()
+        xy = np.c_[(uv[:, 0] - self.cx) / self.fx, (uv[:, 1] - self.cy) / self.fy, np.ones(len(uv))]
+        xy[:, 0] -= self.K[0, 1] / self.fx * xy[:, 1]  # skew
+        out, _ = cv2.projectPoints(xy.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), self.K_opencv, coeffs)
+        return out.reshape(-1, 2) + 0.5
+
+    def check_image_size(self, width: int, height: int, where: str) -> None:
+        """CameraFormatError when an image of ``width`` x ``height`` is not this camera's size."""
+        if (int(width), int(height)) != (self.width, self.height):
+            raise CameraFormatError(f"{where} is {width}x{height} but the intrinsics are for {self.width}x"
+                                    f"{self.height}; give the intrinsics of the images' own resolution")  # fmt: skip
 
     @property
     def center(self) -> np.ndarray:
@@ -313,20 +357,22 @@ def load_camera_json(path: str | os.PathLike[str]) -> Camera:
 
 
 def load_intrinsics(path: str | os.PathLike[str], keys: tuple[str, ...] = ("camera", "head_camera")) -> Camera:
-    """A camera's intrinsics (pose: identity) from a JSON holding ``K`` (3x3), ``width``, ``height`` and
-    optionally ``distortion``, at the top level or under one of ``keys`` (e.g. a sample's
-    ground_truth.json holds the video camera under "camera", the head camera under "head_camera")."""
+    """A camera's intrinsics (pose: identity) from any file :mod:`.intrinsics` reads: ours (``K``, ``width``,
+    ``height``, ``distortion``, at the top level or under one of ``keys``: a sample's ground_truth.json holds the
+    video camera under "camera", the head camera under "head_camera"), OpenCV's calibration output, ROS
+    camera_info, COLMAP cameras.txt or RealSense intrinsics, converted to pixel centres at +0.5."""
+    from .intrinsics import IntrinsicsFormatError, read_intrinsics
+
     path = Path(path)
-    data = _read_json(path)
-    if isinstance(data, dict) and "K" not in data:
-        data = next((data[k] for k in keys if isinstance(data.get(k), dict)), data)
-    if not isinstance(data, dict) or not all(k in data for k in ("K", "width", "height")):
-        raise CameraFormatError(
-            f"{path}: need a JSON with K (3x3), width and height (or such an object under {' or '.join(keys)})"
-        )
-    cam = {k: data[k] for k in ("K", "width", "height")}
-    return Camera.from_json({**cam, "T_world_cam": np.eye(4).tolist(), "distortion": data.get("distortion") or {}},
-                            source=str(path))  # fmt: skip
+    try:
+        data = read_intrinsics(path, keys)
+    except IntrinsicsFormatError as e:
+        raise CameraFormatError(str(e)) from None
+    K = np.asarray(data["K"], dtype=np.float64).tolist()
+    cam = Camera.from_json({"K": K, "width": data["width"], "height": data["height"], "T_world_cam": np.eye(4).tolist(),
+                            "distortion": data.get("distortion") or {}}, source=str(path))  # fmt: skip
+    cam.opencv_distortion()  # a lens this model cannot take is an error now, not in the first stage using it
+    return cam
 
 
 def save_camera_json(path: str | os.PathLike[str], cam: Camera) -> None:
