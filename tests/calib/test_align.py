@@ -73,7 +73,9 @@ def test_sample_aligns_to_the_base(small_reconstruction):
     gt = _gt()
     board = BoardSpec.from_json(gt["board"]["spec"])
     result = align_scene(sfm.cameras, images, sfm.points, board, np.asarray(gt["board"]["T_base_board"]))
-    assert result.corner_rms_mm < 1.0 and result.icp_points > 100
+    assert result.corner_rms_mm < 1.0 and result.method == "marker"
+    with_icp = align_scene(sfm.cameras, images, sfm.points, board, np.asarray(gt["board"]["T_base_board"]), icp=True)
+    assert with_icp.method == "marker+icp" and with_icp.icp_points > 100  # the base region was filmed
     scale_err, rot, trans = _errors_vs_truth(keyframes, apply_to_cameras(result.sim3_sfm_to_base, sfm.cameras), gt)
     # 16 keyframes: the SfM itself is off by a few tenths of a degree; the slow test uses 48
     assert scale_err < 0.01 and rot < 0.6 and trans < 12.0, (scale_err, rot, trans)
@@ -90,7 +92,7 @@ def test_robot_base_out_of_view_keeps_the_marker_alignment(small_reconstruction)
     base_xy = first.sim3_sfm_to_base.apply(sfm.points)[:, :2]
     kept = sfm.points[np.linalg.norm(base_xy, axis=1) > 0.35]  # nothing within 35 cm of the base's origin
     footprint = np.array([[-0.1, -0.1], [0.1, 0.1]])
-    result = align_scene(sfm.cameras, images, kept, board, T_base_board, footprint_xy=footprint)
+    result = align_scene(sfm.cameras, images, kept, board, T_base_board, icp=True, footprint_xy=footprint)
     assert result.method == "marker" and "ICP skipped" in result.note, result.note
     _, rot, trans = _errors_vs_truth(keyframes, apply_to_cameras(result.sim3_sfm_to_base, sfm.cameras), gt)
     assert rot <= 0.3 and trans <= 2.0, (rot, trans)
@@ -129,3 +131,33 @@ def test_sample_alignment_accuracy_with_48_keyframes(tmp_path):
     print(f"\n48 keyframes: scale error {100 * scale_err:.3f} %, rotation {rot:.3f} deg, translation {trans:.2f} mm")
     assert scale_err < 0.002 and rot < 0.2 and trans < 2.0, (scale_err, rot, trans)
     assert np.allclose(sfm.cameras[0].K, gt["camera"]["K"])  # held fixed
+
+
+@pytest.mark.slow
+def test_a_single_aruco_marker_or_apriltag_aligns_about_as_well_as_charuco(tmp_path):
+    """The same sample made with one 18 cm marker on the table instead of the ChArUco board. Measured with 48
+    keyframes: ChArUco 1.20 mm / 0.035 deg, ArUco 2.28 mm / 0.085 deg, AprilTag 1.92 mm / 0.074 deg (medians):
+    within 2x in translation; 4 corners instead of 24 leave rotation 2.1-2.4x behind, still under issue 5's 0.2 deg."""
+    from mirage2matter.calib.board import target_from_json
+    from mirage2matter.sample.make import SampleConfig, make_sample, with_marker
+
+    gt = _gt()
+    keyframes, sfm, images = _reconstruct(tmp_path / "charuco", 48, known_intrinsics=True)
+    ref = align_scene(sfm.cameras, images, sfm.points, BoardSpec.from_json(gt["board"]["spec"]),
+                      np.asarray(gt["board"]["T_base_board"]))  # fmt: skip
+    _, rot_ref, trans_ref = _errors_vs_truth(keyframes, apply_to_cameras(ref.sim3_sfm_to_base, sfm.cameras), gt)
+    for marker in ("aruco", "apriltag"):
+        root = tmp_path / f"sample_{marker}"
+        make_sample(root, with_marker(SampleConfig(seed=0), marker), log=lambda _: None)
+        mgt = json.loads((root / "ground_truth.json").read_text())
+        kf = extract_keyframes(root / "scene.mp4", tmp_path / marker / "capture", CaptureConfig(max_keyframes=48))
+        cam = mgt["camera"]
+        config = with_fixed_intrinsics(SfMConfig(), Camera(cam["K"], np.eye(4), cam["width"], cam["height"]))
+        res = run_sfm(tmp_path / marker / "capture", tmp_path / marker / "sfm", config)
+        imgs = [np.asarray(Image.open(tmp_path / marker / "capture" / c.name).convert("RGB")) for c in res.cameras]
+        target = target_from_json(mgt["board"]["spec"])
+        assert target.kind == marker
+        result = align_scene(res.cameras, imgs, res.points, target, np.asarray(mgt["board"]["T_base_board"]))
+        _, rot, trans = _errors_vs_truth(kf, apply_to_cameras(result.sim3_sfm_to_base, res.cameras), mgt)
+        print(f"\n{marker}: {rot:.3f} deg / {trans:.2f} mm; ChArUco {rot_ref:.3f} deg / {trans_ref:.2f} mm")
+        assert trans <= 2.0 * trans_ref and rot <= 0.2, (marker, rot, trans, rot_ref, trans_ref)

@@ -1,10 +1,11 @@
 """Metric alignment of SfM to the robot base (paper eqs. `icp`, `pose_update`).
 
-The ChArUco board lies where the robot base will stand, at a known pose ``T_base_board``. Its
-corners, detected in the keyframes and triangulated with the SfM cameras, give scale, rotation and
-translation (Umeyama); scaled ICP then refines the fit of the SfM points around the board to the
-simulator's robot-base region (the support surface the base stands on), with the corners kept as
-anchors so the plane cannot slide. Points map as ``x' = s R x + t``; poses as ``R' = R R_wc``,
+A calibration target (ChArUco board, ArUco marker, AprilTag, ArUco grid) lies where the robot base will stand, at a
+known pose ``T_base_board``. Its corners, detected in the keyframes and triangulated with the SfM cameras, give
+scale, rotation and translation (Umeyama). Optionally (``icp``, off by default: it measured worse on the sample and
+on a real capture) scaled ICP refines the fit of the SfM points around the target to the simulator's robot-base
+region (the support surface the base stands on), with the corners kept as anchors so the plane cannot slide, and
+only where the SfM saw that surface near the base. Points map as ``x' = s R x + t``; poses as ``R' = R R_wc``,
 ``t' = s R t_wc + t``.
 """
 
@@ -156,10 +157,11 @@ def align_scene(
     points_sfm: np.ndarray,
     board: BoardSpec,
     T_base_board: np.ndarray | None = None,
-    icp: bool = True,
+    icp: bool = False,
     footprint_xy: np.ndarray | None = None,
 ) -> AlignResult:
-    """sim3_sfm_to_base from the board (and ICP of the points around it onto the support surface)."""
+    """sim3_sfm_to_base from the target's triangulated corners; with ``icp``, refined by scaled ICP of the SfM points
+    around it onto the support surface where the SfM saw that surface near the base (see stages.align.Config)."""
     T_base_board = default_T_base_board(board) if T_base_board is None else np.asarray(T_base_board, np.float64)
     tri = triangulate_board_corners(cameras, images, board)
     corners_base = board.points_board(tri.ids) @ T_base_board[:3, :3].T + T_base_board[:3, 3]
@@ -171,7 +173,7 @@ def align_scene(
             "mm after fitting); check its spec (sizes, dictionary) against the printed one"
         )
     icp_rmse, n_icp, method = None, 0, "marker"
-    note = "ICP off (--no-icp)" if not icp else ""
+    note = "the target alone (ICP off)" if not icp else ""
     if icp and len(points_sfm):
         target = support_region(T_base_board, board, footprint_xy=footprint_xy)
         lo, hi = target.min(0) - [0, 0, 0.02], target.max(0) + [0, 0, 0.02]
