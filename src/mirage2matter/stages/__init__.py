@@ -15,9 +15,9 @@ __all__ = ["PIPELINE", "STAGES", "Input", "Stage", "get_stage", "run_stage"]
 STAGES: tuple[Stage, ...] = (
     Stage("capture", "capture", "pick keyframes (sharpness + parallax) from a video or an image folder", "capture"),
     Stage("sfm", "sfm", "camera poses and points of the keyframes (COLMAP SfM), or imported ones", "sfm"),
-    Stage("align", "align-scene", "the SfM scene in the robot-base frame, metric, via the ChArUco board", "align"),
+    Stage("align", "align-scene", "the SfM scene in the robot-base frame, metric, via a calibration target", "align"),
     Stage(
-        "handeye", "calibrate-handeye", "the camera's mount from board images + the robot's joint angles", "handeye"
+        "handeye", "calibrate-handeye", "the camera's mount from board images + the robot's poses", "handeye"
     ),  # fmt: skip
     Stage("scene", "train-scene", "scene 3D Gaussian Splatting from the posed keyframes", "scene"),
     Stage(

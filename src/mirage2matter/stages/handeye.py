@@ -27,9 +27,10 @@ class Config:
     joints      JSON of the robot's pose per image: {"robot", "link", "units", "views": [{"image", "joints": [rad]}
                 or {"image", "T_base_link": 4x4} or {"image", "position", "quaternion_xyzw" | "quaternion_wxyz" |
                 "rpy"}]}; units (default m, rad): {"position": "m"|"mm", "rotation": "rad"|"deg", "joints": ...}
-    board       the board's spec JSON
-    intrinsics  the camera's intrinsics with its lens distortion (a JSON with K, width, height, distortion, or such
-                an object under "head_camera")
+    board       the calibration target's spec JSON (from `m2m board`: ChArUco, ArUco marker, AprilTag, grid)
+    intrinsics  the camera's intrinsics with its lens distortion: our JSON (K, width, height, distortion, or such an
+                object under "head_camera"), OpenCV calibration YAML/XML, ROS camera_info, COLMAP cameras.txt or
+                RealSense intrinsics JSON
     mount       head: eye-to-hand, the camera fixed in the base (T_base_headcam); wrist: eye-in-hand
     method      OpenCV's closed-form hand-eye solver
     robot       robot model file (default: the joints file's, else the default robot's)

@@ -22,7 +22,8 @@ class Config:
 
     matching         image pairs to match: auto (exhaustive below 40 images), sequential, exhaustive
     downscale        extract features at 1/downscale of the keyframes' resolution
-    intrinsics       known camera intrinsics held fixed (a JSON with K, width, height, distortion, or such an
+    intrinsics       known camera intrinsics held fixed (our JSON with K, width, height, distortion, OpenCV's
+                     calibration YAML/XML, ROS camera_info, COLMAP cameras.txt or RealSense JSON; or such an
                      object under "camera"): more accurate poses than self-calibration
     from_transforms  import poses from an instant-ngp / nerfstudio transforms.json instead (copies its images
                      into capture/, triangulates points with the given poses; keeps its world frame)
