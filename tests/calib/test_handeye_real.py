@@ -142,3 +142,15 @@ def test_a_workspace_from_before_the_refine_variants_still_loads():
 
     assert from_dict(handeye.Config, {"refine": True}).refine == "auto"  # the default then -> the default now
     assert from_dict(handeye.Config, {"refine": False}).refine == "none"
+
+
+def test_hand_eye_with_a_single_apriltag(tmp_path):
+    from mirage2matter.calib.board import MarkerSpec, load_target
+
+    tag = MarkerSpec(0.12, 5, "DICT_APRILTAG_36h11", "apriltag")
+    gt = make_handeye_capture(tmp_path / "tag", HandEyeCaptureConfig(mount="wrist", board=tag), log=lambda _: None)
+    root = tmp_path / "tag"
+    result, out = calibrate_from_files(root / "images", root / "joints.json", load_target(root / "board.json"),
+                                       load_intrinsics(root / "intrinsics.json"), mount="wrist")  # fmt: skip
+    deg, mm = _errors(result.T, np.asarray(gt["T_hand_cam"]))
+    assert len(out["per_view"]) == 12 and deg <= 0.15 and mm <= 1.5, (deg, mm)  # measured 0.049 deg / 0.47 mm

@@ -57,17 +57,20 @@ def _K_of(camera) -> np.ndarray:
     return np.asarray(camera if isinstance(camera, np.ndarray) else camera.K, dtype=np.float64)
 
 
-def detect_board_pose(image_rgb: np.ndarray, board, camera, min_corners: int = 6):
-    """Board corners + PnP (IPPE, refined iteratively) on lens-corrected corners. ``camera``: a Camera (K and
+def detect_board_pose(image_rgb: np.ndarray, board, camera, min_corners: int | None = None):
+    """Target corners + PnP (IPPE, refined iteratively) on lens-corrected corners. ``camera``: a Camera (K and
     lens, pixel centres at +0.5) or a bare K [3,3] (a distortion-free lens).
-    Returns a BoardObservation, or None when fewer than ``min_corners`` corners are found."""
+    Returns a BoardObservation, or None when fewer than ``min_corners`` corners are found (default: 6, or all four
+    of a single marker)."""
     import cv2
 
     gray = cv2.cvtColor(image_rgb, cv2.COLOR_RGB2GRAY) if image_rgb.ndim == 3 else image_rgb
     ids, img_cv = _detect(board, gray)
+    if min_corners is None:
+        min_corners = min(6, len(board.points_board()))
     if len(ids) < min_corners:
         return None
-    obj = _points_board(board, ids)
+    obj = np.asarray(board.points_board(ids), np.float64)
     measured = img_cv.reshape(-1, 2).astype(np.float64) + 0.5  # OpenCV centres at integers -> ours
     uv = ideal_pixels(camera, measured)
     K_cv = opencv_K(_K_of(camera))
@@ -92,14 +95,6 @@ def _detect(board, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(ids [M], uv [M,2] OpenCV convention) of the target's points found in ``gray``."""
     ids, uv = board.detect(gray)
     return np.asarray(ids, np.int64).ravel(), np.asarray(uv, np.float64).reshape(-1, 2)
-
-
-def _points_board(board, ids: np.ndarray) -> np.ndarray:
-    return np.asarray(board.points_board(ids), np.float64)
-
-
-def _describe(board) -> str:
-    return board.describe()
 
 
 def check_motion_diversity(T_base_link: list[np.ndarray], min_angle_deg: float = 2.0) -> None:
@@ -633,7 +628,7 @@ def calibrate_from_files(
         observations.append(obs)
     if len(used) < 3:
         raise HandEyeError(
-            f"the board ({_describe(board)}) was found in only {len(used)} of {len(views)} images in {images_dir}; "
+            f"the board ({board.describe()}) was found in only {len(used)} of {len(views)} images in {images_dir}; "
             f"tried: {', '.join(skipped[:8])}{' ...' if len(skipped) > 8 else ''}. Check the board spec and lighting"
         )
     K = _K_of(camera)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -68,8 +69,9 @@ class HandEyeCaptureConfig:
     joint_noise_rad: float = 0.0006
     distance: tuple[float, float] = (0.32, 0.52)
     tilt_deg: float = 35.0
-    board: BoardSpec = field(default_factory=lambda: BoardSpec(squares_x=5, squares_y=7, square=0.035,
-                                                               marker=0.026, dictionary="DICT_5X5_100"))  # fmt: skip
+    # any calibration target (calib.board): a ChArUco board by default
+    board: Any = field(default_factory=lambda: BoardSpec(squares_x=5, squares_y=7, square=0.035, marker=0.026,
+                                                         dictionary="DICT_5X5_100"))  # fmt: skip
     seed: int = 0
 
     def K(self) -> np.ndarray:
@@ -212,7 +214,7 @@ def _visible(cfg: HandEyeCaptureConfig, T_cam_board: np.ndarray, margin_px: floa
     import cv2
 
     w, h = cfg.board.size
-    m = cfg.board.square * 0.5
+    m = cfg.board.feature_size * 0.5
     outline = np.array([[-m, -m, 0], [w + m, -m, 0], [w + m, h + m, 0], [-m, h + m, 0]])
     p = outline @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
     if np.any(p[:, 2] <= 0.05):
@@ -260,7 +262,7 @@ def make_handeye_capture(out_dir: str | Path, cfg: HandEyeCaptureConfig = HandEy
     X, Y = default_mounts(cfg.mount, cfg.board)
     offsets = rng.normal(0.0, cfg.joint_offset_rad, n)
     q_home = np.r_[np.asarray(robot.home, float), np.zeros(max(0, n - len(robot.home)))][:n]
-    ppsq = 160
+    ppsq = 160 if cfg.board.kind == "charuco" else 2 * int(round(cfg.board.feature_size * 2500))  # ~5 px / mm
     texture = cfg.board.render_image(ppsq)
     rays = _Rays(cfg)
     views, truth = [], []
