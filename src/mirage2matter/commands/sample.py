@@ -30,8 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "handeye",
         help="make a hand-eye capture as a real arm and camera make it (lens distortion, noise, robot pose error)",
         description=(
-            "Ray-trace a camera's images of a ChArUco board while a Panda moves, with what makes real data hard: a "
-            "lens with distortion, sensor noise, blur and exposure changes, and joint angles that are off by "
+            "Ray-trace a camera's images of a ChArUco board while the default robot moves, with what makes real "
+            "data hard: a lens with distortion, sensor noise, blur and exposure changes, and joint angles off by "
             "encoder offsets and noise (about 1 mm / 0.1 deg at the hand). Writes images/, joints.json (the "
             "reported joints and hand poses), intrinsics.json, board.json and ground_truth.json into a NEW folder."
         ),
