@@ -146,7 +146,8 @@ def scene_coverage(cameras: list[Camera], points: np.ndarray, max_points: int = 
         advice.append(f"only {len(cameras)} views registered: film at least {MIN_VIEWS} (a slow orbit of the table "
                       "at two heights)")  # fmt: skip
     for a, b in gaps:
-        advice.append(f"no views from {a:.0f}-{b:.0f} deg around the scene: walk around that side too")
+        advice.append(f"no views over {(b - a) % 360 or 360:.0f} deg of the way around the scene (azimuth {a:.0f} to "
+                      f"{b:.0f} deg): walk around that side too")  # fmt: skip
     well = float(good.mean())
     if well < 0.8:
         for r in regions:
