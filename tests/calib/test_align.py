@@ -123,8 +123,9 @@ def test_sample_alignment_accuracy_with_48_keyframes(tmp_path):
     gt = _gt()
     board = BoardSpec.from_json(gt["board"]["spec"])
     # Issue 5: <= 0.2 %, 0.2 deg, 2 mm (medians). With the capture camera's known intrinsics held fixed
-    # in SfM this measured 0.014 %, 0.06 deg, 1.36 mm; self-calibrated (OPENCV, fy drifts 0.36 %) it
-    # was 0.21 %, 0.09 deg, 2.5 mm: the residual is SfM's, a best-possible Sim3 leaves 1.1 mm.
+    # in SfM this measured 0.014 %, 0.06 deg, 1.36 mm with ICP; the board alone (the default since issue 22)
+    # 0.039 %, 0.033 deg, 1.06 mm. Self-calibrated (OPENCV, fy drifts 0.36 %) it was 0.21 %, 0.09 deg, 2.5 mm:
+    # the residual is SfM's, a best-possible Sim3 leaves 1.1 mm.
     keyframes, sfm, images = _reconstruct(tmp_path / "known", 48, known_intrinsics=True)
     result = align_scene(sfm.cameras, images, sfm.points, board, np.asarray(gt["board"]["T_base_board"]))
     scale_err, rot, trans = _errors_vs_truth(keyframes, apply_to_cameras(result.sim3_sfm_to_base, sfm.cameras), gt)
