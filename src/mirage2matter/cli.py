@@ -4,7 +4,7 @@ One subcommand per pipeline stage, generated from the stage's Config (``m2m capt
 ``m2m align-scene``, ``m2m calibrate-handeye``, ``m2m train-scene``, ``m2m head-view``, ``m2m objects``,
 ``m2m compose``, ``m2m generate``): each field is a flag whose default and doc come from the Config, on top of
 the workspace's ``m2m.yaml`` when it has the stage's section. The tools that are not stages live in
-``commands/`` (render, bench, board, validate, sample, world edits, task, demo).
+``commands/`` (render, bench, board, intrinsics, validate, sample, world edits, task, demo).
 
 Expected failures (:class:`~mirage2matter.errors.M2MError`: bad files, bad fields, missing inputs) and file
 system errors print ``m2m: error: <message>`` to stderr and exit with status 2, without a traceback;
@@ -20,7 +20,7 @@ import sys
 from collections.abc import Sequence
 
 from . import __version__
-from .commands import bench, board, demo, render, sample, validate, world
+from .commands import bench, board, demo, intrinsics, render, sample, validate, world
 from .commands.args import info, show
 from .configs import add_flags, from_flags
 from .errors import M2MError
@@ -88,7 +88,7 @@ def build_parser(only: str | None = "*") -> argparse.ArgumentParser:
     for stage in STAGES:
         _stage_parser(sub, stage, full=only in ("*", stage.command))
     bench.register(sub, full=only in ("*", "bench"))
-    for module in (render, board, validate, sample, world):
+    for module in (render, board, intrinsics, validate, sample, world):
         module.register(sub)
     return parser
 

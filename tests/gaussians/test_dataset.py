@@ -80,6 +80,25 @@ def test_undistort_rejects_wrong_size_and_fisheye():
         undistort_image(np.zeros((240, 320, 3), np.float32), _camera(k4=0.1))
 
 
+def test_fisheye_undistortion_straightens_a_line_as_cv2_fisheye_does():
+    k = np.array([0.05, -0.02, 0.004, -0.001])
+    cam = Camera(np.array([[150.0, 0, 163.0], [0, 150.0, 118.0], [0, 0, 1]]), np.eye(4), 320, 240, "f.png",
+                 dict(zip(("k1", "k2", "k3", "k4"), k, strict=True)), "fisheye")  # fmt: skip
+    t = np.linspace(0.0, 1.0, 400)[:, None]
+    pts = np.array([-0.9, -0.6, 1.0]) * (1 - t) + np.array([0.8, -0.55, 1.0]) * t  # a straight line near the top
+    uv, _ = cv2.fisheye.projectPoints(pts.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), cam.K_opencv, k)
+    img = np.zeros((cam.height, cam.width), np.uint8)
+    cv2.polylines(img, [np.round(uv.reshape(-1, 2) * 16).astype(np.int32)], False, 255, 2, cv2.LINE_AA, shift=4)
+    assert _line_deviation(img > 128) > 5.0
+    und, valid = undistort_image(np.repeat(img[..., None], 3, axis=2).astype(np.float32) / 255.0, cam)
+    line = (und[..., 0] > 0.5) & valid
+    assert line.sum() > 100 and _line_deviation(line) < 1.5
+    # the same resampling as OpenCV's fisheye undistortion map, to 1e-3 px
+    mx, my = cv2.fisheye.initUndistortRectifyMap(cam.K_opencv, k, np.eye(3), cam.K_opencv, (320, 240), cv2.CV_32FC1)
+    ref = cv2.remap(np.repeat(img[..., None], 3, axis=2).astype(np.float32) / 255.0, mx, my, cv2.INTER_LINEAR)
+    assert np.abs(ref - und)[valid].max() < 2e-3
+
+
 def test_every_8th_view_held_out():
     train, held = split_holdout(17, 8)
     assert held == [0, 8, 16] and train == [i for i in range(17) if i not in (0, 8, 16)]

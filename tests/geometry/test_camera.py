@@ -191,6 +191,18 @@ def test_intrinsics_from_angles_and_per_frame_override(tmp_path: Path) -> None:
     assert a.distortion == {"k1": -0.1, "p2": 0.01} and c.distortion == {"k1": 0.2, "p2": 0.01}
 
 
+def test_nerfstudio_fisheye_and_unknown_camera_models(tmp_path: Path) -> None:
+    eye = np.eye(4).tolist()
+    frames = [{"file_path": "a.png", "transform_matrix": eye}]
+    path = write_transforms(tmp_path / "transforms.json", frames, camera_model="OPENCV_FISHEYE", fl_x=300.0,
+                            w=640, h=480, k1=0.05, k2=-0.01, k3=0.002, k4=-0.0004)  # fmt: skip
+    (cam,) = load_transforms_json(path)
+    assert cam.distortion_model == "fisheye" and cam.distortion == {"k1": 0.05, "k2": -0.01, "k3": 0.002, "k4": -0.0004}
+    path = write_transforms(tmp_path / "t2.json", frames, camera_model="EQUIRECTANGULAR", fl_x=300.0, w=640, h=480)
+    with pytest.raises(CameraFormatError, match="EQUIRECTANGULAR.*undistort"):
+        load_transforms_json(path)
+
+
 def test_missing_size_read_from_image(tmp_path: Path) -> None:
     from PIL import Image
 

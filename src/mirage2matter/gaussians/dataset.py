@@ -9,6 +9,7 @@ they count neither in the loss nor in the metrics.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -83,11 +84,13 @@ def downscale_camera(camera: Camera, downscale: int) -> Camera:
         raise ValueError(f"downscale must be an integer >= 1, got {downscale}")
     K = np.diag([1.0 / f, 1.0 / f, 1.0]) @ camera.K
     w, h = camera.width // f, camera.height // f
-    return Camera(K, camera.T_world_cam.copy(), w, h, camera.name, dict(camera.distortion))
+    return dataclasses.replace(camera, K=K, T_world_cam=camera.T_world_cam.copy(), width=w, height=h,
+                               distortion=dict(camera.distortion))  # fmt: skip
 
 
 def undistort_image(image: np.ndarray, camera: Camera, erode_px: int = 2) -> tuple[np.ndarray, np.ndarray]:
-    """Undistort ``image`` [H,W,C] (float) taken by ``camera`` to the pinhole camera with the same K.
+    """Undistort ``image`` [H,W,C] (float) taken by ``camera`` to the pinhole camera with the same K (any lens
+    model the camera has: radial-tangential or fisheye).
 
     Returns (undistorted [H,W,C] float32, valid [H,W] bool): a pixel is valid when its whole
     bilinear footprint came from inside the photo, minus an ``erode_px`` border. Without
@@ -99,13 +102,18 @@ def undistort_image(image: np.ndarray, camera: Camera, erode_px: int = 2) -> tup
     if (w, h) != (camera.width, camera.height):
         raise DatasetError(f"{camera.name}: image is {w}x{h} but its camera says {camera.width}x{camera.height}")
     try:
-        coeffs = camera.opencv_distortion()
+        distorted = camera.has_distortion
     except ValueError as e:
         raise DatasetError(str(e)) from None
-    if coeffs is None:
+    if not distorted:
         return np.ascontiguousarray(image, dtype=np.float32), np.ones((h, w), bool)
-    K_cv = camera.K_opencv
-    map_x, map_y = cv2.initUndistortRectifyMap(K_cv, coeffs, None, K_cv, (w, h), cv2.CV_32FC1)
+    # each output (pinhole) pixel centre reads the photo where the lens imaged its ray; -0.5: cv2.remap puts
+    # pixel centres at integers. Rays with no place in the photo (a fisheye's beyond 90 deg) read nothing.
+    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    src = camera.distort_pixels(np.c_[u.ravel(), v.ravel()]) - 0.5
+    src[~np.isfinite(src).all(axis=1)] = -1e6
+    map_x = src[:, 0].reshape(h, w).astype(np.float32)
+    map_y = src[:, 1].reshape(h, w).astype(np.float32)
     out = cv2.remap(image.astype(np.float32), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     ones = np.ones((h, w), np.float32)
     cover = cv2.remap(ones, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)

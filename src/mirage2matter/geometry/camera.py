@@ -14,6 +14,7 @@ Geometry is the bottom of the stack: this module imports nothing else from mirag
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -27,6 +28,7 @@ import numpy as np
 
 from ..errors import M2MError
 from ..inputs import InputError, check_image_size, check_intrinsics, read_json
+from .distortion import FISHEYE_KEYS, MODELS, RADTAN_KEYS, distort, fisheye_theta, undistort
 from .sim3 import invert_rigid
 
 __all__ = [
@@ -113,15 +115,47 @@ def _check_size(value: Any, where: str, name: str) -> int:
         raise CameraFormatError(str(e)) from None
 
 
+def _check_lens(model: str, distortion: Any, where: str) -> tuple[str, dict[str, float]]:
+    """(model, {name: coefficient}) from a model name and a distortion mapping that may carry its own "model"."""
+    if not isinstance(distortion, dict):
+        raise CameraFormatError(f"{where}: distortion must map coefficient names to numbers, got {distortion!r}")
+    d = dict(distortion)
+    inner = d.pop("model", "")
+    if inner and model and str(inner) != model:
+        raise CameraFormatError(f"{where}: distortion model {inner!r} contradicts {model!r}")
+    model = str(model or inner or "opencv")
+    if model not in MODELS:
+        raise CameraFormatError(
+            f"{where}: distortion model {model!r} is not supported (known: {', '.join(MODELS)}: "
+            "radial-tangential or equidistant fisheye); undistort the images beforehand"
+        )
+    keys = FISHEYE_KEYS if model == "fisheye" else RADTAN_KEYS
+    unknown = sorted(set(d) - set(keys))
+    if unknown:
+        raise CameraFormatError(f"{where}: distortion terms {unknown} are not in the {model} model "
+                                f"({', '.join(keys)})")  # fmt: skip
+    out = {}
+    for k, v in d.items():
+        if not _is_number(v):
+            raise CameraFormatError(f"{where}: distortion {k} must be a finite number, got {v!r}")
+        out[str(k)] = float(v)
+    return model, out
+
+
 # ---- the camera ---------------------------------------------------------------------------------
 @dataclass(eq=False)
 class Camera:
-    """A pinhole camera, OpenCV axes, pixel centres at +0.5.
+    """A pinhole camera with an optional lens model, OpenCV axes, pixel centres at +0.5.
 
-    K             [3, 3] float64 intrinsics [[fx, s, cx], [0, fy, cy], [0, 0, 1]] in pixels
-    T_world_cam   [4, 4] float64 camera-to-world rigid transform
-    width, height image size in pixels
-    distortion    lens coefficients (k1, k2, k3, k4, p1, p2) as found; kept, never applied
+    K                 [3, 3] float64 intrinsics [[fx, s, cx], [0, fy, cy], [0, 0, 1]] in pixels
+    T_world_cam       [4, 4] float64 camera-to-world rigid transform
+    width, height     image size in pixels
+    distortion        lens coefficients by name: "opencv" k1 k2 p1 p2 k3 [k4 k5 k6]; "fisheye" k1..k4
+    distortion_model  "opencv" (radial-tangential, the default) or "fisheye" (equidistant, cv2.fisheye); "" reads
+                      a "model" entry of ``distortion`` (as our JSON writes it), else "opencv"
+
+    The renderer is a pinhole: stages take the lens out (``undistort_pixels``, gaussians' ``undistort_image``).
+    Copy a camera with ``dataclasses.replace`` (keeps the lens model), not by re-listing the fields.
     """
 
     K: np.ndarray
@@ -130,6 +164,7 @@ class Camera:
     height: int
     name: str = ""
     distortion: dict[str, float] = field(default_factory=dict)
+    distortion_model: str = ""
 
     def __post_init__(self) -> None:
         where = f"Camera {self.name!r}" if self.name else "Camera"
@@ -137,7 +172,7 @@ class Camera:
         self.T_world_cam = _check_rigid(self.T_world_cam, where)
         self.width = _check_size(self.width, where, "width")
         self.height = _check_size(self.height, where, "height")
-        self.distortion = {str(k): float(v) for k, v in self.distortion.items()}
+        self.distortion_model, self.distortion = _check_lens(self.distortion_model, self.distortion, where)
 
     # ---- derived -------------------------------------------------------------------------------
     @property
@@ -167,53 +202,92 @@ class Camera:
         return opencv_K(self.K)
 
     def opencv_distortion(self) -> np.ndarray | None:
-        """OpenCV's (k1, k2, p1, p2, k3), or with the rational terms (..., k4, k5, k6), from the named coefficients;
-        None when all are zero. A k4 without k5 / k6 is a fisheye lens (nerfstudio's k1..k4), which this
-        radial-tangential model is not: CameraFormatError."""
-        d = {k: float(v) for k, v in (self.distortion or {}).items()}
-        unknown = sorted(set(d) - set(_DISTORTION_KEYS))
-        if unknown:
-            raise CameraFormatError(f"{self.name or 'camera'}: unknown distortion terms {unknown}; radial-tangential "
-                                    "takes k1..k6, p1, p2")  # fmt: skip
+        """OpenCV's (k1, k2, p1, p2, k3), or with the rational terms (..., k4, k5, k6), for cv2 calls on this
+        radial-tangential lens; None when all are zero. A fisheye lens is CameraFormatError (cv2 would read its
+        k1..k4 as k1 k2 p1 p2): use ``fisheye_distortion`` with cv2.fisheye, or ``undistort_pixels``. So is a k4
+        without k5 / k6, which reads like nerfstudio's fisheye k1..k4."""
+        where = self.name or "camera"
+        if self.distortion_model == "fisheye":
+            raise CameraFormatError(
+                f"{where}: a fisheye lens has no radial-tangential coefficients; use "
+                "Camera.undistort_pixels / distort_pixels (or fisheye_distortion with cv2.fisheye)"
+            )
+        d = self.distortion
         rational = "k5" in d or "k6" in d
         if abs(d.get("k4", 0.0)) > 0 and not rational:
             raise CameraFormatError(
-                f"{self.name or 'camera'}: fisheye distortion (k4) is not supported; undistort the images beforehand"
+                f"{where}: distortion has k4 but no k5 / k6: a fisheye lens (k1..k4)? Say so with distortion model "
+                '"fisheye"; for OpenCV\'s rational model give k5 and k6 (0 if unused)'
             )
-        keys = ("k1", "k2", "p1", "p2", "k3") + (("k4", "k5", "k6") if rational else ())
+        keys = RADTAN_KEYS[: 8 if rational else 5]
         coeffs = np.array([d.get(k, 0.0) for k in keys])
         return coeffs if np.any(coeffs) else None
 
+    def fisheye_distortion(self) -> np.ndarray | None:
+        """cv2.fisheye's (k1, k2, k3, k4) of this equidistant lens; None when all are zero."""
+        if self.distortion_model != "fisheye":
+            raise CameraFormatError(f"{self.name or 'camera'}: not a fisheye lens (model {self.distortion_model!r})")
+        coeffs = np.array([self.distortion.get(k, 0.0) for k in FISHEYE_KEYS])
+        return coeffs if np.any(coeffs) else None
+
+    def _lens(self) -> np.ndarray | None:
+        return self.fisheye_distortion() if self.distortion_model == "fisheye" else self.opencv_distortion()
+
     @property
     def has_distortion(self) -> bool:
-        return self.opencv_distortion() is not None
+        """False for a pure pinhole (no coefficients, or all zero). Fisheye with zero k1..k4 is still not a
+        pinhole (theta_d = theta), so it counts as distorted."""
+        return self.distortion_model == "fisheye" or self._lens() is not None
+
+    def _normalised(self, uv: np.ndarray) -> np.ndarray:
+        """Pixels [N, 2] (ours) -> normalised coordinates [N, 2] through K (skew included)."""
+        y = (uv[:, 1] - self.cy) / self.fy
+        return np.c_[(uv[:, 0] - self.cx - self.K[0, 1] * y) / self.fx, y]
+
+    def _pixels(self, xy: np.ndarray) -> np.ndarray:
+        return np.c_[self.fx * xy[:, 0] + self.K[0, 1] * xy[:, 1] + self.cx, self.fy * xy[:, 1] + self.cy]
 
     def undistort_pixels(self, uv: np.ndarray) -> np.ndarray:
         """Measured pixels [N, 2] -> where an ideal pinhole with the same K sees the same rays [N, 2] (both in our
-        +0.5 convention). Iterative, to well under 1e-3 px over the image."""
-        import cv2
-
+        +0.5 convention). Iterative, to ~1e-9 px over the image, corners included. Fisheye rays 90 deg or more
+        off the axis have no pinhole pixel: NaN."""
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-        coeffs = self.opencv_distortion()
-        if coeffs is None or not len(uv):
+        if not self.has_distortion or not len(uv):
             return uv.copy()
-        K_cv = self.K_opencv
-        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-        out = cv2.undistortPointsIter((uv - 0.5).reshape(-1, 1, 2), K_cv, coeffs, None, K_cv, criteria)
-        return out.reshape(-1, 2) + 0.5
+        coeffs = self._lens()
+        return self._pixels(undistort(self.distortion_model, np.zeros(4) if coeffs is None else coeffs,
+                                      self._normalised(uv)))  # fmt: skip
 
     def distort_pixels(self, uv: np.ndarray) -> np.ndarray:
         """Ideal pinhole pixels [N, 2] -> where this lens images the same rays [N, 2] (our +0.5 convention)."""
-        import cv2
-
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-        coeffs = self.opencv_distortion()
-        if coeffs is None or not len(uv):
+        if not self.has_distortion or not len(uv):
             return uv.copy()
-        xy = np.c_[(uv[:, 0] - self.cx) / self.fx, (uv[:, 1] - self.cy) / self.fy, np.ones(len(uv))]
-        xy[:, 0] -= self.K[0, 1] / self.fx * xy[:, 1]  # skew
-        out, _ = cv2.projectPoints(xy.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), self.K_opencv, coeffs)
-        return out.reshape(-1, 2) + 0.5
+        coeffs = self._lens()
+        return self._pixels(distort(self.distortion_model, np.zeros(4) if coeffs is None else coeffs,
+                                    self._normalised(uv)))  # fmt: skip
+
+    def pixel_rays(self, uv: np.ndarray) -> np.ndarray:
+        """Pixels [N, 2] (ours) -> unit ray directions [N, 3] in the camera frame (z forward), through the lens;
+        a fisheye's rays beyond 90 deg from the axis included (NaN past the lens polynomial's fold)."""
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        if self.distortion_model != "fisheye":
+            rays = np.c_[self._normalised(self.undistort_pixels(uv)), np.ones(len(uv))]
+            return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+        xy_d = self._normalised(uv)
+        theta_d = np.hypot(xy_d[:, 0], xy_d[:, 1])
+        coeffs = self.fisheye_distortion()
+        theta = fisheye_theta(np.zeros(4) if coeffs is None else coeffs, theta_d)
+        s = np.sin(theta) * np.where(theta_d > 1e-300, 1.0 / np.maximum(theta_d, 1e-300), 0.0)
+        return np.c_[xy_d * s[:, None], np.cos(theta)]
+
+    def distortion_json(self) -> dict[str, Any]:
+        """The lens as our JSON writes it: the coefficients, plus ``"model": "fisheye"`` for a fisheye (a dict
+        without a model is radial-tangential). Writers that store ``distortion`` should store this."""
+        out: dict[str, Any] = dict(self.distortion)
+        if self.distortion_model == "fisheye":
+            out = {"model": "fisheye", **out}
+        return out
 
     def check_image_size(self, width: int, height: int, where: str) -> None:
         """CameraFormatError when an image of ``width`` x ``height`` is not this camera's size."""
@@ -226,8 +300,9 @@ class Camera:
         """Camera centre in world coordinates [3]."""
         return self.T_world_cam[:3, 3].copy()
 
-    def project(self, points_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pinhole projection (no distortion). points_world [N, 3] -> pixel uv [N, 2], depth z [N].
+    def project(self, points_world: np.ndarray, distort: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """points_world [N, 3] -> pixel uv [N, 2], depth z [N]. Pinhole by default (the renderer's model);
+        ``distort=True`` applies the lens, giving where the real camera images the points.
 
         Points behind the camera (z <= 0) get meaningless uv; check ``depth > 0``.
         """
@@ -238,6 +313,9 @@ class Camera:
         with np.errstate(divide="ignore", invalid="ignore"):
             uvw = pc @ self.K.T
             uv = uvw[:, :2] / z[:, None]
+        if distort and self.has_distortion:
+            front = z > 0
+            uv[front] = self.distort_pixels(uv[front])
         return uv, z
 
     def scaled(self, factor: float) -> Camera:
@@ -252,7 +330,8 @@ class Camera:
         if w < 1 or h < 1:
             raise ValueError(f"scaling {self.width}x{self.height} by {factor} leaves no pixels")
         K = np.diag([factor, factor, 1.0]) @ self.K
-        return Camera(K, self.T_world_cam.copy(), w, h, self.name, dict(self.distortion))
+        return dataclasses.replace(self, K=K, T_world_cam=self.T_world_cam.copy(), width=w, height=h,
+                                   distortion=dict(self.distortion))  # fmt: skip
 
     # ---- serialisation -------------------------------------------------------------------------
     def to_json(self) -> dict[str, Any]:
@@ -265,8 +344,8 @@ class Camera:
         }
         if self.name:
             out["name"] = self.name
-        if self.distortion:
-            out["distortion"] = dict(self.distortion)
+        if self.distortion or self.distortion_model == "fisheye":
+            out["distortion"] = self.distortion_json()
         return out
 
     @classmethod
@@ -281,8 +360,13 @@ class Camera:
         distortion = data.get("distortion", {})
         if not isinstance(name, str):
             raise CameraFormatError(f"{source}: name must be a string, got {name!r}")
-        if not isinstance(distortion, dict) or not all(_is_number(v) for v in distortion.values()):
-            raise CameraFormatError(f"{source}: distortion must map names to numbers, got {distortion!r}")
+        if not isinstance(distortion, dict) or not all(_is_number(v) for k, v in distortion.items() if k != "model"):
+            raise CameraFormatError(f"{source}: distortion must map names to numbers (and \"model\" to "
+                                    f"\"opencv\" or \"fisheye\"), got {distortion!r}")  # fmt: skip
+        model = data.get("distortion_model", "")
+        if not isinstance(model, str):
+            raise CameraFormatError(f'{source}: distortion_model must be "opencv" or "fisheye", got {model!r}')
+        _, _ = _check_lens(model, distortion, source)  # the file's name in the message
         return cls(
             _check_K(data["K"], source),
             _check_rigid(data["T_world_cam"], source),
@@ -290,6 +374,7 @@ class Camera:
             _check_size(data["height"], source, "height"),
             name,
             distortion,
+            model,
         )
 
 
@@ -356,22 +441,30 @@ def load_camera_json(path: str | os.PathLike[str]) -> Camera:
     return Camera.from_json(_read_json(path), source=str(path))
 
 
-def load_intrinsics(path: str | os.PathLike[str], keys: tuple[str, ...] = ("camera", "head_camera")) -> Camera:
+def load_intrinsics(
+    path: str | os.PathLike[str],
+    keys: tuple[str, ...] = ("camera", "head_camera"),
+    size: tuple[int, int] | None = None,
+) -> Camera:
     """A camera's intrinsics (pose: identity) from any file :mod:`.intrinsics` reads: ours (``K``, ``width``,
-    ``height``, ``distortion``, at the top level or under one of ``keys``: a sample's ground_truth.json holds the
-    video camera under "camera", the head camera under "head_camera"), OpenCV's calibration output, ROS
-    camera_info, COLMAP cameras.txt or RealSense intrinsics, converted to pixel centres at +0.5."""
+    ``height``, ``distortion`` [with ``"model": "fisheye"``], at the top level or under one of ``keys``: a sample's
+    ground_truth.json holds the video camera under "camera", the head camera under "head_camera"), OpenCV's
+    calibration output, ROS camera_info, COLMAP cameras.txt (``size`` = (width, height) picks one of several) or
+    RealSense intrinsics, converted to pixel centres at +0.5. CameraFormatError names the file and the field."""
     from .intrinsics import IntrinsicsFormatError, read_intrinsics
 
     path = Path(path)
     try:
-        data = read_intrinsics(path, keys)
+        data = read_intrinsics(path, keys, size)
     except IntrinsicsFormatError as e:
         raise CameraFormatError(str(e)) from None
     K = np.asarray(data["K"], dtype=np.float64).tolist()
     cam = Camera.from_json({"K": K, "width": data["width"], "height": data["height"], "T_world_cam": np.eye(4).tolist(),
                             "distortion": data.get("distortion") or {}}, source=str(path))  # fmt: skip
-    cam.opencv_distortion()  # a lens this model cannot take is an error now, not in the first stage using it
+    try:
+        cam.has_distortion  # noqa: B018  (a lens this model cannot take is an error now, not in a later stage)
+    except CameraFormatError as e:
+        raise CameraFormatError(f"{path}: {e}") from None
     return cam
 
 
@@ -471,6 +564,15 @@ def _frame_camera(path: Path, meta: dict[str, Any], index: int, frame: dict[str,
     T_cv = T_gl @ GL_TO_CV
 
     distortion = {k: float(params[k]) for k in _DISTORTION_KEYS if k in params}
+    # nerfstudio names the lens: OPENCV (k1 k2 k3 p1 p2; its k4 is an r^8 term OpenCV lacks, refused where used) or
+    # OPENCV_FISHEYE (k1..k4, equidistant).
+    model = frame.get("camera_model", meta.get("camera_model", "OPENCV"))
+    if model == "OPENCV_FISHEYE":
+        distortion = {k: v for k, v in distortion.items() if k in FISHEYE_KEYS}
+        return Camera(_check_K(K, where), T_cv, w, h, file_path, distortion, "fisheye")
+    if model not in ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE"):
+        raise CameraFormatError(f"{where}: camera_model {model!r} is not supported (OPENCV, OPENCV_FISHEYE, PINHOLE); "
+                                "undistort the images to a pinhole beforehand")  # fmt: skip
     return Camera(_check_K(K, where), T_cv, w, h, file_path, distortion)
 
 

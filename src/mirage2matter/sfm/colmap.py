@@ -124,20 +124,21 @@ class SfMResult:
 
 
 # ---- conversion ---------------------------------------------------------------------------------
-_PARAM_RENAME = {"k": "k1"}  # SIMPLE_RADIAL / RADIAL_FISHEYE name their first radial term "k"
-
-
 def _camera_from_colmap(image: Any, cam: Any) -> Camera:
-    names = [s.strip() for s in cam.params_info.split(",")]
-    params = dict(zip(names, (float(v) for v in cam.params), strict=True))
-    distortion = {_PARAM_RENAME.get(k, k): v for k, v in params.items() if k not in ("f", "fx", "fy", "cx", "cy")}
+    from ..geometry.intrinsics import IntrinsicsFormatError, colmap_lens
+
+    model = cam.model.name if hasattr(cam.model, "name") else str(cam.model)
+    try:  # one table of COLMAP's models for cameras.txt and for reconstructions
+        K, distortion = colmap_lens(model, [float(v) for v in cam.params], f"COLMAP camera {cam.camera_id}")
+    except IntrinsicsFormatError as e:
+        raise SfMError(str(e)) from None
     T_cam_world = np.eye(4)
     T_cam_world[:3, :4] = image.cam_from_world().matrix()
     R, t = T_cam_world[:3, :3], T_cam_world[:3, 3]
     T_world_cam = np.eye(4)
     T_world_cam[:3, :3] = R.T
     T_world_cam[:3, 3] = -R.T @ t
-    return Camera(np.asarray(cam.calibration_matrix()), T_world_cam, cam.width, cam.height, image.name, distortion)
+    return Camera(K, T_world_cam, cam.width, cam.height, image.name, distortion)
 
 
 def _result_from_reconstruction(rec: Any, total: int, names: list[str], model_dir: Path) -> SfMResult:

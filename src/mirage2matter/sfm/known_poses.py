@@ -30,18 +30,23 @@ __all__ = ["colmap_camera_params", "triangulate_known_poses", "with_fixed_intrin
 
 _OPENCV_KEYS = ("k1", "k2", "p1", "p2")
 _FULL_OPENCV_KEYS = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
+_FISHEYE_KEYS = ("k1", "k2", "k3", "k4")
 
 
 def colmap_camera_params(cam: Camera) -> tuple[str, list[float]]:
-    """(COLMAP model name, params) for ``cam``: PINHOLE, OPENCV or FULL_OPENCV by which distortion
-    terms are non-zero. COLMAP also puts pixel centres at +0.5, so K passes through unchanged."""
+    """(COLMAP model name, params) for ``cam``: PINHOLE, OPENCV or FULL_OPENCV by which radial-tangential terms
+    are non-zero; OPENCV_FISHEYE (fx fy cx cy k1..k4, cv2.fisheye's model) for a fisheye. COLMAP also puts pixel
+    centres at +0.5, so K passes through unchanged."""
     if abs(float(cam.K[0, 1])) > 1e-9:
         raise SfMError(f"{cam.name}: skewed intrinsics (K[0,1] != 0) have no COLMAP camera model")
-    d = {k: float(v) for k, v in (cam.distortion or {}).items() if abs(float(v)) > 0}
-    unknown = sorted(set(d) - set(_FULL_OPENCV_KEYS))
-    if unknown:
-        raise SfMError(f"{cam.name}: distortion terms {unknown} are not supported (OpenCV k1..k6, p1, p2 only)")
     base = [cam.fx, cam.fy, cam.cx, cam.cy]
+    d = {k: float(v) for k, v in (cam.distortion or {}).items() if abs(float(v)) > 0}
+    if cam.distortion_model == "fisheye":
+        return "OPENCV_FISHEYE", base + [d.get(k, 0.0) for k in _FISHEYE_KEYS]
+    try:
+        cam.opencv_distortion()  # refuses a lone k4 (nerfstudio's fisheye k1..k4 without the model said)
+    except ValueError as e:
+        raise SfMError(str(e)) from None
     if not d:
         return "PINHOLE", base
     if set(d) <= set(_OPENCV_KEYS):
@@ -166,4 +171,3 @@ def triangulate_known_poses(
     finally:
         pycolmap.logging.minloglevel = log_level
     return result
-

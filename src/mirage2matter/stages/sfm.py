@@ -24,7 +24,8 @@ class Config:
     downscale        extract features at 1/downscale of the keyframes' resolution
     intrinsics       known camera intrinsics held fixed (our JSON with K, width, height, distortion, OpenCV's
                      calibration YAML/XML, ROS camera_info, COLMAP cameras.txt or RealSense JSON; or such an
-                     object under "camera"): more accurate poses than self-calibration
+                     object under "camera"; radial-tangential or equidistant fisheye lens; `m2m intrinsics FILE`
+                     shows how it reads): more accurate poses than self-calibration
     from_transforms  import poses from an instant-ngp / nerfstudio transforms.json instead (copies its images
                      into capture/, triangulates points with the given poses; keeps its world frame)
     from_colmap      import a COLMAP sparse model instead (needs images)
