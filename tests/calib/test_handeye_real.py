@@ -130,6 +130,9 @@ def test_bad_pose_files_are_clear_errors(tmp_path):
     fails({"views": ambiguous, "units": {"position": "mm"}}, "ambiguous")
     degrees = [{**v, "joints": [float(np.degrees(q)) for q in v["joints"]]} for v in joints["views"]]
     fails({"views": degrees}, "degrees")
+    # poses of another link than the one asked for: the key it found is named
+    other = [{"image": v["image"], "T_base_EE": v["T_base_hand"]} for v in joints["views"]]
+    fails({"link": "hand", "views": other}, "T_base_EE is another link's pose.*'EE'")
     # intrinsics of another image size
     small = cam.scaled(0.5)
     with pytest.raises(HandEyeError, match="intrinsics are for 320x240"):

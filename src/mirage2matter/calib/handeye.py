@@ -614,7 +614,10 @@ def calibrate_from_files(
         else:
             T_link = hand_pose_from_view(view, link, units, where)
             if T_link is None:
-                raise HandEyeError(f"{where}: no robot pose; expected {POSES_HELP}")
+                other = sorted(k for k in view if str(k).startswith("T_base_"))
+                hint = (f" ({', '.join(other)} is another link's pose: set the file's \"link\" or --link to "
+                        f"{other[0].removeprefix('T_base_')!r})" if other else "")  # fmt: skip
+                raise HandEyeError(f"{where}: no pose of link {link!r}{hint}; expected {POSES_HELP}")
         image = read_image_rgb(path, "board image")
         if w is not None and image.shape[:2] != (h, w):
             raise HandEyeError(f"{path} is {image.shape[1]}x{image.shape[0]} but the intrinsics are for {w}x{h}; give "
