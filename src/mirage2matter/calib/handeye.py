@@ -640,7 +640,7 @@ def calibrate_from_files(
     out = result.to_json(link, used)
     out.update(robot=str(kin.path) if kin is not None else None, poses="joints" if use_joints else "ee",
                skipped=skipped, board=board.to_json(), K=K.tolist(),
-               lens_corrected=bool(not isinstance(camera, np.ndarray) and camera.distortion))  # fmt: skip
+               lens_corrected=bool(not isinstance(camera, np.ndarray) and camera.has_distortion))  # fmt: skip
     return result, out
 
 

@@ -79,7 +79,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         cfg.images, cfg.joints, load_target(cfg.board), cam, mount=cfg.mount, method=cfg.method,
         robot=cfg.robot, link=cfg.link, refine=cfg.refine, poses=cfg.poses,
     )  # fmt: skip
-    out.update(width=cam.width, height=cam.height, distortion=dict(cam.distortion))
+    out.update(width=cam.width, height=cam.height, distortion=cam.distortion_json())
     ws.calib_dir.mkdir(parents=True, exist_ok=True)
     with atomic_write(ws.handeye_file, "w", encoding="utf-8") as f:
         json.dump(out, f, indent=1)
