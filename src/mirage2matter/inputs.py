@@ -37,6 +37,7 @@ __all__ = [
     "read_image_rgb",
     "read_json",
     "read_yaml",
+    "yaml_lines",
 ]
 
 MAX_CONFIG_BYTES = 16 << 20  # JSON / YAML files the pipeline reads are kilobytes to a few megabytes
@@ -100,18 +101,10 @@ def read_yaml(path: str | os.PathLike, what: str = "YAML file", expect: type | N
     them, and a few kilobytes of nested aliases expand to gigabytes)."""
     import yaml
 
-    class _NoAliases(yaml.SafeLoader):
-        def compose_node(self, parent, index):  # noqa: ANN001 - yaml's signature
-            if self.check_event(yaml.AliasEvent):
-                event = self.peek_event()
-                raise InputError(f"{what} {path}: YAML aliases (*{event.anchor}) are not supported (line "
-                                 f"{event.start_mark.line + 1}); write the values out")  # fmt: skip
-            return super().compose_node(parent, index)
-
     path = Path(path)
     text = _read_text(path, what)
     try:
-        data = yaml.load(text, Loader=_NoAliases)  # noqa: S506 - a SafeLoader subclass
+        data = yaml.load(text, Loader=_no_alias_loader(path, what))  # noqa: S506 - a SafeLoader subclass
     except yaml.YAMLError as e:
         raise InputError(f"{what} {path} is not valid YAML: {e}") from None
     except RecursionError:
@@ -120,6 +113,52 @@ def read_yaml(path: str | os.PathLike, what: str = "YAML file", expect: type | N
         data = {} if expect is dict else data
     _depth(data, MAX_DEPTH, f"{what} {path}")
     return _top(data, expect, path, what)
+
+
+def _no_alias_loader(path: Path, what: str) -> type:
+    """A SafeLoader that refuses aliases, naming their line."""
+    import yaml
+
+    class _NoAliases(yaml.SafeLoader):
+        def compose_node(self, parent, index):  # noqa: ANN001 - yaml's signature
+            if self.check_event(yaml.AliasEvent):
+                event = self.peek_event()
+                raise InputError(f"{what} {path}: YAML aliases (*{event.anchor}) are not supported (line "
+                                 f"{event.start_mark.line + 1}); write the values out")  # fmt: skip
+            return super().compose_node(parent, index)
+
+    return _NoAliases
+
+
+def yaml_lines(path: str | os.PathLike, what: str = "YAML file") -> dict[tuple[str | int, ...], int]:
+    """The 1-based line of every key and list item of the YAML file ``path``, by its path of keys and indices
+    (``("scene", "minutes")``, ``("objects", "names", 2)``; ``()`` is the first line): where a message about a
+    value points. Read as :func:`read_yaml` reads (same limits); a key given twice in one mapping is an error."""
+    import yaml
+
+    path = Path(path)
+    text = _read_text(path, what)
+    try:
+        root = yaml.compose(text, Loader=_no_alias_loader(path, what))  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError as e:
+        raise InputError(f"{what} {path} is not valid YAML: {e}") from None
+    lines: dict[tuple[str | int, ...], int] = {(): 1}
+    stack = [((), root)]
+    while stack:
+        at, node = stack.pop()
+        if isinstance(node, yaml.MappingNode):
+            for key, value in node.value:
+                here, line = (*at, str(key.value)), key.start_mark.line + 1
+                if here in lines:  # YAML readers keep the last silently: a pasted second section would win
+                    raise InputError(f"{what} {path}, line {line}: {'.'.join(map(str, here))} is given twice (also on "
+                                     f"line {lines[here]}); keep one")  # fmt: skip
+                lines[here] = line
+                stack.append((here, value))
+        elif isinstance(node, yaml.SequenceNode):
+            for i, item in enumerate(node.value):
+                lines[(*at, i)] = item.start_mark.line + 1
+                stack.append(((*at, i), item))
+    return lines
 
 
 # ---- images -----------------------------------------------------------------------------------------
