@@ -111,7 +111,8 @@ def test_init_and_run_on_the_sample_killed_in_training_resumes_there_and_finishe
                  "--board-pose", f"{S}/ground_truth.json", "--intrinsics", f"{S}/ground_truth.json",
                  "--handeye-images", f"{S}/handeye/images", "--handeye-poses", f"{S}/handeye/joints.json",
                  "--handeye-board", f"{S}/handeye/board.json", "--handeye-intrinsics", f"{S}/ground_truth.json",
-                 "--objects", "banana", "--task", "grasp banana", "--episodes", "2", *SMALL]) == 0  # fmt: skip
+                 "--head-photo", f"{S}/head_view.png", "--objects", "banana", "--task", "grasp banana",
+                 "--episodes", "2", *SMALL]) == 0  # fmt: skip
     capsys.readouterr()
     checkpoint = ws.state_dir / "txn" / "scene" / "staged" / "scene" / "checkpoint.pt"
     rc = _kill_once_recorded(["run", "-w", str(ws.root)], ws, "handeye", tmp_path / "killed.log", after=0.0,
@@ -129,7 +130,7 @@ def test_init_and_run_on_the_sample_killed_in_training_resumes_there_and_finishe
     assert "[6/9] head_view: " in err and "m2m run finished" in out
     summary = json.loads(ws.run_summary.read_text())
     assert summary["stages"]["scene"]["iterations"] == 150
-    assert "vs the photo" not in summary["stages"]["head_view"]["line"]  # no photo: the render alone
+    assert "PSNR" in summary["stages"]["head_view"]["line"] and "vs the photo" in summary["stages"]["head_view"]["line"]
     assert summary["stages"]["objects"]["line"] == "1 objects: banana"
     assert validate(ws.dataset_dir("grasp_banana")) == []
     assert _recorded(ws) == ["capture", "sfm", "align", "handeye", "scene", "head_view", "objects", "world", "generate"]

@@ -157,12 +157,16 @@ def test_stages_whose_optional_inputs_are_absent_are_skipped_with_the_reason(tmp
     ws.handeye_file.write_text("{}")
     plan = plan_run(ws, _plain(tmp_path))
     assert plan["handeye"].endswith("calib/handeye.json of an earlier calibration is kept")
-    assert plan["head_view"] is None and plan["world"] is None and plan["generate"].startswith("no tasks")
-    assert plan_run(ws, _plain(tmp_path, generate={"task": ("grasp banana",)}))["generate"] is None
+    assert plan["world"] is None and plan["generate"].startswith("no tasks")
+    assert plan["head_view"].startswith("no head-camera photo to compare the scene with (head_view.photo is not set)")
+    photo = {"photo": SAMPLE / "head_view.png"}
+    plan = plan_run(ws, _plain(tmp_path, generate={"task": ("grasp banana",)}, head_view=photo))
+    assert plan["generate"] is None and plan["head_view"] is None
     # the hand-eye calibration given: it runs, and a wrist camera's is no head camera
     he = {"images": SAMPLE / "handeye/images", "joints": SAMPLE / "handeye/joints.json",
           "board": SAMPLE / "handeye/board.json", "intrinsics": SAMPLE / "ground_truth.json"}  # fmt: skip
-    assert set(plan_run(ws, _plain(tmp_path, handeye=he, generate={"task": ("x",)})).values()) == {None}
+    plan = plan_run(ws, _plain(tmp_path, handeye=he, head_view=photo, generate={"task": ("x",)}))
+    assert set(plan.values()) == {None}
     plan = plan_run(ws, _plain(tmp_path, handeye={**he, "mount": "wrist"}))
     assert plan["head_view"].startswith("the hand-eye calibration is of a wrist camera") and plan["world"]
     # imported poses need no capture

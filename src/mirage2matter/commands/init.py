@@ -51,7 +51,7 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
             "given, each explained in a comment; edit it to change any setting. The inputs are checked first (files "
             "exist, the board and calibrations read). Paths are written relative to the workspace when inside it, "
             "else absolute. Without hand-eye images the run skips the hand-eye calibration, the head-view check and "
-            "the world; without tasks, the demonstrations."
+            "the world; without a head-camera photo, the head-view check; without tasks, the demonstrations."
         ),
         epilog=EXAMPLE,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -77,7 +77,7 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
                    "(default: --board)")  # fmt: skip
     g.add_argument("--handeye-intrinsics", type=Path, metavar="FILE", help="the head camera's calibration")
     g.add_argument("--head-photo", type=Path, metavar="FILE", help="a photo the head camera took of the table (the "
-                   "head-view check compares the scene with it)")  # fmt: skip
+                   "head-view check compares the scene with it; without one the check is skipped)")  # fmt: skip
     g.add_argument("--robot", metavar="NAME", help="the robot at the base (a registered robot name; default: the "
                    "default robot): sets align.robot and world.robot, and the hand-eye's robot model")  # fmt: skip
     g.add_argument("--objects", nargs="+", metavar="NAME", help="the objects on the table, nearest the base first "

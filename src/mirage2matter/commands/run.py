@@ -31,9 +31,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=(
             "Run every stage of the workspace's m2m.yaml in order (" + ", ".join(names) + "), from the settings "
             "in that file (`m2m init` writes one; edit it to change any setting). Stages whose optional inputs are "
-            "not given (hand-eye images, tasks) are skipped with the reason. Each finished stage is recorded in "
-            "pipeline.json: a rerun skips it while its settings and input files are unchanged, so a run that was "
-            "killed resumes at the stage it was in."
+            "not given (hand-eye images, a head-camera photo, tasks) are skipped with the reason. Each finished "
+            "stage is recorded in pipeline.json: a rerun skips it while its settings and input files are unchanged, "
+            "so a run that was killed resumes at the stage it was in."
         ),
     )
     p.add_argument("-w", "--workspace", required=True, metavar="DIR", help="the workspace folder (with its m2m.yaml)")

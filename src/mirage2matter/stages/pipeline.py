@@ -210,7 +210,8 @@ def plan_run(
 
     Optional inputs make stages optional: no hand-eye images -> no hand-eye calibration (an earlier
     ``calib/handeye.json`` is kept), and without a head camera's calibration no head-view check and no world;
-    no tasks -> no demonstrations. Without object names the objects stage takes every object it finds."""
+    no head-camera photo -> no head-view check; no tasks -> no demonstrations. Without object names the objects
+    stage takes every object it finds."""
     where = where or SettingsFile(ws.config_file)
     names = [s.name for s in _chosen(until, start)]
     _check_files(cfg, where, names)
@@ -230,6 +231,10 @@ def plan_run(
             reason = f"no hand-eye images (handeye.images and handeye.joints are not set){kept}"
         elif name == "head_view" and not head:
             reason = no_head
+        elif name == "head_view" and cfg.head_view.photo is None:  # the render alone checks nothing (measured: on
+            # the sample after a short training the board was not even found in it)
+            reason = (f"no head-camera photo to compare the scene with (head_view.photo is not set); `m2m head-view -w "
+                      f"{ws.root}` renders the head camera's view alone")  # fmt: skip
         elif name == "world" and not head and cfg.world.sample is None:
             reason = (f"{no_head}; the world's head camera needs one: give handeye.images, .joints, .board and "
                       ".intrinsics (`m2m init --handeye-images DIR --handeye-poses FILE ...`)")  # fmt: skip
