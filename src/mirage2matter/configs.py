@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import difflib
+import functools
 import inspect
 import re
 import types
@@ -263,14 +264,22 @@ def _yaml_value(name: str, value: Any) -> str:
     style (``[0.0, 1.0]``), no line folded."""
     import yaml
 
-    class Dumper(yaml.SafeDumper):
-        def increase_indent(self, flow: bool = False, indentless: bool = False) -> Any:  # "- item" under its key
-            return super().increase_indent(flow, False)
-
     texts = isinstance(value, list) and value and all(isinstance(v, str) for v in value)
     flow = None if isinstance(value, list | dict) and not texts else False  # None: innermost collections in flow
-    return yaml.dump({name: value}, Dumper=Dumper, sort_keys=False, default_flow_style=flow, width=1 << 16,
+    return yaml.dump({name: value}, Dumper=_dumper(), sort_keys=False, default_flow_style=flow, width=1 << 16,
                      allow_unicode=True)  # fmt: skip
+
+
+@functools.cache
+def _dumper() -> type:
+    """PyYAML's safe dumper, with a list's items indented under its key."""
+    import yaml
+
+    class Dumper(yaml.SafeDumper):
+        def increase_indent(self, flow: bool = False, indentless: bool = False) -> Any:
+            return super().increase_indent(flow, False)
+
+    return Dumper
 
 
 # ---- command-line flags ---------------------------------------------------------------------------------

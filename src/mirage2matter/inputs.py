@@ -37,6 +37,7 @@ __all__ = [
     "read_image_rgb",
     "read_json",
     "read_yaml",
+    "read_yaml_lines",
     "yaml_lines",
 ]
 
@@ -99,20 +100,46 @@ def read_json(path: str | os.PathLike, what: str = "JSON file", expect: type | N
 def read_yaml(path: str | os.PathLike, what: str = "YAML file", expect: type | None = dict) -> Any:
     """The parsed YAML of ``path`` with the safe loader; anchors and aliases are refused (nothing we write uses
     them, and a few kilobytes of nested aliases expand to gigabytes)."""
-    import yaml
+    return _checked(_parse_yaml(Path(path), what, lines=False)[0], Path(path), what, expect)
 
-    path = Path(path)
-    text = _read_text(path, what)
-    try:
-        data = yaml.load(text, Loader=_no_alias_loader(path, what))  # noqa: S506 - a SafeLoader subclass
-    except yaml.YAMLError as e:
-        raise InputError(f"{what} {path} is not valid YAML: {e}") from None
-    except RecursionError:
-        raise InputError(f"{what} {path}: nested deeper than Python can read") from None
+
+def read_yaml_lines(
+    path: str | os.PathLike, what: str = "YAML file", expect: type | None = dict
+) -> tuple[Any, dict[tuple[str | int, ...], int]]:
+    """:func:`read_yaml` and, from the same parse, the 1-based line of every key and list item by its path of keys
+    and indices (``("scene", "minutes")``, ``("objects", "names", 2)``; ``()`` is the first line): where a message
+    about a value points. A key given twice in one mapping is an error (YAML readers keep the last silently)."""
+    data, lines = _parse_yaml(Path(path), what, lines=True)
+    return _checked(data, Path(path), what, expect), lines
+
+
+def yaml_lines(path: str | os.PathLike, what: str = "YAML file") -> dict[tuple[str | int, ...], int]:
+    """The lines of :func:`read_yaml_lines` alone."""
+    return _parse_yaml(Path(path), what, lines=True)[1]
+
+
+def _checked(data: Any, path: Path, what: str, expect: type | None) -> Any:
     if data is None:
         data = {} if expect is dict else data
     _depth(data, MAX_DEPTH, f"{what} {path}")
     return _top(data, expect, path, what)
+
+
+def _parse_yaml(path: Path, what: str, lines: bool) -> tuple[Any, dict[tuple[str | int, ...], int]]:
+    """The data of the YAML file (one parse with the alias-refusing safe loader) and, with ``lines``, its lines."""
+    import yaml
+
+    loader = _no_alias_loader(path, what)(_read_text(path, what))
+    try:
+        node = loader.get_single_node()
+        data = None if node is None else loader.construct_document(node)
+    except yaml.YAMLError as e:
+        raise InputError(f"{what} {path} is not valid YAML: {e}") from None
+    except RecursionError:
+        raise InputError(f"{what} {path}: nested deeper than Python can read") from None
+    finally:
+        loader.dispose()
+    return data, (_node_lines(node, path, what) if lines else {})
 
 
 def _no_alias_loader(path: Path, what: str) -> type:
@@ -130,18 +157,9 @@ def _no_alias_loader(path: Path, what: str) -> type:
     return _NoAliases
 
 
-def yaml_lines(path: str | os.PathLike, what: str = "YAML file") -> dict[tuple[str | int, ...], int]:
-    """The 1-based line of every key and list item of the YAML file ``path``, by its path of keys and indices
-    (``("scene", "minutes")``, ``("objects", "names", 2)``; ``()`` is the first line): where a message about a
-    value points. Read as :func:`read_yaml` reads (same limits); a key given twice in one mapping is an error."""
+def _node_lines(root: Any, path: Path, what: str) -> dict[tuple[str | int, ...], int]:
     import yaml
 
-    path = Path(path)
-    text = _read_text(path, what)
-    try:
-        root = yaml.compose(text, Loader=_no_alias_loader(path, what))  # noqa: S506 - a SafeLoader subclass
-    except yaml.YAMLError as e:
-        raise InputError(f"{what} {path} is not valid YAML: {e}") from None
     lines: dict[tuple[str | int, ...], int] = {(): 1}
     stack = [((), root)]
     while stack:

@@ -22,7 +22,7 @@ from typing import Any
 from ..atomic import atomic_write
 from ..configs import ConfigError, from_dict, to_dict, to_yaml
 from ..errors import M2MError
-from ..inputs import read_yaml, yaml_lines
+from ..inputs import read_yaml_lines
 from ..workspace import Workspace
 from . import (
     PIPELINE,
@@ -96,8 +96,8 @@ class PipelineConfig:
     def read(cls, path: str | Path) -> tuple[PipelineConfig, SettingsFile]:
         """The settings of an ``m2m.yaml`` and where each key is in it (for messages about a value)."""
         path = Path(path)
-        data = read_yaml(path, "pipeline settings (m2m.yaml)")
-        where = SettingsFile(path, yaml_lines(path, "pipeline settings (m2m.yaml)"))
+        data, lines = read_yaml_lines(path, "pipeline settings (m2m.yaml)")
+        where = SettingsFile(path, lines)
         try:
             return from_dict(cls, data, base_dir=path.parent.resolve()), where
         except ConfigError as e:
@@ -128,7 +128,8 @@ class SettingsFile:
     """An ``m2m.yaml`` as messages name it: its path and the line of each key and list item.
 
     path    the file
-    lines   {key path (``("scene", "minutes")``, ``("objects", "names", 2)``): 1-based line} (``inputs.yaml_lines``)
+    lines   {key path (``("scene", "minutes")``, ``("objects", "names", 2)``): 1-based line}
+            (``inputs.read_yaml_lines``)
     """
 
     path: Path
