@@ -173,7 +173,9 @@ def align_scene(
     if rms_mm > 0.1 * board.feature_size * 1000:
         raise AlignError(
             f"the triangulated target does not have the shape of a {board.describe()} (corner residual {rms_mm:.1f} "
-            "mm after fitting); check its spec (sizes, dictionary) against the printed one"
+            f"mm after fitting, {len(tri.ids)} corners from {len(tri.frames_with_board)} keyframes); check its spec "
+            "(sizes, dictionary) against the printed one; if it is right, the SfM poses of those keyframes are off: "
+            "capture more views of the target (more keyframes, a slower orbit)"
         )
     icp_rmse, n_icp, method = None, 0, "marker"
     note = "the target alone (ICP off)" if not icp else ""
