@@ -254,6 +254,12 @@ def test_world_yaml_names_a_spec_file_relative_to_itself(tmp_path):
     assert "name: ../robots/robot.yaml" in text and PANDA_URDF in text
     back = read_world(saved)
     assert back.robot == world.robot and back.robot.spec.name == "panda_urdf"
+    # a dataset of this world is another one when the spec file's content changes (same path, same world.yaml)
+    from mirage2matter.datagen.simulated import world_fingerprint
+
+    before = world_fingerprint(back)
+    _write(folder, _urdf_spec(gripper__coupling=100.0))
+    assert world_fingerprint(read_world(saved)) != before and read_world(saved).robot.spec.finger_coupling == 100.0
 
 
 def test_a_composed_arm_and_gripper(tmp_path):
@@ -325,3 +331,20 @@ def test_an_arm_without_a_gripper_is_refused_with_what_to_do(tmp_path):
     spec["model"] = {"arm": "urdf/kuka_iiwa/model.urdf", "gripper": "xml/franka_emika_panda/hand.xml", "mount": "tip"}
     with pytest.raises(RobotSpecError, match=r"model: .*no site or link named 'tip'.*lbr_iiwa_link_7"):
         get_robot(str(_write(tmp_path, spec, "c.yaml")))
+
+
+def test_the_composed_model_is_self_contained_and_its_visual_meshes_known():
+    """The UR5e + hand model lives in its own folder with copies of both models' meshes (so the low-polygon render
+    copy can be made like a bundled model's), and the hand's visual meshes are found through its prefixed classes."""
+    import xml.etree.ElementTree as ET
+
+    from mirage2matter.env.robot_proxy import _visual_mesh_files
+
+    path = resolve_model(get_robot("ur5e").model)
+    root = ET.parse(path).getroot()
+    files = [m.get("file") for m in root.iter("mesh")]
+    assert files and all((path.parent / "meshes" / f).is_file() for f in files)
+    visual = _visual_mesh_files(path)
+    names = {Path(v).name.split("_", 1)[1] for v in visual}
+    assert {"hand_0.obj", "finger_1.obj", "upperarm_0.obj", "wrist3.obj"} <= names
+    assert not names & {"hand.stl", "finger_0.obj"}  # used by collision geoms: never decimated

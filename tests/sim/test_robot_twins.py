@@ -39,6 +39,9 @@ def test_the_twin_is_the_spec_and_agrees_with_the_hand_eye_kinematics(twin):
     assert np.allclose(np.stack([lo, hi], axis=1), spec.limits_array(), atol=1e-5)  # the model's, read twice
     twin.reset(seed=0, randomize=False)
     assert np.allclose(twin.robot_state(), spec.home_q(), atol=0.05)
+    with twin.restoring():  # at home the robot touches nothing, open or closed (the fingers on each other are fine)
+        assert twin.colliding_pairs(spec.home_q(spec.gripper_open)) == []
+        assert twin.colliding_pairs(spec.home_q(spec.gripper_closed)) == []
     kin = RobotKinematics(twin.cfg.robot.name)
     rng = np.random.default_rng(0)
     with twin.restoring():

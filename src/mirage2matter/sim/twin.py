@@ -296,6 +296,7 @@ class Twin:
             if b.kind == "press_button":
                 b.entity.set_dofs_stiffness(np.array([b.cfg.stiffness]))
         self._geom_owner = self._geom_owners()
+        self._finger_owners = {f"robot:{link}" for link in spec.finger_links}
         self.home = np.concatenate([np.asarray(cfg.robot.home, dtype=np.float64), [spec.gripper_open] * n_fingers])
         self._initial = {name: self._body_pose(b) for name, b in self.bodies.items()}
         self.reset(seed=0, randomize=False)
@@ -549,11 +550,17 @@ class Twin:
     def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
         """Set the robot to ``q`` [n_dofs] (no physics) and list the colliding geometry owners (robot vs anything).
 
+        The fingers touching each other are not a collision: closed on nothing, that is where they are. (Genesis drops
+        geometry pairs that overlap at the model's zero pose, which took the Panda's finger pair out but not the
+        UR5e + Franka hand's, whose zero pose holds the hand sideways: there closed fingers "collided", and a plan
+        from a closed gripper was refused.)
+
         Leaves the robot at ``q``: wrap queries in :meth:`restoring`.
         """
         self.robot.set_qpos(np.asarray(q, dtype=np.float64), zero_velocity=True)
         pairs = self.robot.detect_collision()
-        return [(self._geom_owner[i], self._geom_owner[j]) for i, j in np.asarray(pairs).reshape(-1, 2)]
+        out = [(self._geom_owner[i], self._geom_owner[j]) for i, j in np.asarray(pairs).reshape(-1, 2)]
+        return [p for p in out if not (p[0] in self._finger_owners and p[1] in self._finger_owners)]
 
     # ---- cameras ---------------------------------------------------------------------------------
     def camera(self, name: str) -> tuple[np.ndarray, np.ndarray, int, int]:
