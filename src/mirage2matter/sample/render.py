@@ -494,8 +494,13 @@ class SampleRenderer:
         return self.board_corners_obj @ T[:3, :3].T + T[:3, 3]
 
     def self_collision(self) -> bool:
-        """Whether the arm's collision geometry intersects itself in the current joint state."""
-        return len(self._need_robot().detect_collision()) > 0
+        """Whether the arm's collision geometry intersects itself in the current joint state (the fingers closed on
+        each other do not count: that is where they are on a thin board)."""
+        robot = self._need_robot()
+        link_of = {g.idx: g.link.name for g in robot.geoms}
+        fingers = set(self.spec.finger_links)
+        pairs = np.asarray(robot.detect_collision()).reshape(-1, 2)
+        return any(not (link_of.get(int(i)) in fingers and link_of.get(int(j)) in fingers) for i, j in pairs)
 
     def board_intersects_arm(self, clearance: float = 0.01) -> bool:
         """Whether an arm link (any but the fingers holding it) reaches into the held
