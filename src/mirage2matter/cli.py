@@ -21,7 +21,7 @@ import sys
 from collections.abc import Sequence
 
 from . import __version__
-from .commands import bench, board, demo, init, intrinsics, render, run, sample, validate, world
+from .commands import bench, board, demo, init, intrinsics, render, robot, run, sample, validate, world
 from .commands.args import info, show
 from .configs import add_flags, from_flags
 from .errors import M2MError
@@ -93,7 +93,7 @@ def build_parser(only: str | None = "*") -> argparse.ArgumentParser:
     for stage in STAGES:
         _stage_parser(sub, stage, full=only in ("*", stage.command))
     bench.register(sub, full=only in ("*", "bench"))
-    for module in (render, board, intrinsics, validate, sample, world):
+    for module in (render, board, intrinsics, validate, sample, world, robot):
         module.register(sub)
     return parser
 

@@ -33,7 +33,8 @@ class Config:
                 RealSense intrinsics JSON
     mount       head: eye-to-hand, the camera fixed in the base (T_base_headcam); wrist: eye-in-hand
     method      OpenCV's closed-form hand-eye solver
-    robot       robot model file (default: the joints file's, else the default robot's)
+    robot       the robot: a registered name (panda, ur5e), a robot spec file or a bare model file (MJCF/URDF)
+                (default: the joints file's, else the default robot)
     link        the link holding the board (head) or the camera (wrist) (default: the joints file's, else the
                 robot's end-effector link)
     refine      auto: pose_error or none, whichever has the lower leave-one-out corner error; pose_error: refine on
