@@ -60,8 +60,8 @@ class PolicyTrainConfig:
     lr                peak AdamW learning rate (linear warm-up, then cosine decay to 0)
     weight_decay      AdamW weight decay
     warmup_steps      steps of linear learning-rate warm-up
-    steps             training steps (0: plan them from ``minutes`` and a measured step time)
-    minutes           training-time budget when ``steps`` is 0
+    steps             training steps (0: train for ``minutes`` of wall-clock time instead)
+    minutes           training-time budget when ``steps`` is 0 (the learning rate decays over the elapsed fraction)
     widths            encoder channels per stage (each stage after the first halves the resolution)
     keypoints         spatial-softmax keypoints per camera
     hidden            width of the MLP head
