@@ -1,31 +1,23 @@
-"""gsplat CUDA backend (backend="cuda") against the numba CPU rasterizer and the dense reference.
+"""gsplat CUDA backend (backend="cuda") against the numba CPU rasterizer and the dense reference,.
 
 Needs a CUDA GPU, torch built with CUDA and gsplat (its kernels may be JIT-compiled on first use,
 which can take minutes once per machine). Everything else skips. Outputs are compared on the CPU.
 """
 
+import math
+
 import pytest
 import torch
 from render_helpers import intrinsics, look_at, psnr
 
+from fixtures.cuda import CUDA_MARKS
 from fixtures.gaussians import random_gaussians
+from mirage2matter.errors import M2MError
 from mirage2matter.gaussians.model import Gaussians
 from mirage2matter.gaussians.render import render
 from mirage2matter.gaussians.synthetic import orbit_cameras, tabletop_scene
 
-
-def _why_no_gsplat_cuda() -> str | None:
-    if not torch.cuda.is_available():
-        return "needs a CUDA GPU (torch.cuda.is_available() is False)"
-    try:
-        import gsplat  # noqa: F401
-    except Exception as e:  # ImportError, or a broken CUDA extension
-        return f"needs gsplat, which does not import: {e!r}"
-    return None
-
-
-_REASON = _why_no_gsplat_cuda()
-pytestmark = [pytest.mark.cuda, pytest.mark.skipif(_REASON is not None, reason=_REASON or "")]
+pytestmark = CUDA_MARKS
 
 BG = torch.tensor([0.2, 0.5, 0.8])
 PARAMS = ("means", "quats", "log_scales", "logit_opacities", "sh")
@@ -94,3 +86,41 @@ def test_gsplat_gradients_match_reference():
     g_ref = grads(g.to(torch.float64), "reference", "cpu")
     errs = {k: ((g_gpu[k] - g_ref[k]).norm() / g_ref[k].norm()).item() for k in PARAMS}
     assert all(e <= 1e-2 for e in errs.values()), errs
+
+
+@pytest.mark.parametrize("requires_grad", [False, True])
+def test_gsplat_empty_scene_with_gradients_and_info(requires_grad):
+    z = lambda *shape: torch.zeros(*shape, device="cuda", requires_grad=requires_grad)  # noqa: E731
+    g = Gaussians(z(0, 3), z(0, 4), z(0, 3), z(0), z(0, 16, 3))
+    info: dict = {}
+    out = render(g, look_at([3.0, 0, 0], [0, 0, 0]), intrinsics(40, 24), 40, 24, BG.cuda(), "cuda", info)
+    torch.testing.assert_close(out.rgb.detach().cpu(), BG.expand(24, 40, 3), atol=1e-6, rtol=0)
+    assert info["mean2d"].shape == (0, 2)
+    if requires_grad:
+        (out.rgb.sum() + out.alpha.sum() + out.depth.sum()).backward()
+        assert g.means.grad is not None and g.means.grad.shape == (0, 3)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_gsplat_tiny_sets_match_cpu(n):
+    """One, two and three Gaussians: one seen, one behind the camera, one beyond the image."""
+    g = random_gaussians(3, 3, seed=5, extent=0.3)
+    g = Gaussians(torch.tensor([[0.0, 0.1, 0.0], [6.0, 0.0, 0.0], [0.0, 5.0, 0.0]]), g.quats,
+                  torch.full((3, 3), math.log(0.6)), torch.full((3,), 3.0), g.sh).select(slice(0, n))  # fmt: skip
+    V, K = look_at([3.0, 0, 0], [0, 0, 0]), intrinsics(40, 30)
+    cpu = render(g, V, K, 40, 30, background=BG, backend="cpu")
+    gg = g.to("cuda").map(lambda t: t.clone().requires_grad_(True))
+    gpu = render(gg, V, K, 40, 30, background=BG.cuda(), backend="cuda")
+    assert psnr(gpu.rgb, cpu.rgb) >= 35.0 and psnr(gpu.alpha, cpu.alpha) >= 35.0
+    (gpu.rgb.sum() + gpu.alpha.sum()).backward()
+    assert torch.isfinite(gg.means.grad).all() and gg.means.grad[0].abs().sum() > 0
+
+
+def test_gsplat_out_of_memory_is_a_clear_error():
+    """An image far beyond any GPU's memory (200k x 200k: 640 GB of output): an M2MError naming what to
+    lower, and the process (and the GPU) still usable afterwards."""
+    g = random_gaussians(100, 3, seed=0).to("cuda")
+    with pytest.raises(M2MError, match="GPU out of memory rendering 100 Gaussians at 200000x200000.*lower"):
+        render(g, look_at([3.0, 0, 0], [0, 0, 0]), intrinsics(200_000, 200_000), 200_000, 200_000, backend="cuda")
+    out = render(g, look_at([3.0, 0, 0], [0, 0, 0]), intrinsics(40, 30), 40, 30, backend="cuda")
+    assert out.alpha.max() > 0
