@@ -6,6 +6,7 @@ two independent implementations (and precisions). Scenes are small: the referenc
 
 import functools
 import math
+import re
 
 import numpy as np
 import pytest
@@ -471,7 +472,7 @@ def test_no_gpu_reason_names_the_torch_build(monkeypatch):
     from mirage2matter.gaussians.render import resolve_backend
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
-    with pytest.raises(BackendError, match=f"torch sees no CUDA GPU \\(torch {torch.__version__}"):
+    with pytest.raises(BackendError, match=re.escape(f"torch sees no CUDA GPU (torch {torch.__version__}")):
         resolve_backend("cuda")
 
 
