@@ -101,8 +101,8 @@ def _config(**kw) -> TrainConfig:
     base = dict(
         iterations=240,
         sh_degree=1,
-        sh_increase_every=100,
-        eval_every=60,
+        sh_increase_every=100 / 240,
+        eval_points=4,
         checkpoint_every=100,
         max_gaussians=3000,
         backend="cpu",
@@ -202,7 +202,8 @@ def test_masked_pixels_do_not_influence_gradients():
     finals = []
     for img in (blank, junk):
         view = View(img, v.viewmat, v.K, mask)
-        g, _ = train([view], [view], _init(300), _config(iterations=12, refine_every=5, refine_start=4), progress=False)
+        cfg = _config(iterations=12, refine_every=5, refine_start=4 / 12)
+        g, _ = train([view], [view], _init(300), cfg, progress=False)
         finals.append(g)
     assert len(finals[0]) == len(finals[1])
     for a, b in zip(finals[0].tensors().values(), finals[1].tensors().values(), strict=True):

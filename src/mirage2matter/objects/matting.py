@@ -140,7 +140,7 @@ def matte_object(
     train_cfg = TrainConfig(
         iterations=config.iterations,
         sh_degree=config.sh_degree,
-        sh_increase_every=max(1, config.iterations // 2),
+        sh_increase_every=0.5,
         max_gaussians=config.max_gaussians,
         checkpoint_every=0,
         lambda_alpha=config.lambda_alpha,
