@@ -119,9 +119,9 @@ def bench_train(
 
 def profile_step(g, views: list[View], config: TrainConfig, repeats: int = 3) -> dict[str, float]:
     """Median milliseconds of the stages of one CPU training step on Gaussians ``g``, measured on the
-    real code path (``view_loss`` with the cpu backend) by timing its parts in place: torch
-    projection, numba raster forward, the rest of the loss, raster backward, the rest of autograd
-    (projection + SH + SSIM backward), gsplat strategy bookkeeping, Adam."""
+    real code path (``view_loss`` with the cpu backend) by timing its parts in place: projection + SH
+    forward and backward, raster forward and backward, the rest of the loss (L1 + SSIM) and of autograd,
+    the densification statistics, Adam."""
     from .render import numba_cpu
     from .train import _make_optimizers, _make_strategy, _strategy_info, _to_gaussians, _to_params, scene_extent
 
@@ -130,7 +130,7 @@ def profile_step(g, views: list[View], config: TrainConfig, repeats: int = 3) ->
     opts = _make_optimizers(params, config.lr, extent)
     strategy = _make_strategy(config)
     state = strategy.initialize_state(scene_scale=extent)
-    spent = {"project": 0.0, "raster_fwd": 0.0, "raster_bwd": 0.0}
+    spent = {"project": 0.0, "project_bwd": 0.0, "raster_fwd": 0.0, "raster_bwd": 0.0}
 
     def timed(fn, key):
         def wrapper(*args, **kwargs):
@@ -142,15 +142,17 @@ def profile_step(g, views: list[View], config: TrainConfig, repeats: int = 3) ->
 
         return wrapper
 
-    originals = (numba_cpu.project, numba_cpu.RasterizeNumba.forward, numba_cpu.RasterizeNumba.backward)
+    originals = (numba_cpu.project, numba_cpu.RasterizeNumba.forward, numba_cpu.RasterizeNumba.backward,
+                 numba_cpu.ProjectNumba.backward)  # fmt: skip
     numba_cpu.project = timed(originals[0], "project")
     numba_cpu.RasterizeNumba.forward = staticmethod(timed(originals[1], "raster_fwd"))
     numba_cpu.RasterizeNumba.backward = staticmethod(timed(originals[2], "raster_bwd"))
+    numba_cpu.ProjectNumba.backward = staticmethod(timed(originals[3], "project_bwd"))
     rows: dict[str, list[float]] = {}
     try:
         for i in range(repeats + 1):
             v = views[i % len(views)]
-            spent.update(project=0.0, raster_fwd=0.0, raster_bwd=0.0)
+            spent.update(project=0.0, project_bwd=0.0, raster_fwd=0.0, raster_bwd=0.0)
             info: dict = {}
             t0 = time.perf_counter()
             loss, _ = view_loss(_to_gaussians(params, config.sh_degree), v, config, info, backend="cpu")
@@ -172,7 +174,8 @@ def profile_step(g, views: list[View], config: TrainConfig, repeats: int = 3) ->
                 "loss_fwd_ms": 1000.0 * (t1 - t0) - ms["project"] - ms["raster_fwd"],
                 "backward_ms": 1000.0 * (t2 - t1),
                 "raster_bwd_ms": ms["raster_bwd"],
-                "other_bwd_ms": 1000.0 * (t2 - t1) - ms["raster_bwd"],
+                "projection_bwd_ms": ms["project_bwd"],
+                "other_bwd_ms": 1000.0 * (t2 - t1) - ms["raster_bwd"] - ms["project_bwd"],
                 "strategy_ms": 1000.0 * (t3 - t2),
                 "optimizer_ms": 1000.0 * (t4 - t3),
                 "total_ms": 1000.0 * (t4 - t0),
@@ -183,6 +186,7 @@ def profile_step(g, views: list[View], config: TrainConfig, repeats: int = 3) ->
         numba_cpu.project = originals[0]
         numba_cpu.RasterizeNumba.forward = staticmethod(originals[1])
         numba_cpu.RasterizeNumba.backward = staticmethod(originals[2])
+        numba_cpu.ProjectNumba.backward = staticmethod(originals[3])
     res = {k: round(float(np.median(v)), 2) for k, v in rows.items()}
     res["gaussians"] = len(params["means"])
     res["threads"] = torch.get_num_threads()

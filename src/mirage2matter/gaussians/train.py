@@ -186,8 +186,10 @@ def _make_optimizers(
     opts = {}
     for k, p in params.items():
         rate = lr[k] * (extent if k == "means" else 1.0)
-        # eps 1e-15 as in 3DGS: gradients of far-away Gaussians are tiny and must still move them
-        opts[k] = torch.optim.Adam([{"params": [p], "lr": rate, "name": k}], eps=1e-15)
+        # eps 1e-15 as in 3DGS: gradients of far-away Gaussians are tiny and must still move them. fused:
+        # one kernel per tensor; on 2 CPU cores, Adam over 150k Gaussians took 46-66 ms instead of 440-680 ms
+        # with the default (foreach) implementation, the same update
+        opts[k] = torch.optim.Adam([{"params": [p], "lr": rate, "name": k}], eps=1e-15, fused=True)
     return opts
 
 
@@ -230,6 +232,22 @@ def _make_strategy(config: TrainConfig):
             state["count"].zero_()
             if self.refine_scale2d_stop_iter > 0:
                 state["radii"].zero_()
+
+        def _update_state(self, params, state, info, packed=False):
+            # gsplat's, for one camera and packed=False, without its gather / index_add round trip: the
+            # same sums (|grad2d| in normalised screen units, visible-view counts) at ~1/5 of the time
+            if packed or self.absgrad or self.refine_scale2d_stop_iter > 0:  # not our configuration
+                return super()._update_state(params, state, info, packed)
+            grads = info[self.key_for_gradient].grad[0]  # [N,2]
+            visible = (info["radii"][0] > 0).all(dim=-1)
+            scale = grads.new_tensor([info["width"] / 2.0, info["height"] / 2.0])
+            norm = torch.where(visible, (grads * scale).norm(dim=-1), 0.0)
+            if state["grad2d"] is None:
+                state["grad2d"] = torch.zeros_like(norm)
+            if state["count"] is None:
+                state["count"] = torch.zeros_like(norm)
+            state["grad2d"] += norm
+            state["count"] += visible
 
         def _grow_gs(self, params, optimizers, state, step):
             room = self.max_gaussians - len(params["means"])
