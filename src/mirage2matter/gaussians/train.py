@@ -454,6 +454,13 @@ def train(
             }
         )
 
+    if not length.finished(step, elapsed):
+        # one untimed forward + backward on a copy: numba compiles or loads its kernels (~35 s to compile
+        # the training step's on a busy 2-core machine, which the first step of a 4-minute budget paid),
+        # CUDA and gsplat initialise, so the budget buys training steps only
+        warm = _to_gaussians(params, config.sh_degree).map(lambda t: t.detach().clone().requires_grad_(True))
+        view_loss(warm, views_train[0], config, {}, backend)[0].backward()
+
     bar = None
     if progress:
         from tqdm import tqdm
