@@ -270,10 +270,13 @@ def test_demo_first_stages_and_resume(tmp_path: Path, capsys: pytest.CaptureFixt
         assert (ws / rel).is_file(), rel
     assert "max_keyframes: 16" in (ws / "m2m.yaml").read_text()  # the settings it ran with
 
-    # a rerun resumes: finished stages are skipped, not redone
+    # a rerun resumes: finished stages are skipped, not redone; the demo's workspace is one `m2m run` continues
     assert main(args) == 0
     err = capsys.readouterr().err
     assert err.count("done earlier") == 4
+    assert main(["run", "-w", str(ws), "--until", "handeye"]) == 0
+    out, err = capsys.readouterr()
+    assert err.count("done earlier") == 4 and "m2m run finished" in out and (ws / "run_summary.json").is_file()
     # a changed setting reruns that stage, and the next because its input changed
     assert main(["demo", "-w", str(ws), "--capture.max-keyframes", "12", "--until", "sfm"]) == 0
     err = capsys.readouterr().err

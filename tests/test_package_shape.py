@@ -91,7 +91,7 @@ def test_layers_point_one_way():
 
 # the workspace's folders and the files only the workspace knows (m2m.yaml is not among them: a sample has one too)
 WORKSPACE_NAMES = {
-    "capture", "sfm", "calib", "scene", "objects", "world", "datasets", "pipeline.json",
+    "capture", "sfm", "calib", "scene", "objects", "world", "datasets", "pipeline.json", "run_summary.json",
     "demo_summary.json", "sim3_sfm_to_base.json", "cameras_base.json", "points_base.npy", "colors_base.npy",
     "handeye.json", "head_view.json", "task_summary.json",
 }  # fmt: skip

@@ -4,7 +4,8 @@ One subcommand per pipeline stage, generated from the stage's Config (``m2m capt
 ``m2m align-scene``, ``m2m calibrate-handeye``, ``m2m train-scene``, ``m2m head-view``, ``m2m objects``,
 ``m2m compose``, ``m2m generate``): each field is a flag whose default and doc come from the Config, on top of
 the workspace's ``m2m.yaml`` when it has the stage's section. The tools that are not stages live in
-``commands/`` (render, bench, board, intrinsics, validate, sample, world edits, task, demo).
+``commands/`` (init and run: a workspace's m2m.yaml and every stage of it; demo, render, bench, board, intrinsics,
+validate, sample, world edits, task).
 
 Expected failures (:class:`~mirage2matter.errors.M2MError`: bad files, bad fields, missing inputs) and file
 system errors print ``m2m: error: <message>`` to stderr and exit with status 2, without a traceback;
@@ -20,7 +21,7 @@ import sys
 from collections.abc import Sequence
 
 from . import __version__
-from .commands import bench, board, demo, intrinsics, render, sample, validate, world
+from .commands import bench, board, demo, init, intrinsics, render, robot, run, sample, validate, world
 from .commands.args import info, show
 from .configs import add_flags, from_flags
 from .errors import M2MError
@@ -73,6 +74,8 @@ def build_parser(only: str | None = "*") -> argparse.ArgumentParser:
         "simulator and robot demonstrations.",
         epilog=(
             "examples:\n"
+            "  m2m init -w ws --video table.mp4 --board board.json --task \"grasp banana\"   your capture's settings\n"
+            "  m2m run -w ws                              every stage, from ws/m2m.yaml\n"
             "  m2m demo                                   the whole pipeline on the bundled sample\n"
             "  m2m capture my_table.mp4 -w ws && m2m sfm -w ws\n"
             "  m2m train-scene -w ws --minutes 10\n"
@@ -84,11 +87,13 @@ def build_parser(only: str | None = "*") -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"m2m (mirage2matter) {__version__}")
     parser.add_argument("--debug", action="store_true", help="show Python tracebacks for errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    init.register(sub, full=only in ("*", "init"))
+    run.register(sub)
     demo.register(sub, full=only in ("*", "demo"))
     for stage in STAGES:
         _stage_parser(sub, stage, full=only in ("*", stage.command))
     bench.register(sub, full=only in ("*", "bench"))
-    for module in (render, board, intrinsics, validate, sample, world):
+    for module in (render, board, intrinsics, validate, sample, world, robot):
         module.register(sub)
     return parser
 

@@ -6,21 +6,26 @@ each field on a line of its own (``name   what it is``, continuation lines inden
 - :func:`add_flags` adds one ``--field-name`` flag per field (nested dataclasses as ``--outer.field``) with
   the field's doc and default in ``--help``; the flags default to *absent*, so :func:`from_flags` starts
   from a base config (the Config's defaults, or the workspace's ``m2m.yaml``) and changes only what was
-  given. ``m2m <stage>``, ``m2m demo`` and ``m2m run`` therefore cannot drift apart.
+  given. ``m2m <stage>``, ``m2m init``, ``m2m demo`` and ``m2m run`` therefore cannot drift apart.
 - :func:`from_dict` / :func:`to_dict` read and write the same fields as YAML-ready mappings: unknown keys
-  and wrong types are errors naming the field (``"no"`` is not a bool), paths are resolved against the
-  file's folder and written relative to it.
+  and wrong types are errors naming the field (``ConfigError.field``, so a file reader can add the line;
+  ``"no"`` is not a bool), paths are resolved against the file's folder and written relative to it (when
+  below it; else absolute).
+- :func:`to_yaml` writes a Config as YAML text with each field's doc as a comment above it (``m2m.yaml``).
 
 Supported field types: bool, int, float, str, Path, ``X | None``, ``Literal[...]``, ``tuple[T, ...]`` /
 ``list[T]`` (several values), fixed tuples ``tuple[T, T]`` (``a,b``), ``dict[str, T]`` (``NAME=VALUE``,
 repeatable) and nested dataclasses. Field metadata: ``{"positional": True}`` makes a field the command's
-optional positional argument; ``{"flag": False}`` keeps an internal field off the command line.
+optional positional argument; ``{"flag": False}`` keeps an internal field off the command line; ``{"output": True}``
+marks a path the stage writes (a pipeline run checks every other path exists before it starts).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import difflib
+import functools
 import inspect
 import re
 import types
@@ -30,13 +35,21 @@ from typing import Any, Literal, Union
 
 from .errors import M2MError
 
-__all__ = ["ConfigError", "add_flags", "field_docs", "from_dict", "from_flags", "to_dict"]
+__all__ = ["ConfigError", "add_flags", "field_docs", "from_dict", "from_flags", "to_dict", "to_yaml"]
 
 _DOC_LINE = re.compile(r"^(\w+)\s{2,}(\S.*)$")
 
 
 class ConfigError(M2MError, ValueError):
-    """A config value of the wrong type or an unknown key; the message names the field."""
+    """A config value of the wrong type or an unknown key; the message names the field.
+
+    field   the dotted field it is about (``scene.minutes``, ``objects.names[2]``), so a reader of a file can
+            add the line it is on; None when the message is about no one field
+    """
+
+    def __init__(self, message: str, field: str | None = None) -> None:
+        super().__init__(message)
+        self.field = field
 
 
 # ---- field documentation and types ------------------------------------------------------------------
@@ -78,12 +91,12 @@ def _scalar(tp: Any, value: Any, where: str) -> Any:
     if typing.get_origin(tp) is Literal:
         choices = typing.get_args(tp)
         if value not in choices:
-            raise ConfigError(f"{where}: {value!r} is not one of {', '.join(map(str, choices))}")
+            raise ConfigError(f"{where}: {value!r} is not one of {', '.join(map(str, choices))}", where)
         return value
     if tp is bool:
         if isinstance(value, bool):
             return value
-        raise ConfigError(f"{where}: expected true or false, got {value!r}")
+        raise ConfigError(f"{where}: expected true or false, got {value!r}", where)
     if tp is int:
         if isinstance(value, str):
             try:
@@ -92,7 +105,7 @@ def _scalar(tp: Any, value: Any, where: str) -> Any:
                 pass
         elif isinstance(value, int) and not isinstance(value, bool):
             return value
-        raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        raise ConfigError(f"{where}: expected an integer, got {value!r}", where)
     if tp is float:
         if isinstance(value, str):
             try:
@@ -101,15 +114,15 @@ def _scalar(tp: Any, value: Any, where: str) -> Any:
                 pass
         elif isinstance(value, int | float) and not isinstance(value, bool):
             return float(value)
-        raise ConfigError(f"{where}: expected a number, got {value!r}")
+        raise ConfigError(f"{where}: expected a number, got {value!r}", where)
     if tp is str:
         if isinstance(value, str):
             return value
-        raise ConfigError(f"{where}: expected text, got {value!r}")
+        raise ConfigError(f"{where}: expected text, got {value!r}", where)
     if tp is Path:
         if isinstance(value, str | Path) and str(value):
             return Path(value)
-        raise ConfigError(f"{where}: expected a path, got {value!r}")
+        raise ConfigError(f"{where}: expected a path, got {value!r}", where)
     raise TypeError(f"{where}: unsupported config field type {tp!r}")
 
 
@@ -123,20 +136,20 @@ def _coerce(tp: Any, value: Any, where: str) -> Any:
     if value is None:
         if optional:
             return None
-        raise ConfigError(f"{where}: a value is required (null given)")
+        raise ConfigError(f"{where}: a value is required (null given)", where)
     origin, args = typing.get_origin(tp), typing.get_args(tp)
     if origin in (tuple, list):
         if isinstance(value, str) or not isinstance(value, list | tuple):
-            raise ConfigError(f"{where}: expected a list, got {value!r}")
+            raise ConfigError(f"{where}: expected a list, got {value!r}", where)
         if origin is tuple and not (len(args) == 2 and args[1] is Ellipsis):
             if len(value) != len(args):
-                raise ConfigError(f"{where}: expected {len(args)} values, got {len(value)}")
+                raise ConfigError(f"{where}: expected {len(args)} values, got {len(value)}", where)
             return tuple(_coerce(a, v, f"{where}[{i}]") for i, (a, v) in enumerate(zip(args, value, strict=True)))
         items = [_coerce(args[0], v, f"{where}[{i}]") for i, v in enumerate(value)]
         return tuple(items) if origin is tuple else items
     if origin is dict:
         if not isinstance(value, dict):
-            raise ConfigError(f"{where}: expected a mapping, got {value!r}")
+            raise ConfigError(f"{where}: expected a mapping, got {value!r}", where)
         return {_scalar(args[0], k, where): _coerce(args[1], v, f"{where}.{k}") for k, v in value.items()}
     return _scalar(tp, value, where)
 
@@ -149,15 +162,21 @@ def from_dict(cls: type, data: Any, where: str = "", base_dir: Path | None = Non
     if data is None:
         return base
     if not isinstance(data, dict):
-        raise ConfigError(f"{where or cls.__name__}: expected a mapping of settings, got {type(data).__name__}")
+        raise ConfigError(f"{where or cls.__name__}: expected a mapping of settings, got {type(data).__name__}",
+                          where or None)  # fmt: skip
     if hasattr(cls, "upgrade"):  # settings an earlier version wrote, in their current form
         data = cls.upgrade(dict(data))
     hints = _hints(cls)
     known = {f.name: f for f in dataclasses.fields(cls)}
     unknown = [k for k in data if k not in known]
     if unknown:
+        first = str(unknown[0])
+        close = difflib.get_close_matches(first, list(known), n=1)
+        hint = f"; did you mean {close[0]}?" if close else ""
         raise ConfigError(
-            f"{where or cls.__name__}: unknown setting(s) {', '.join(map(str, unknown))}; known: {', '.join(known)}"
+            f"{where + ': ' if where else ''}unknown setting(s) {', '.join(map(str, unknown))}{hint} (known: "
+            f"{', '.join(known)})",
+            f"{where}.{first}" if where else first,
         )
     changes = {}
     for key, value in data.items():
@@ -185,7 +204,9 @@ def _resolve_paths(value: Any, base_dir: Path | None) -> Any:
 
 
 def to_dict(cfg: Any, base_dir: Path | None = None) -> dict[str, Any]:
-    """A YAML-ready mapping of ``cfg`` (tuples as lists; paths relative to ``base_dir`` when below it)."""
+    """A YAML-ready mapping of ``cfg`` (tuples as lists). With ``base_dir`` (the folder of the file it goes
+    to) a path is written relative to it when below it, else absolute: a relative path given on the command
+    line means the current folder, which a reader of the file does not know."""
 
     def plain(v: Any) -> Any:
         if dataclasses.is_dataclass(v) and not isinstance(v, type):
@@ -195,7 +216,7 @@ def to_dict(cfg: Any, base_dir: Path | None = None) -> dict[str, Any]:
                 try:
                     return str(v.resolve().relative_to(base_dir.resolve()))
                 except ValueError:
-                    pass
+                    return str(v.resolve())
             return str(v)
         if isinstance(v, tuple | list):
             return [plain(x) for x in v]
@@ -204,6 +225,61 @@ def to_dict(cfg: Any, base_dir: Path | None = None) -> dict[str, Any]:
         return v
 
     return plain(cfg)
+
+
+def to_yaml(cfg: Any, base_dir: Path | None = None, header: str = "", notes: dict[str, str] | None = None) -> str:
+    """``cfg`` as YAML text that :func:`from_dict` reads back to ``cfg``: every field, each under its doc (from
+    the class docstrings) as a comment; nested Configs as indented sections. ``header``: comment lines on top;
+    ``notes``: {top-level field: a comment line above its section}. Paths as :func:`to_dict` writes them."""
+    import textwrap
+
+    out = [line.rstrip() for line in header.splitlines()]
+
+    def comment(text: str, pad: str) -> list[str]:
+        return [pad + "# " + line for line in textwrap.wrap(text, max(40, 116 - len(pad)), break_on_hyphens=False)]
+
+    def emit(cls: type, values: dict[str, Any], pad: str) -> None:
+        docs, hints = field_docs(cls), _hints(cls)
+        for f in dataclasses.fields(cls):
+            value, (tp, _) = values[f.name], _unwrap_optional(hints[f.name])
+            section = _is_config(tp) and isinstance(value, dict)
+            if not pad and (section or notes):
+                out.append("")
+            if not pad and notes and f.name in notes:
+                out.extend(comment(notes[f.name], pad))
+            if f.name in docs:
+                out.extend(comment(docs[f.name], pad))
+            if section:
+                out.append(f"{pad}{f.name}:")
+                emit(tp, value, pad + "  ")
+            else:
+                out.extend(pad + line for line in _yaml_value(f.name, value).splitlines())
+
+    emit(type(cfg), to_dict(cfg, base_dir), "")
+    return "\n".join(out).lstrip("\n") + "\n"
+
+
+def _yaml_value(name: str, value: Any) -> str:
+    """``name: value`` as YAML: a list of texts one item per line, other lists and mappings of numbers in flow
+    style (``[0.0, 1.0]``), no line folded."""
+    import yaml
+
+    texts = isinstance(value, list) and value and all(isinstance(v, str) for v in value)
+    flow = None if isinstance(value, list | dict) and not texts else False  # None: innermost collections in flow
+    return yaml.dump({name: value}, Dumper=_dumper(), sort_keys=False, default_flow_style=flow, width=1 << 16,
+                     allow_unicode=True)  # fmt: skip
+
+
+@functools.cache
+def _dumper() -> type:
+    """PyYAML's safe dumper, with a list's items indented under its key."""
+    import yaml
+
+    class Dumper(yaml.SafeDumper):
+        def increase_indent(self, flow: bool = False, indentless: bool = False) -> Any:
+            return super().increase_indent(flow, False)
+
+    return Dumper
 
 
 # ---- command-line flags ---------------------------------------------------------------------------------

@@ -37,6 +37,8 @@ __all__ = [
     "read_image_rgb",
     "read_json",
     "read_yaml",
+    "read_yaml_lines",
+    "yaml_lines",
 ]
 
 MAX_CONFIG_BYTES = 16 << 20  # JSON / YAML files the pipeline reads are kilobytes to a few megabytes
@@ -98,6 +100,50 @@ def read_json(path: str | os.PathLike, what: str = "JSON file", expect: type | N
 def read_yaml(path: str | os.PathLike, what: str = "YAML file", expect: type | None = dict) -> Any:
     """The parsed YAML of ``path`` with the safe loader; anchors and aliases are refused (nothing we write uses
     them, and a few kilobytes of nested aliases expand to gigabytes)."""
+    return _checked(_parse_yaml(Path(path), what, lines=False)[0], Path(path), what, expect)
+
+
+def read_yaml_lines(
+    path: str | os.PathLike, what: str = "YAML file", expect: type | None = dict
+) -> tuple[Any, dict[tuple[str | int, ...], int]]:
+    """:func:`read_yaml` and, from the same parse, the 1-based line of every key and list item by its path of keys
+    and indices (``("scene", "minutes")``, ``("objects", "names", 2)``; ``()`` is the first line): where a message
+    about a value points. A key given twice in one mapping is an error (YAML readers keep the last silently)."""
+    data, lines = _parse_yaml(Path(path), what, lines=True)
+    return _checked(data, Path(path), what, expect), lines
+
+
+def yaml_lines(path: str | os.PathLike, what: str = "YAML file") -> dict[tuple[str | int, ...], int]:
+    """The lines of :func:`read_yaml_lines` alone."""
+    return _parse_yaml(Path(path), what, lines=True)[1]
+
+
+def _checked(data: Any, path: Path, what: str, expect: type | None) -> Any:
+    if data is None:
+        data = {} if expect is dict else data
+    _depth(data, MAX_DEPTH, f"{what} {path}")
+    return _top(data, expect, path, what)
+
+
+def _parse_yaml(path: Path, what: str, lines: bool) -> tuple[Any, dict[tuple[str | int, ...], int]]:
+    """The data of the YAML file (one parse with the alias-refusing safe loader) and, with ``lines``, its lines."""
+    import yaml
+
+    loader = _no_alias_loader(path, what)(_read_text(path, what))
+    try:
+        node = loader.get_single_node()
+        data = None if node is None else loader.construct_document(node)
+    except yaml.YAMLError as e:
+        raise InputError(f"{what} {path} is not valid YAML: {e}") from None
+    except RecursionError:
+        raise InputError(f"{what} {path}: nested deeper than Python can read") from None
+    finally:
+        loader.dispose()
+    return data, (_node_lines(node, path, what) if lines else {})
+
+
+def _no_alias_loader(path: Path, what: str) -> type:
+    """A SafeLoader that refuses aliases, naming their line."""
     import yaml
 
     class _NoAliases(yaml.SafeLoader):
@@ -108,18 +154,29 @@ def read_yaml(path: str | os.PathLike, what: str = "YAML file", expect: type | N
                                  f"{event.start_mark.line + 1}); write the values out")  # fmt: skip
             return super().compose_node(parent, index)
 
-    path = Path(path)
-    text = _read_text(path, what)
-    try:
-        data = yaml.load(text, Loader=_NoAliases)  # noqa: S506 - a SafeLoader subclass
-    except yaml.YAMLError as e:
-        raise InputError(f"{what} {path} is not valid YAML: {e}") from None
-    except RecursionError:
-        raise InputError(f"{what} {path}: nested deeper than Python can read") from None
-    if data is None:
-        data = {} if expect is dict else data
-    _depth(data, MAX_DEPTH, f"{what} {path}")
-    return _top(data, expect, path, what)
+    return _NoAliases
+
+
+def _node_lines(root: Any, path: Path, what: str) -> dict[tuple[str | int, ...], int]:
+    import yaml
+
+    lines: dict[tuple[str | int, ...], int] = {(): 1}
+    stack = [((), root)]
+    while stack:
+        at, node = stack.pop()
+        if isinstance(node, yaml.MappingNode):
+            for key, value in node.value:
+                here, line = (*at, str(key.value)), key.start_mark.line + 1
+                if here in lines:  # YAML readers keep the last silently: a pasted second section would win
+                    raise InputError(f"{what} {path}, line {line}: {'.'.join(map(str, here))} is given twice (also on "
+                                     f"line {lines[here]}); keep one")  # fmt: skip
+                lines[here] = line
+                stack.append((here, value))
+        elif isinstance(node, yaml.SequenceNode):
+            for i, item in enumerate(node.value):
+                lines[(*at, i)] = item.start_mark.line + 1
+                stack.append(((*at, i), item))
+    return lines
 
 
 # ---- images -----------------------------------------------------------------------------------------

@@ -3,7 +3,7 @@
 One class owns the layout (DESIGN.md section 3); the stages (``stages/``) are the only other code that
 knows where things live in a workspace. Below them, libraries receive typed objects and folders.
 
-    m2m.yaml  pipeline.json  demo_summary.json
+    m2m.yaml  pipeline.json  run_summary.json (m2m run)  demo_summary.json (m2m demo)
     capture/   keyframes + keyframes.json
     sfm/       sfm.json + model/ (COLMAP)
     calib/     sim3_sfm_to_base.json, cameras_base.json, points_base.npy, colors_base.npy, overlay.png,
@@ -92,6 +92,10 @@ class Workspace:
     @property
     def record_file(self) -> Path:
         return self.path("pipeline.json")
+
+    @property
+    def run_summary(self) -> Path:
+        return self.path("run_summary.json")
 
     @property
     def demo_summary(self) -> Path:

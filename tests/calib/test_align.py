@@ -162,3 +162,21 @@ def test_a_single_aruco_marker_or_apriltag_aligns_about_as_well_as_charuco(tmp_p
         _, rot, trans = _errors_vs_truth(kf, apply_to_cameras(result.sim3_sfm_to_base, res.cameras), mgt)
         print(f"\n{marker}: {rot:.3f} deg / {trans:.2f} mm; ChArUco {rot_ref:.3f} deg / {trans_ref:.2f} mm")
         assert trans <= 2.0 * trans_ref and rot <= 0.2, (marker, rot, trans, rot_ref, trans_ref)
+
+
+def test_a_fisheye_lens_goes_through_alignment():
+    """Corner rays through an equidistant fisheye (past 60 deg off the axis) are the points' own directions, and
+    aligned cameras keep their lens model."""
+    from mirage2matter.calib.align import _undistorted_normalized
+
+    K = np.array([[300.0, 0.0, 320.0], [0.0, 300.0, 240.0], [0.0, 0.0, 1.0]])
+    lens = {"model": "fisheye", "k1": -0.02, "k2": 0.004, "k3": -0.001, "k4": 0.0002}
+    cam = Camera(K, look_at_pose([0.3, -0.2, 0.5], [0.0, 0.0, 0.0]), 640, 480, "fish", lens)
+    rng = np.random.default_rng(0)
+    pc = np.c_[rng.uniform(-1.5, 1.5, (50, 2)), np.ones(50)]  # up to ~65 deg off the axis, camera frame
+    points = pc @ cam.T_world_cam[:3, :3].T + cam.T_world_cam[:3, 3]
+    uv, _ = cam.project(points, distort=True)
+    assert np.abs(uv - cam.project(points)[0]).max() > 50  # the lens matters here
+    assert np.allclose(_undistorted_normalized(cam, uv), pc[:, :2], atol=1e-9)
+    moved = apply_to_cameras(Sim3(2.0, axis_angle_to_matrix(np.array([0.0, 0.0, 1.0]), 0.3), np.ones(3)), [cam])[0]
+    assert moved.distortion_model == "fisheye" and moved.distortion == cam.distortion

@@ -53,7 +53,7 @@ def test_hybrid_frame_matches_ground_truth_and_objects_hide_the_gripper(twin_wor
     twin.reset(seed=0, randomize=False)
     T_base_cam, K, cw, ch = twin.camera("head")
     # Put the banana on the line from the head camera to the fingers, 35 % of the way from the fingers.
-    tcp = twin.T_base_link()[:3, :3] @ np.array([0, 0, twin.spec.tcp_offset]) + twin.T_base_link()[:3, 3]
+    tcp = (twin.T_base_link() @ twin.spec.T_ee_tcp)[:3, 3]
     eye = T_base_cam[:3, 3]
     banana = twin.bodies["banana"].entity
     T_b = twin.object_poses()["banana"]

@@ -1,41 +1,45 @@
-"""Robot specs against their models (MuJoCo loads the MJCF in well under a second; no Genesis scene), the
-registry, and the places that take a robot from its spec (world.yaml, the wrist camera, the dataset spec)."""
+"""Robot specs against their models (MuJoCo reads a model in well under a second; no Genesis scene), the
+registry, the spec files (a user's own robot: URDF, a composed arm + gripper, every refusal naming the file and
+the field), and the places that take a robot from its spec (world.yaml, the wrist camera, the dataset spec)."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
+import yaml
 
 from mirage2matter.errors import M2MError
-from mirage2matter.robots import DEFAULT_ROBOT, ROBOTS, RobotError, RobotSpec, get_robot
+from mirage2matter.robots import DEFAULT_ROBOT, ROBOTS, RobotError, RobotSpecError, get_robot
+from mirage2matter.robots.model import genesis_assets_dir, load_model, model_info, resolve_model
+from mirage2matter.robots.specfile import ACCELERATION_PER_VELOCITY, DEFAULT_KP_PER_FORCE, DEFAULT_VELOCITY
+
+mujoco = pytest.importorskip("mujoco")
+ASSETS = genesis_assets_dir()
+needs_assets = pytest.mark.skipif(ASSETS is None or not (ASSETS / "xml").is_dir(), reason="no Genesis assets")
+pytestmark = needs_assets
 
 
 @pytest.fixture(scope="module", params=sorted(ROBOTS))
-def robot(request) -> RobotSpec:
+def robot(request):
     return get_robot(request.param)
 
 
 @pytest.fixture(scope="module")
 def model(robot):
-    mujoco = pytest.importorskip("mujoco")
-    from mirage2matter.calib.kinematics import resolve_robot_path
-
-    try:
-        path = resolve_robot_path(robot.model)
-    except FileNotFoundError:
-        pytest.skip(f"{robot.model} is not installed (Genesis' bundled assets)")
-    return mujoco.MjModel.from_xml_path(str(path))
-
-
-def _joint(model, name: str) -> int:
-    return model.joint(name).id
+    return load_model(resolve_model(robot.model))
 
 
 def test_registry_and_unknown_robot():
-    assert DEFAULT_ROBOT in ROBOTS and get_robot(DEFAULT_ROBOT).name == DEFAULT_ROBOT
-    with pytest.raises(RobotError, match=r"unknown robot 'ur42'; known robots: .*" + DEFAULT_ROBOT) as e:
+    assert {"panda", "ur5e"} <= set(ROBOTS) and get_robot(DEFAULT_ROBOT).name == DEFAULT_ROBOT
+    assert get_robot("ur5e") is get_robot("ur5e")  # read once
+    with pytest.raises(RobotError, match=r"unknown robot 'ur42'; known robots: panda, ur5e") as e:
         get_robot("ur42")
     assert isinstance(e.value, M2MError)
+    with pytest.raises(RobotSpecError, match=r"robot spec file nowhere/arm\.yaml not found"):
+        get_robot("nowhere/arm.yaml")
 
 
 def test_names_and_sizes(robot):
@@ -47,66 +51,70 @@ def test_names_and_sizes(robot):
         assert len(values) == n_arm + n_grip and min(values) > 0
     assert len(robot.home) == len(robot.velocity_limit) == len(robot.acceleration_limit) == n_arm
     assert min(robot.velocity_limit) > 0 and min(robot.acceleration_limit) > 0
-    assert 0 < robot.tcp_offset < robot.tip_offset and robot.max_grasp_width < 2 * robot.gripper_open
+    assert robot.T_ee_tcp[2, 3] > 0 and robot.tip_depth > 0 and robot.max_grasp_width < 2 * robot.gripper_open
+    assert np.allclose(robot.T_ee_tcp[:3, :3].T @ robot.T_ee_tcp[:3, :3], np.eye(3))
     assert robot.home_q().shape == (robot.n_dofs,) and robot.home_q()[-1] == robot.gripper_open
-    with pytest.raises(ValueError, match="home has 2 values"):
-        RobotSpec(**{**robot.__dict__, "home": (0.0, 0.0)})
 
 
 def test_spec_agrees_with_the_model(robot, model):
-    """Joints exist in the model in dof order, home and gripper lie in their ranges, gains and force limits
-    are the model's actuators' (where it has position actuators on the arm joints)."""
+    """Joints in the model's dof order, limits the model's, home and gripper within them, the finger links the
+    ones the finger joints move; arm gains and force limits the model's position actuators'."""
     names = [model.joint(i).name for i in range(model.njnt)]
-    joints = (*robot.arm_joints, *robot.gripper_joints)
-    assert [model.jnt_qposadr[_joint(model, j)] for j in joints] == list(range(robot.n_dofs)), names
-    for j, q in zip(robot.arm_joints, robot.home, strict=True):
-        lo, hi = model.jnt_range[_joint(model, j)]
-        assert lo <= q <= hi, (j, q, lo, hi)
+    assert names == [*robot.arm_joints, *robot.gripper_joints]
+    for k, j in enumerate(names):
+        jid = model.joint(j).id
+        assert model.jnt_qposadr[jid] == k
+        assert robot.joint_limits[k] == pytest.approx(tuple(model.jnt_range[jid])), j
+    lo, hi = robot.limits_array().T
+    assert np.all(lo[: robot.n_arm] <= robot.home) and np.all(np.asarray(robot.home) <= hi[: robot.n_arm])
     for j in robot.gripper_joints:
-        lo, hi = model.jnt_range[_joint(model, j)]
-        assert (robot.gripper_closed, robot.gripper_open) == pytest.approx((lo, hi)), j
+        assert (robot.gripper_closed, robot.gripper_open) == pytest.approx(tuple(model.jnt_range[model.joint(j).id]))
+    assert robot.finger_links == tuple(model.body(model.jnt_bodyid[model.joint(j).id]).name
+                                       for j in robot.gripper_joints)  # fmt: skip
     bodies = {model.body(i).name for i in range(model.nbody)}
     assert {robot.ee_link, robot.wrist_camera.link, *robot.finger_links} <= bodies
     for a in range(model.nu):
         if model.actuator_trntype[a] != 0:  # tendon-driven (the coupled fingers)
             continue
-        j = names[model.actuator_trnid[a][0]]
-        if j in robot.arm_joints:
-            i = robot.arm_joints.index(j)
-            assert robot.kp[i] == pytest.approx(model.actuator_gainprm[a][0]), j
-            assert robot.kv[i] == pytest.approx(-model.actuator_biasprm[a][2]), j
-            assert robot.force_limit[i] == pytest.approx(model.actuator_forcerange[a][1]), j
+        i = robot.arm_joints.index(names[model.actuator_trnid[a][0]])
+        assert robot.kp[i] == pytest.approx(model.actuator_gainprm[a][0])
+        assert robot.kv[i] == pytest.approx(-model.actuator_biasprm[a][2])
+        assert robot.force_limit[i] == pytest.approx(model.actuator_forcerange[a][1])
+    assert dict(robot.provenance)["kp"] == "model+spec"  # the arm's from the model, the fingers' from the spec
 
 
 def test_reach_and_shoulder_bound_the_kinematics(robot, model):
-    """No joint configuration puts the TCP farther from the shoulder than ``reach``; the shoulder is where the
-    second joint's axis sits, whatever the first joint does."""
-    from mirage2matter.calib.kinematics import RobotKinematics, resolve_robot_path
-
-    kin = RobotKinematics(resolve_robot_path(robot.model))
+    """No joint configuration puts the ee link farther from the shoulder than ``reach`` (and some come within 75 %
+    of it); the shoulder lies on the first joint's axis at a fixed distance from the second's, whatever the
+    joints do."""
+    data = mujoco.MjData(model)
     rng = np.random.default_rng(0)
-    lo, hi = model.jnt_range[: robot.n_arm].T
-    far = 0.0
-    for _ in range(300):
-        q = rng.uniform(lo, hi)
-        T = kin.link_pose(q, robot.ee_link)
-        tcp = T[:3, 3] + robot.tcp_offset * T[:3, 2]
-        far = max(far, float(np.linalg.norm(tcp - robot.shoulder)))
-        j2 = model.body(model.jnt_bodyid[_joint(model, robot.arm_joints[1])]).name
-        assert np.allclose(kin.link_pose(q, j2)[:3, 3], robot.shoulder, atol=1e-9)
-    assert 0.7 * robot.reach < far <= robot.reach
+    lo, hi = robot.limits_array()[: robot.n_arm].T
+    shoulder = np.asarray(robot.shoulder)
+    j1, j2 = (model.joint(robot.arm_joints[k]).id for k in (0, 1))
+    far, gaps = 0.0, []
+    for _ in range(400):
+        data.qpos[: robot.n_arm] = rng.uniform(lo, hi)
+        mujoco.mj_kinematics(model, data)
+        far = max(far, float(np.linalg.norm(data.xpos[model.body(robot.ee_link).id] - shoulder)))
+        a1, p1 = data.xaxis[j1], data.xanchor[j1]
+        assert np.linalg.norm(np.cross(shoulder - p1, a1)) < 1e-9  # on axis 1
+        a2, p2 = data.xaxis[j2], data.xanchor[j2]
+        gaps.append(np.linalg.norm(np.cross(shoulder - p2, a2)))  # distance to axis 2
+    assert np.ptp(gaps) < 1e-9
+    assert 0.75 * robot.reach < far <= robot.reach
 
 
 def test_home_points_the_gripper_down_with_the_closing_axis_as_specified(robot):
     from mirage2matter.calib.kinematics import RobotKinematics
 
-    try:
-        T = RobotKinematics(robot.model).link_pose(np.asarray(robot.home), robot.ee_link)
-    except FileNotFoundError:
-        pytest.skip(f"{robot.model} is not installed")
-    assert T[:3, 2] @ [0, 0, -1] > 0.999  # approach axis straight down
-    axis = np.array([*robot.home_closing_axis, 0.0])
-    assert T[:3, 1] @ axis > 0.999
+    kin = RobotKinematics(robot.name)  # a robot name: its model, its end-effector link by default
+    T = kin.link_pose(np.asarray(robot.home)) @ robot.T_ee_tcp
+    assert np.allclose(T, RobotKinematics(robot.model).link_pose(np.asarray(robot.home), robot.ee_link)
+                       @ robot.T_ee_tcp)  # fmt: skip
+    assert T[:3, 2] @ [0, 0, -1] > 0.999  # the tool's approach axis straight down
+    assert T[:3, 1] @ np.array([*robot.home_closing_axis, 0.0]) > 0.999
+    assert 0.3 < np.linalg.norm(T[:2, 3]) < robot.reach  # ahead of the base, over the table
 
 
 def test_world_robot_defaults_from_the_spec(tmp_path):
@@ -124,38 +132,219 @@ def test_world_robot_defaults_from_the_spec(tmp_path):
     assert d["name"] == DEFAULT_ROBOT and WorldConfig.from_dict({"robot": d}, tmp_path).robot == old.robot
     with pytest.raises(WorldConfigError, match="robot.name: unknown robot 'ur42'"):
         WorldConfig.from_dict({"robot": {"name": "ur42"}}, tmp_path)
+    # The UR5e's composed model lives in the robot cache: world.yaml names the robot, not the generated file.
+    ur = WorldConfig.from_dict({"robot": {"name": "ur5e"}}, tmp_path)
+    assert ur.robot.file == get_robot("ur5e").model and "file" not in ur.to_dict()["robot"]
+    assert WorldConfig.from_dict(ur.to_dict(), tmp_path).robot == ur.robot
 
 
-def test_wrist_camera_and_dataset_names_come_from_the_spec(tmp_path):
+@pytest.mark.parametrize("name", sorted(ROBOTS))
+def test_wrist_camera_and_dataset_names_come_from_the_spec(tmp_path, name):
     from mirage2matter.datagen.sim_source import SimSourceConfig
     from mirage2matter.sim.tasks import GraspTask
-    from mirage2matter.world.config import WorldConfig
+    from mirage2matter.world.config import RobotConfig, WorldConfig
     from mirage2matter.world.sample import default_wrist_camera
 
-    spec = get_robot(DEFAULT_ROBOT)
-    cam = default_wrist_camera()
+    spec = get_robot(name)
+    cam = default_wrist_camera(robot=spec)
     m = spec.wrist_camera
     assert cam.mount == m.link == spec.ee_link and (cam.width, cam.height) == (m.width, m.height)
     assert np.allclose(cam.T_mount_cam, m.T_link_cam)
     assert cam.K[1, 1] == pytest.approx(0.5 * m.height / np.tan(np.radians(0.5 * m.fov_deg)))
-    ds = SimSourceConfig(world=WorldConfig(root=tmp_path), task=GraspTask("banana")).spec()
+    world = WorldConfig(root=tmp_path, robot=RobotConfig(name=name))
+    ds = SimSourceConfig(world=world, task=GraspTask("banana")).spec()
     assert ds.state_names == spec.state_names and ds.action_names == spec.action_names
     assert ds.robot_type == spec.robot_type
+    assert len(ds.state_names) == spec.n_dofs and ds.action_names[-1] == "gripper"
 
 
 def test_world_validation_checks_the_model_against_the_spec(tmp_path):
     """A model lacking the named robot's joints, or a home of the wrong length, is refused before any
     simulator is built."""
-    from mirage2matter.calib.kinematics import resolve_robot_path
     from mirage2matter.world.config import RobotConfig, WorldConfig, WorldConfigError
     from mirage2matter.world.validate import validate_world
 
     spec = get_robot(DEFAULT_ROBOT)
-    hand_only = resolve_robot_path(spec.model).parent / "hand.xml"  # the Panda's gripper without its arm
-    if not hand_only.is_file():
-        pytest.skip(f"{hand_only} is not installed")
+    hand_only = resolve_model(spec.model).parent / "hand.xml"  # the Panda's gripper without its arm
     validate_world(WorldConfig(root=tmp_path))
     with pytest.raises(WorldConfigError, match=r"lacks the joints \['joint1'"):
         validate_world(WorldConfig(root=tmp_path, robot=RobotConfig(file=str(hand_only))))
     with pytest.raises(WorldConfigError, match=r"robot\.home: 3 joint value\(s\) for the robot.s 7 joints"):
         validate_world(WorldConfig(root=tmp_path, robot=RobotConfig(home=(0.0, 0.0, 0.0))))
+    # the UR5e's model under the Panda's name
+    with pytest.raises(WorldConfigError, match=r"lacks the joints"):
+        validate_world(WorldConfig(root=tmp_path, robot=RobotConfig(file=get_robot("ur5e").model)))
+
+
+# ---- a user's own robot: spec files ------------------------------------------------------------------------
+PANDA_URDF = "urdf/panda_bullet/panda.urdf"
+
+
+def _urdf_spec(**changes) -> dict:
+    """Genesis' bundled Panda URDF (pybullet's: it has velocity limits and efforts, no gains) as a user's spec."""
+    spec = {
+        "name": "panda_urdf",
+        "model": PANDA_URDF,
+        "arm": {"joints": [f"panda_joint{i}" for i in range(1, 8)], "home": [0, -0.785, 0, -2.356, 0, 1.571, 0.785]},
+        "gripper": {"joints": ["panda_finger_joint1", "panda_finger_joint2"]},
+        "end_effector": {"link": "panda_hand", "tcp": [0, 0, 0.1034], "tip_depth": 0.0089},
+        "cameras": {"wrist": {"link": "panda_hand", "eye": [0.07, 0, 0], "target": [0, 0, 0.14], "up": [1, 0, 0]}},
+    }
+    for key, value in changes.items():
+        section, _, field = key.partition("__")
+        if field:
+            spec[section] = {**spec[section], field: value}
+        elif value is None:
+            spec.pop(section)
+        else:
+            spec[section] = value
+    return spec
+
+
+def _write(tmp_path: Path, spec: dict, name: str = "robot.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(json.dumps(spec) if name.endswith(".json") else yaml.safe_dump(spec))
+    return path
+
+
+def test_a_urdf_robot_reads_its_limits_from_the_model(tmp_path):
+    """Velocity limits and efforts from the URDF's <limit>, the rest documented defaults; a fixed link (the hand)
+    is kept as a link; the spec loads from YAML and from JSON alike."""
+    path = _write(tmp_path, _urdf_spec())
+    spec = get_robot(str(path))
+    assert spec.name == "panda_urdf" and spec.robot_type == "panda_urdf" and spec.source == path.resolve()
+    assert spec.velocity_limit == (2.175,) * 4 + (2.61,) * 3  # the URDF's
+    assert spec.acceleration_limit == pytest.approx([ACCELERATION_PER_VELOCITY * v for v in spec.velocity_limit])
+    assert spec.force_limit == (87.0,) * 4 + (12.0,) * 3 + (20.0, 20.0)  # URDF effort
+    assert spec.kp == pytest.approx([DEFAULT_KP_PER_FORCE * f for f in spec.force_limit])
+    assert dict(spec.provenance) == {"velocity_limit": "model", "acceleration_limit": "default",
+                                     "force_limit": "model", "kp": "default", "kv": "default"}  # fmt: skip
+    assert spec.joint_limits[3] == pytest.approx((-3.1416, 0.0)) and spec.joint_limits[7] == pytest.approx((0, 0.04))
+    assert (spec.gripper_open, spec.gripper_closed) == (0.04, 0.0)  # the finger range's ends
+    assert spec.finger_state_names == ("panda_finger_joint1", "panda_finger_joint2")
+    assert spec.finger_links == ("panda_leftfinger", "panda_rightfinger")
+    assert spec.max_grasp_width == pytest.approx(0.072)
+    assert spec.shoulder == pytest.approx((0, 0, 0.333))
+    assert spec.reach == pytest.approx(get_robot("panda").reach, abs=1e-5)  # the same arm as the MJCF
+    # the spec gives speeds the model has: the model's win (the spec's fill only what a model lacks)
+    faster = get_robot(str(_write(tmp_path, _urdf_spec(limits={"velocity": [9.0] * 7}), "faster.yaml")))
+    assert faster.velocity_limit == spec.velocity_limit
+    as_json = get_robot(str(_write(tmp_path, _urdf_spec(), "robot.json")))
+    assert as_json.velocity_limit == spec.velocity_limit and as_json.model == spec.model
+    # an MJCF has no speed limits: without the spec's, the documented default
+    mjcf = _urdf_spec(model="xml/franka_emika_panda/panda.xml", arm={"joints": [f"joint{i}" for i in range(1, 8)],
+                      "home": [0, -0.785, 0, -2.356, 0, 1.571, 0.785]}, gripper={"joints": ["finger_joint1",
+                      "finger_joint2"], "open": 0.03}, end_effector={"link": "hand"}, cameras=None,
+                      control={"force_limit": {"finger_joint1": 100, "finger_joint2": 100}})  # fmt: skip
+    plain = get_robot(str(_write(tmp_path, mjcf, "mjcf.yaml")))
+    assert plain.velocity_limit == (DEFAULT_VELOCITY["hinge"],) * 7 and plain.gripper_open == 0.03
+    with pytest.raises(KeyError, match="no 'wrist' camera mount"):
+        plain.camera_mount("wrist")
+
+
+def test_world_yaml_names_a_spec_file_relative_to_itself(tmp_path):
+    from mirage2matter.world.config import RobotConfig, WorldConfig, read_world, save_world
+
+    folder = tmp_path / "robots"
+    folder.mkdir()
+    path = _write(folder, _urdf_spec())
+    world = WorldConfig(root=tmp_path / "world", robot=RobotConfig(name=str(path)))
+    saved = save_world(world)
+    text = saved.read_text()
+    assert "name: ../robots/robot.yaml" in text and PANDA_URDF in text
+    back = read_world(saved)
+    assert back.robot == world.robot and back.robot.spec.name == "panda_urdf"
+    # a dataset of this world is another one when the spec file's content changes (same path, same world.yaml)
+    from mirage2matter.datagen.simulated import world_fingerprint
+
+    before = world_fingerprint(back)
+    _write(folder, _urdf_spec(gripper__coupling=100.0))
+    assert world_fingerprint(read_world(saved)) != before and read_world(saved).robot.spec.finger_coupling == 100.0
+
+
+def test_a_composed_arm_and_gripper(tmp_path):
+    """A URDF arm without a gripper (KUKA iiwa) fitted with the Franka hand at its last link: one model whose
+    joints are the arm's then the fingers'; the arm's URDF efforts kept; the tool centre where the hand puts it."""
+    spec = {
+        "name": "iiwa_hand",
+        "model": {"arm": "urdf/kuka_iiwa/model.urdf", "gripper": "xml/franka_emika_panda/hand.xml",
+                  "mount": "lbr_iiwa_link_7", "pos": [0, 0, 0.045]},
+        "arm": {"joints": [f"lbr_iiwa_joint_{i}" for i in range(1, 8)], "home": [0, 0.6, 0, -1.2, 0, 1.3, 0]},
+        "gripper": {"joints": ["gripper_finger_joint1", "gripper_finger_joint2"]},
+        "end_effector": {"link": "gripper_hand", "tcp": [0, 0, 0.1034]},
+        "control": {"force_limit": {"gripper_finger_joint1": 100, "gripper_finger_joint2": 100}},
+    }  # fmt: skip
+    robot = get_robot(str(_write(tmp_path, spec)))
+    info = model_info(resolve_model(robot.model))
+    assert info.joint_names == (*robot.arm_joints, *robot.gripper_joints)
+    assert robot.force_limit[:7] == (300.0,) * 7 and robot.velocity_limit == (10.0,) * 7  # the iiwa URDF's
+    from mirage2matter.calib.kinematics import RobotKinematics
+
+    kin = RobotKinematics(str(tmp_path / "robot.yaml"))
+    q = np.asarray(robot.home)
+    T_hand, T_flange = kin.link_pose(q), kin.link_pose(q, "lbr_iiwa_link_7")
+    offset = np.linalg.inv(T_flange) @ T_hand
+    assert np.allclose(offset[:3, 3], [0, 0, 0.045], atol=1e-9)  # the hand 4.5 cm out of the flange
+    assert abs(abs(np.trace(offset[:3, :3])) - 1) < 1e-9 or np.allclose(offset[:3, :3], np.eye(3), atol=1e-9)
+
+
+BAD = [
+    # (changes to the URDF spec, the field named, words of the advice)
+    ({"model": "nope/arm.urdf"}, "model", "not found"),
+    ({"model": "xml/franka_emika_panda/README.md"}, "model", "neither MJCF"),
+    ({"arm__joints": ["panda_joint1", "panda_joint8"]}, "arm.joints", r"no joint\(s\) \['panda_joint8'\]"),
+    ({"gripper": None}, "gripper.joints", "needs a gripper"),
+    ({"gripper__joints": ["panda_joint7"]}, "gripper.joints", "are arm joints too"),
+    ({"arm__joints": [f"panda_joint{i}" for i in (2, 1, 3, 4, 5, 6, 7)]}, "arm.joints", "in its order"),
+    ({"arm__home": [0, 0, 0, -1, 0, -1, 0]}, "arm.home", r"panda_joint6 = -1 is outside"),
+    ({"arm__home": [0, 0]}, "arm.home", "expected 7 numbers"),
+    ({"gripper__open": 0.08}, "gripper.open", "outside finger joint"),
+    ({"end_effector__link": "flange"}, "end_effector.link", "'flange' is not a link"),
+    ({"end_effector__link": "panda_leftfinger"}, "end_effector.link", "moves with the fingers"),
+    ({"end_effector__closing": [0, 0, 1]}, "end_effector", "perpendicular"),
+    ({"cameras": {"wrist": {"link": "gopro", "eye": [0, 0, 0], "target": [0, 0, 1]}}}, "cameras.wrist.link", "gopro"),
+    ({"control": {"kp": [1, 2]}}, "control.kp", "2 values for the 9 joints"),
+    ({"limits": {"velocity": {"elbow": 1}}}, "limits.velocity", r"\['elbow'\] are not among"),
+    ({"colour": "red"}, r"\(top level\)", r"unknown key\(s\) \['colour'\]"),
+    ({"name": "my arm"}, "name", "letters, digits"),
+]
+
+
+@pytest.mark.parametrize("changes,field,advice", BAD, ids=[b[1] + ":" + b[2][:20] for b in BAD])
+def test_a_bad_spec_file_is_named_with_its_field(tmp_path, changes, field, advice):
+    path = _write(tmp_path, _urdf_spec(**changes))
+    with pytest.raises(RobotSpecError, match=rf"{path}: {field}: .*{advice}"):
+        get_robot(str(path))
+
+
+def test_an_arm_without_a_gripper_is_refused_with_what_to_do(tmp_path):
+    """The KUKA iiwa URDF has no gripper: naming finger joints it lacks says so and how to fit one."""
+    spec = {"name": "iiwa", "model": "urdf/kuka_iiwa/model.urdf",
+            "arm": {"joints": [f"lbr_iiwa_joint_{i}" for i in range(1, 8)], "home": [0] * 7},
+            "gripper": {"joints": ["finger_joint1"]}, "end_effector": {"link": "lbr_iiwa_link_7"}}  # fmt: skip
+    path = _write(tmp_path, spec)
+    with pytest.raises(RobotSpecError, match=r"gripper\.joints: .*it has no gripper.*model: \{arm: ARM_FILE, gripper"):
+        get_robot(str(path))
+    spec["gripper"] = {}
+    with pytest.raises(RobotSpecError, match=r"gripper\.joints: missing \(the model has none beyond the arm's\)"):
+        get_robot(str(_write(tmp_path, spec, "b.yaml")))
+    spec["model"] = {"arm": "urdf/kuka_iiwa/model.urdf", "gripper": "xml/franka_emika_panda/hand.xml", "mount": "tip"}
+    with pytest.raises(RobotSpecError, match=r"model: .*no site or link named 'tip'.*lbr_iiwa_link_7"):
+        get_robot(str(_write(tmp_path, spec, "c.yaml")))
+
+
+def test_the_composed_model_is_self_contained_and_its_visual_meshes_known():
+    """The UR5e + hand model lives in its own folder with copies of both models' meshes (so the low-polygon render
+    copy can be made like a bundled model's), and the hand's visual meshes are found through its prefixed classes."""
+    import xml.etree.ElementTree as ET
+
+    from mirage2matter.env.robot_proxy import _visual_mesh_files
+
+    path = resolve_model(get_robot("ur5e").model)
+    root = ET.parse(path).getroot()
+    files = [m.get("file") for m in root.iter("mesh")]
+    assert files and all((path.parent / "meshes" / f).is_file() for f in files)
+    visual = _visual_mesh_files(path)
+    names = {Path(v).name.split("_", 1)[1] for v in visual}
+    assert {"hand_0.obj", "finger_1.obj", "upperarm_0.obj", "wrist3.obj"} <= names
+    assert not names & {"hand.stl", "finger_0.obj"}  # used by collision geoms: never decimated

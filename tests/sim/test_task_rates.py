@@ -1,7 +1,9 @@
-"""Issue 7's success rates over 50 randomised episodes per task on the sample world (slow: ~10-20 minutes)."""
+"""Success rates over 50 randomised episodes per task on the sample world: issue 7's for the Panda, issue 18's for
+the second robot (a UR5e with the Franka hand; slow: ~10-20 minutes per robot)."""
 
 import pytest
 
+from mirage2matter.robots import DEFAULT_ROBOT
 from mirage2matter.sim.tasks import evaluate, parse_task
 from mirage2matter.world import load_world
 
@@ -15,10 +17,14 @@ RATES = {
 
 
 @pytest.mark.slow
-def test_success_rates_over_50_episodes(sim_ws):
+@pytest.mark.parametrize("robot", [DEFAULT_ROBOT, "ur5e"])
+def test_success_rates_over_50_episodes(sample_world_ws, robot):
     from mirage2matter.sim.twin import Twin, TwinOptions
 
-    cfg = load_world(sim_ws / "world")
+    options = {} if robot == DEFAULT_ROBOT else {"robot": robot}
+    ws = sample_world_ws(gaussians_per_object=3000, scene_density_per_m2=4000.0, **options)
+    cfg = load_world(ws / "world")
+    assert cfg.robot.spec.name == robot
     twin = Twin.build(cfg, TwinOptions(render=False))
     try:
         rates = {}
@@ -27,6 +33,6 @@ def test_success_rates_over_50_episodes(sim_ws):
             rates[text] = r["success_rate"]
     finally:
         twin.close()
-    print("\nsuccess rates over 50 episodes:", rates)
+    print(f"\n{robot}: success rates over 50 episodes:", rates)
     low = {t: r for t, r in rates.items() if r < RATES[t]}
-    assert not low, f"below target: {low} (all: {rates})"
+    assert not low, f"{robot} below target: {low} (all: {rates})"

@@ -154,10 +154,10 @@ def test_plan_around_an_obstacle(twin):
     bx, by = twin.object_poses()["button"][:2, 3]
     q0 = twin.robot_state()
     axis = np.array([0.0, -1.0])
-    tcp = twin.spec.tcp_offset
-    qa = ik(twin, topdown(np.array([bx, by - 0.12, 0.03]), axis, tcp), q0)
-    qb = ik(twin, topdown(np.array([bx, by + 0.12, 0.03]), axis, tcp), np.concatenate([qa, q0[7:]]))
-    fingers = q0[7:]
+    T_ee_tcp, n_arm = twin.spec.T_ee_tcp, twin.spec.n_arm
+    qa = ik(twin, topdown(np.array([bx, by - 0.12, 0.03]), axis, T_ee_tcp), q0)
+    qb = ik(twin, topdown(np.array([bx, by + 0.12, 0.03]), axis, T_ee_tcp), np.concatenate([qa, q0[n_arm:]]))
+    fingers = q0[n_arm:]
     assert not segment_free(twin, qa, qb, fingers)
     t0 = time.perf_counter()
     path = plan(twin, np.concatenate([qa, fingers]), qb, timeout=10.0)
@@ -172,14 +172,14 @@ def test_plan_around_an_obstacle(twin):
         heights = []
         for q in dense[::5]:
             twin.robot.set_qpos(np.concatenate([q, fingers]))
-            heights.append(twin.T_base_link()[2, 3] - tcp)
+            heights.append((twin.T_base_link() @ T_ee_tcp)[2, 3])
     assert max(heights) > 0.055
 
 
 def test_unreachable_target_fails_fast(twin):
     twin.reset(seed=0, randomize=False)
     q0 = twin.robot_state()
-    T_far = topdown(np.array([1.6, 0.0, 0.2]), np.array([0.0, 1.0]), twin.spec.tcp_offset)
+    T_far = topdown(np.array([1.6, 0.0, 0.2]), np.array([0.0, 1.0]), twin.spec.T_ee_tcp)
     t0 = time.perf_counter()
     with pytest.raises(PlanningError, match="beyond its reach"):
         ik(twin, T_far, q0)

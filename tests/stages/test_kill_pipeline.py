@@ -13,7 +13,7 @@ import sys
 import pytest
 
 from mirage2matter.export import validate
-from mirage2matter.stages import STAGES
+from mirage2matter.stages import PIPELINE, STAGES
 from mirage2matter.workspace import Workspace
 
 SMALL = ["--capture.max-keyframes", "16", "--scene.iterations", "150", "--scene.checkpoint-every", "20",
@@ -53,7 +53,7 @@ def test_demo_killed_at_random_points_resumes_to_a_valid_result(tmp_path, sample
     assert any(rc == -signal.SIGKILL for _, rc, _ in seen)
     r = subprocess.run(args, capture_output=True, text=True, timeout=3600)
     assert r.returncode == 0, r.stderr[-3000:]
-    assert _finished_stages_are_whole(ws) == [s.name for s in STAGES]
+    assert _finished_stages_are_whole(ws) == [s.name for s in PIPELINE]
     assert validate(ws.dataset_dir("grasp_banana")) == []
     leftovers = [str(p) for p in ws.root.rglob("*") if ".tmp-" in p.name or ".old-" in p.name]
     assert not leftovers and not (ws.root / ".m2m").exists()

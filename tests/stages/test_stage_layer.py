@@ -103,10 +103,10 @@ def test_m2m_yaml_round_trips_and_names_bad_fields(tmp_path):
     path = cfg.save(tmp_path / "m2m.yaml")
     assert PipelineConfig.load(path) == cfg
     path.write_text("scene:\n  minuets: 3\n")
-    with pytest.raises(Exception, match=r"m2m.yaml: scene: unknown setting\(s\) minuets"):
+    with pytest.raises(Exception, match=r"m2m.yaml, line 2: scene: unknown setting\(s\) minuets; did you mean minutes"):
         PipelineConfig.load(path)
     path.write_text("world:\n  snap_to_table: 'no'\n")
-    with pytest.raises(Exception, match="world.snap_to_table: expected true or false"):
+    with pytest.raises(Exception, match="line 2: world.snap_to_table: expected true or false"):
         PipelineConfig.load(path)
     with pytest.raises(Exception, match="unknown setting"):
         from_dict(PipelineConfig, {"sceen": {}})

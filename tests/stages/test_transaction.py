@@ -154,8 +154,9 @@ def test_scene_training_killed_anywhere_resumes_and_finishes(imported_ws, tmp_pa
             "--checkpoint-every", "5"]  # fmt: skip
     rc = _kill_after(args, kill_at)
     scene = ws / "scene"
-    if rc == -9:
-        assert not scene.exists(), "a killed run left a partial scene/"
+    if rc == -9:  # killed: scene/ absent, or whole when the kill came after the commit (before the exit)
+        assert not scene.exists() or (json.loads((scene / "metrics.json").read_text())["iterations"] == 60
+                                      and (scene / "gaussians.ply").is_file()), "a killed run left a partial scene/"
     else:
         assert rc == 0 and (scene / "gaussians.ply").is_file()
     r = subprocess.run(args, capture_output=True, text=True, timeout=600)

@@ -11,6 +11,7 @@ only where the SfM saw that surface near the base. Points map as ``x' = s R x + 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,10 +39,11 @@ def default_T_base_board(spec: BoardSpec) -> np.ndarray:
 
 
 def _undistorted_normalized(camera: Camera, uv: np.ndarray) -> np.ndarray:
-    """Pixel coordinates (our +0.5 convention) [M,2] -> normalised image coordinates [M,2]."""
-    import cv2
-
-    return cv2.undistortPoints((uv - 0.5).reshape(-1, 1, 2), camera.K_opencv, camera.opencv_distortion()).reshape(-1, 2)
+    """Pixel coordinates (our +0.5 convention) [M,2] -> normalised image coordinates [M,2] through the camera's lens
+    (any model; NaN for a fisheye ray at 90 deg or more off the axis)."""
+    rays = camera.pixel_rays(uv)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(rays[:, 2:] > 1e-9, rays[:, :2] / rays[:, 2:], np.nan)
 
 
 @dataclass
@@ -71,7 +73,8 @@ def triangulate_board_corners(
         seen.append(cam.name)
         xy = _undistorted_normalized(cam, corners.reshape(-1, 2) + 0.5)
         for cid, p in zip(ids.ravel(), xy, strict=True):
-            obs.setdefault(int(cid), []).append((k, p))
+            if np.isfinite(p).all():
+                obs.setdefault(int(cid), []).append((k, p))
     if len(seen) < 3:
         raise AlignError(
             f"the target ({board.describe()}) was detected in {len(seen)} of {len(tried)} keyframes (needs >= 3); "
@@ -170,7 +173,9 @@ def align_scene(
     if rms_mm > 0.1 * board.feature_size * 1000:
         raise AlignError(
             f"the triangulated target does not have the shape of a {board.describe()} (corner residual {rms_mm:.1f} "
-            "mm after fitting); check its spec (sizes, dictionary) against the printed one"
+            f"mm after fitting, {len(tri.ids)} corners from {len(tri.frames_with_board)} keyframes); check its spec "
+            "(sizes, dictionary) against the printed one; if it is right, the SfM poses of those keyframes are off: "
+            "capture more views of the target (more keyframes, a slower orbit)"
         )
     icp_rmse, n_icp, method = None, 0, "marker"
     note = "the target alone (ICP off)" if not icp else ""
@@ -228,7 +233,7 @@ def apply_to_cameras(sim3: Sim3, cameras: list[Camera]) -> list[Camera]:
     out = []
     for cam in cameras:
         T = sim3.apply_pose(cam.T_world_cam)
-        out.append(Camera(cam.K, T, cam.width, cam.height, cam.name, dict(cam.distortion or {})))
+        out.append(dataclasses.replace(cam, T_world_cam=T, distortion=dict(cam.distortion)))
     return out
 
 

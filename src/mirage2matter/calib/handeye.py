@@ -448,8 +448,9 @@ def _explain_implausible(why: str, T_base_link, T_cam_board, mount: str, method:
 
 
 POSES_HELP = (
-    "a JSON {'robot': MODEL (optional), 'link': LINK (optional), 'units': {'position': 'm'|'mm', 'rotation': "
-    "'rad'|'deg', 'joints': 'rad'|'deg'} (optional; default m, rad, rad), 'views': [one per image: {'image': NAME, "
+    "a JSON {'robot': ROBOT (optional: a robot name, a robot spec file or a model file), 'link': LINK (optional), "
+    "'units': {'position': 'm'|'mm', 'rotation': 'rad'|'deg', 'joints': 'rad'|'deg'} (optional; default m, rad, "
+    "rad), 'views': [one per image: {'image': NAME, "
     "and either 'joints': [angles] (forward kinematics of the robot model), or the link's pose in the base: "
     "'T_base_link' (or 'T_base_<link>') 4x4, or 'position' [x, y, z] with 'quaternion_xyzw' or 'quaternion_wxyz' "
     "[4] or 'rpy' [roll, pitch, yaw] (fixed axes x, y, z: R = Rz(yaw) Ry(pitch) Rx(roll), as ROS)}]}"
@@ -553,7 +554,7 @@ def calibrate_from_files(
     (``poses``: "joints", "ee", or "auto": joints when every view has them), solve.
     ``camera``: a Camera (K + lens) or a bare K [3,3]. Returns the result and its JSON."""
     from ..inputs import InputError, check_joints, read_image_rgb, read_json
-    from ..robots import DEFAULT_ROBOT, get_robot
+    from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
 
     if refine is True or refine is False:  # the former boolean option
         refine = "exact" if refine else "none"
@@ -576,8 +577,9 @@ def calibrate_from_files(
             f"{images_dir} holds {len(images)} images but {joints_file} lists {len(views)} robot poses; "
             "give one pose per image"
         )
-    default = get_robot(DEFAULT_ROBOT)
-    link = link or spec.get("link", default.ee_link)
+    robot = robot or spec.get("robot") or DEFAULT_ROBOT  # a robot (name, spec file) or a model file
+    names_robot = is_spec_file(robot) or not Path(str(robot)).suffix
+    link = link or spec.get("link") or get_robot(robot if names_robot else DEFAULT_ROBOT).ee_link
     have_joints = all("joints" in v for v in views)
     use_joints = poses == "joints" or (poses == "auto" and have_joints)
     if use_joints and not have_joints:
@@ -588,7 +590,7 @@ def calibrate_from_files(
     if use_joints:
         from .kinematics import RobotKinematics
 
-        kin = RobotKinematics(robot or spec.get("robot", default.model))
+        kin = RobotKinematics(robot)
         n_chain, limits = kin.chain(link)
     w, h = _image_size(camera)
     used, skipped, T_links, observations = [], [], [], []
@@ -640,7 +642,7 @@ def calibrate_from_files(
     out = result.to_json(link, used)
     out.update(robot=str(kin.path) if kin is not None else None, poses="joints" if use_joints else "ee",
                skipped=skipped, board=board.to_json(), K=K.tolist(),
-               lens_corrected=bool(not isinstance(camera, np.ndarray) and camera.distortion))  # fmt: skip
+               lens_corrected=bool(not isinstance(camera, np.ndarray) and camera.has_distortion))  # fmt: skip
     return result, out
 
 

@@ -12,27 +12,19 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import M2MError
-from ..robots import DEFAULT_ROBOT, get_robot
+from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
+from ..robots.model import ModelError, load_model, resolve_model
 
-_DEFAULT = get_robot(DEFAULT_ROBOT)
+__all__ = ["KinematicsError", "RobotKinematics", "resolve_robot_path"]
 
 
 def resolve_robot_path(robot: str | os.PathLike) -> Path:
-    """A robot file: an existing path, or a path relative to Genesis' bundled assets."""
-    path = Path(robot)
-    if path.is_file():
-        return path
+    """A robot model file: an existing path, or a path relative to Genesis' bundled assets (FileNotFoundError
+    otherwise)."""
     try:
-        import genesis
-
-        bundled = Path(genesis.__file__).parent / "assets" / robot
-    except ImportError:
-        bundled = None
-    if bundled is not None and bundled.is_file():
-        return bundled
-    raise FileNotFoundError(
-        f"robot model {robot} not found (neither a file nor in Genesis' bundled assets, e.g. {_DEFAULT.model})"
-    )
+        return resolve_model(robot)
+    except ModelError as e:
+        raise FileNotFoundError(str(e)) from None
 
 
 class KinematicsError(M2MError, ValueError):
@@ -42,17 +34,21 @@ class KinematicsError(M2MError, ValueError):
 class RobotKinematics:
     """Link poses T_base_link [4,4] for joint vectors q; the model's world frame is the robot base.
 
-    ``robot``: a model file (or a path in Genesis' bundled assets); default: the default robot's model.
+    ``robot``: a robot (a registered name or a robot spec file: its model, its end-effector link as the default
+    link) or a model file (MJCF/URDF, or a path in Genesis' bundled assets); default: the default robot.
     """
 
     def __init__(self, robot: str | os.PathLike | None = None) -> None:
         import mujoco
 
-        self.path = resolve_robot_path(_DEFAULT.model if robot is None else robot)
+        robot = DEFAULT_ROBOT if robot is None else robot
+        spec = get_robot(robot) if is_spec_file(robot) or not Path(str(robot)).suffix else None
+        self.default_link: str | None = spec.ee_link if spec is not None else None
         try:
-            self._model = mujoco.MjModel.from_xml_path(str(self.path))
-        except ValueError as e:
-            raise KinematicsError(f"{self.path}: MuJoCo cannot load this robot model ({e})") from None
+            self.path = resolve_model(spec.model if spec is not None else robot)
+            self._model = load_model(self.path)
+        except ModelError as e:
+            raise KinematicsError(str(e)) from None
         self._data = mujoco.MjData(self._model)
         self._mujoco = mujoco
 
@@ -81,9 +77,13 @@ class RobotKinematics:
                 limits[a] = m.jnt_range[j]
         return n, limits
 
-    def link_pose(self, q: np.ndarray, link: str = _DEFAULT.ee_link) -> np.ndarray:
+    def link_pose(self, q: np.ndarray, link: str | None = None) -> np.ndarray:
         """T_base_link [4,4] at joint positions q [n] (n <= n_joints; the rest stay at 0); default link: the
-        default robot's end-effector link."""
+        robot's end-effector link."""
+        if link is None:
+            if self.default_link is None:
+                raise KinematicsError(f"{self.path.name}: name the link (a bare model file has no end-effector link)")
+            link = self.default_link
         q = np.asarray(q, dtype=np.float64).ravel()
         if q.size > self._model.nq:
             raise KinematicsError(f"{q.size} joint values given, the model {self.path.name} has {self._model.nq}")
@@ -103,7 +103,8 @@ class RobotKinematics:
     def base_points(self) -> np.ndarray:
         """Vertices [M,3] of the base link's meshes (the root body's geoms) at the zero pose, in
         the base frame: the part of the robot that stands on the table."""
-        m, d = self._model, self._data
+        m = load_model(self.path, meshes=True)
+        d = self._mujoco.MjData(m)
         roots = [b for b in range(1, m.nbody) if m.body_parentid[b] == 0]
         d.qpos[:] = 0.0
         self._mujoco.mj_kinematics(m, d)

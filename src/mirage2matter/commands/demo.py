@@ -1,25 +1,21 @@
-"""``m2m demo``: every stage on the bundled sample, as it would run on a capture of yours.
+"""``m2m demo``: ``m2m run`` on the bundled sample, as it would run on a capture of yours.
 
 The sample's ``m2m.yaml`` gives the stages their inputs (video, board, calibration, hand-eye images, head
-photo) and the demo's budget; any stage field can be changed with ``--<stage>.<field>``. The configuration
-is written to ``<workspace>/m2m.yaml``; each stage's record goes to ``pipeline.json`` (an interrupted run
-resumes), and the sample's ``ground_truth.json`` adds how close each stage came.
+photo) and the demo's budget; any stage field can be changed with ``--<stage>.<field>``. Those settings are
+written to ``<workspace>/m2m.yaml`` and the workspace is run as ``m2m run`` runs one (each stage's record in
+``pipeline.json``: an interrupted run resumes); the sample's ``ground_truth.json`` adds how close each stage came.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import time
 from pathlib import Path
-from typing import Any
 
-from .. import __version__, configure_threads
 from ..configs import add_flags, from_flags
 from ..sample.inspect import BUNDLED_SAMPLE
 from ..stages import PIPELINE
 from ..workspace import Workspace, WorkspaceError
-from .args import info, show
 
 
 def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
@@ -57,35 +53,19 @@ def _sample_config(sample: Path):
     return PipelineConfig.load(path)
 
 
-def _print_summary(result: dict[str, Any], ws: Workspace, elapsed: float) -> None:
-    lines = [f"m2m demo finished in {elapsed / 60:.1f} min; workspace {show(ws.root)}/"]
-    for stage, summary in result["stages"].items():
-        lines.append(f"  {stage:<10} {summary['line']}")
-        lines += [f"             {d}" for d in summary.get("details", [])]
-    lines.append(f"  summary    {show(ws.demo_summary)}; settings in {show(ws.config_file)}; stage records in "
-                 f"{show(ws.record_file)}")  # fmt: skip
-    print("\n".join(lines), flush=True)
-
-
 def run(args: argparse.Namespace) -> int:
-    from ..atomic import atomic_write
-    from ..stages.pipeline import PipelineConfig, run_pipeline
+    from ..stages.pipeline import PipelineConfig
     from ..stages.transaction import workspace_lock
+    from .run import run_workspace
 
-    configure_threads()
     sample = Path(args.sample)
     cfg = from_flags(PipelineConfig, args, _sample_config(sample))
     ws = Workspace(args.workspace)
     gt_path = sample / "ground_truth.json"
     gt = json.loads(gt_path.read_text()) if gt_path.is_file() else None
-    t0 = time.perf_counter()
     if ws.root.exists() and not ws.root.is_dir():
         raise WorkspaceError(f"workspace {ws.root} exists and is not a folder; choose another with -w")
-    with workspace_lock(ws, "m2m demo"):
+    with workspace_lock(ws, "m2m demo"):  # the settings written and run under one lock
         cfg.save(ws.config_file)
-        result = run_pipeline(ws, cfg, log=info, until=args.until, start=args.start, ground_truth=gt)
-        result["mirage2matter_version"] = __version__
-        with atomic_write(ws.demo_summary, "w", encoding="utf-8") as f:
-            json.dump(result, f, indent=1, default=str)
-    _print_summary(result, ws, time.perf_counter() - t0)
+        run_workspace(ws, args.until, args.start, ground_truth=gt, command="m2m demo", summary_file=ws.demo_summary)
     return 0

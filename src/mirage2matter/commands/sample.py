@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..robots import DEFAULT_ROBOT, ROBOTS
 from .args import info, int_at_least
 
 
@@ -25,6 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     sm.add_argument("--marker", choices=("charuco", "aruco", "apriltag", "aruco_grid"), default="charuco",
                     help="the target on the table: the ChArUco board (default), an 18 cm ArUco marker or AprilTag, or "
                     "an ArUco grid")
+    sm.add_argument("--robot", default=DEFAULT_ROBOT, metavar="ROBOT",
+                    help="the robot holding the board in the hand-eye images: a registered robot "
+                    f"({', '.join(ROBOTS)}) or a robot spec file (default {DEFAULT_ROBOT})")
     sm.set_defaults(func=run)
     he = sample_sub.add_parser(
         "handeye",
@@ -49,6 +53,15 @@ def run(args: argparse.Namespace) -> int:
 
     config = SampleConfig.short(args.seed) if args.short else SampleConfig(seed=args.seed)
     config = with_marker(config, args.marker)
+    if args.robot != config.robot:
+        from dataclasses import replace
+        from pathlib import Path
+
+        from ..robots import get_robot, is_spec_file
+
+        robot = str(Path(args.robot).resolve()) if is_spec_file(args.robot) else args.robot
+        get_robot(robot)  # an unknown robot or a bad spec file fails before anything renders
+        config = replace(config, robot=robot)
     make_sample(args.dir, config, log=info)
     print(f"wrote the sample to {args.dir} (ground_truth.json, scene.mp4, handeye/, gt/, contact_sheet.jpg)")
     return 0

@@ -35,10 +35,15 @@ def task_slug(task: str) -> str:
 
 
 def world_fingerprint(world: WorldConfig) -> dict[str, Any]:
-    """The world's content hash (world.yaml's fields, paths relative to its folder): a changed world is a
-    different dataset."""
+    """The world's content hash (world.yaml's fields, paths relative to its folder; a user's robot spec file by its
+    content): a changed world is a different dataset."""
+    from ..robots import is_spec_file
+
     text = json.dumps(world.to_dict(), sort_keys=True, default=str)
-    return {"world_sha1": hashlib.sha1(text.encode()).hexdigest()}
+    out = {"world_sha1": hashlib.sha1(text.encode()).hexdigest()}
+    if is_spec_file(world.robot.name):
+        out["robot_sha1"] = hashlib.sha1(Path(world.robot.name).read_bytes()).hexdigest()
+    return out
 
 
 def _source(world: WorldConfig, task: Task, cfg: GenerateConfig):

@@ -48,6 +48,7 @@ from ..errors import M2MError
 from ..geometry.camera import GL_TO_CV
 from ..geometry.rotation import quat_to_matrix
 from ..robots import DEFAULT_ROBOT, RobotSpec, get_robot
+from ..robots.model import genesis_morph, resolve_model
 
 __all__ = [
     "INTRINSICS_MODES",
@@ -167,7 +168,8 @@ class GroundTruthRenderer:
                  :class:`GroundTruthError` ("ground_truth rendering needs a sample's ground_truth.json")
     cameras      ``{name: (K [3,3], width, height)}``, OpenCV convention, pixel centres at +0.5
     with_robot   add the robot (the registered spec's model, base at the origin, at home with the gripper open)
-    robot        the robot's registered name (default: :data:`~mirage2matter.robots.DEFAULT_ROBOT`, the sample's)
+    robot        the robot: a registered name or a robot spec file (default:
+                 :data:`~mirage2matter.robots.DEFAULT_ROBOT`, the sample's)
     intrinsics   "exact" (refuse a K Genesis cannot render) or "twin" (approximate it as the physics twin does)
     config       the look (ambient, lights, background, shadow, near, far) as a
                  :class:`~mirage2matter.sample.render.RenderConfig`; default: the sample maker's. Its size and
@@ -242,7 +244,8 @@ class GroundTruthRenderer:
                 self._register(asset.name, add_asset(self._scene, asset, self._workdir / f"{i:03d}_{asset.name}"))
             self.robot = None
             if self.spec is not None:
-                self.robot = self._scene.add_entity(gs.morphs.MJCF(file=self.spec.model, pos=(0.0, 0.0, 0.0)))
+                keep = (self.spec.ee_link, *self.spec.finger_links)
+                self.robot = self._scene.add_entity(genesis_morph(gs, resolve_model(self.spec.model), keep_links=keep))
                 self._register("robot", self.robot)
             self._cams: dict[str, Any] = {}
             for name, K in self._K.items():
@@ -515,7 +518,7 @@ class GroundTruthFrames:
         T_base_body0 = twin.object_poses()  # at the placements, straight after the build
         w, h = size
         views = {c: (twin.camera(c)[1], w, h) for c in self.cameras}
-        self.renderer = GroundTruthRenderer(sample_dir, views, with_robot=True, robot=twin.spec.name,
+        self.renderer = GroundTruthRenderer(sample_dir, views, with_robot=True, robot=twin.cfg.robot.name,
                                             intrinsics="twin")  # fmt: skip
         try:
             known = set(self.renderer.object_names)

@@ -19,15 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_dir
+from ..robots.model import genesis_assets_dir, robot_cache_dir
 
 __all__ = ["genesis_asset", "lowpoly_robot", "render_robot_file", "robot_cache_dir"]
-
-
-def robot_cache_dir() -> Path:
-    """Where render copies of robots are kept (``$M2M_CACHE/robots``, default ``~/.cache/mirage2matter/robots``)."""
-    import os
-
-    return Path(os.environ.get("M2M_CACHE", Path.home() / ".cache" / "mirage2matter")) / "robots"
 
 
 def render_robot_file(robot_file: str, max_faces: int | None) -> str:
@@ -43,13 +37,30 @@ def genesis_asset(path: str) -> Path:
     p = Path(path)
     if p.is_absolute():
         return p
-    import genesis
+    assets = genesis_assets_dir()
+    return (assets if assets is not None else Path.cwd()) / p
 
-    return Path(genesis.__file__).parent / "assets" / p
+
+def _visual_classes(root: ET.Element) -> set[str]:
+    """Default classes whose geoms draw only (contype = conaffinity = 0, set there or in an enclosing class)."""
+    out: set[str] = set()
+
+    def walk(node: ET.Element, inherited: dict[str, str]) -> None:
+        for d in node.findall("default"):
+            attrs = dict(inherited)
+            g = d.find("geom")
+            if g is not None:
+                attrs.update({k: g.get(k) for k in ("contype", "conaffinity") if g.get(k) is not None})
+            if d.get("class") and attrs.get("contype") == "0" and attrs.get("conaffinity") == "0":
+                out.add(d.get("class"))
+            walk(d, attrs)
+
+    walk(root, {})
+    return out
 
 
 def _visual_mesh_files(xml_path: Path) -> set[str]:
-    """Mesh files used only by visual geoms (the MJCF's ``visual`` default class or contype=conaffinity=0)."""
+    """Mesh files used only by visual geoms (contype = conaffinity = 0, on the geom or through its default class)."""
     root = ET.parse(xml_path).getroot()
     meshdir = (root.find("compiler").get("meshdir", "") if root.find("compiler") is not None else "") or ""
     files = {}
@@ -57,12 +68,13 @@ def _visual_mesh_files(xml_path: Path) -> set[str]:
         f = m.get("file")
         if f:
             files[m.get("name") or Path(f).stem] = str(Path(meshdir) / f)
+    visual_classes = _visual_classes(root) | {"visual"}
     used_by_collision, used_by_visual = set(), set()
     for g in root.iter("geom"):
         mesh = g.get("mesh")
         if mesh is None:
             continue
-        visual = g.get("class") == "visual" or (g.get("contype") == "0" and g.get("conaffinity") == "0")
+        visual = g.get("class") in visual_classes or (g.get("contype") == "0" and g.get("conaffinity") == "0")
         (used_by_visual if visual else used_by_collision).add(files.get(mesh, mesh))
     return used_by_visual - used_by_collision
 

@@ -8,6 +8,7 @@ intrinsics shifted accordingly.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
@@ -87,4 +88,5 @@ def crop_camera(camera: Camera, roi: tuple[int, int, int, int]) -> Camera:
     K = camera.K.copy()
     K[0, 2] -= x0
     K[1, 2] -= y0
-    return Camera(K, camera.T_world_cam.copy(), x1 - x0, y1 - y0, camera.name, dict(camera.distortion))
+    return dataclasses.replace(camera, K=K, T_world_cam=camera.T_world_cam.copy(), width=x1 - x0, height=y1 - y0,
+                               distortion=dict(camera.distortion))  # fmt: skip

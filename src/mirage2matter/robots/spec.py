@@ -1,20 +1,22 @@
 """What the rest of the package may know about a robot: one frozen :class:`RobotSpec` per robot.
 
-Everything robot-specific (model file, joint names, home, PD gains, limits, gripper geometry, camera
-mounts, dataset names) lives in one spec, so the simulator, the planner, the scripted tasks, the
-calibration tools and the dataset writer agree, and a second robot is one new spec.
+Everything robot-specific (model file, joint names, home, PD gains, limits, gripper geometry, tool centre,
+camera mounts, dataset names) lives in one spec, so the simulator, the planner, the scripted tasks, the
+calibration tools and the dataset writer agree, and a second robot is one new spec file (``robots.specfile``
+reads one, taking limits and reach from the model).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-from ..geometry.camera import look_at_pose
+from ..errors import M2MError
 
-__all__ = ["CameraMount", "RobotSpec"]
+__all__ = ["CameraMount", "RobotError", "RobotSpec", "RobotSpecError"]
 
 
 @dataclass(frozen=True)
@@ -41,6 +43,8 @@ class CameraMount:
     @property
     def T_link_cam(self) -> np.ndarray:
         """[4,4] camera pose in the link's frame (OpenCV axes)."""
+        from ..geometry.camera import look_at_pose  # not at import: the command line imports robots, not torch
+
         return look_at_pose(eye=self.eye, target=self.target, up=self.up)
 
 
@@ -50,32 +54,38 @@ class RobotSpec:
 
     name                identifier in world.yaml (``robot.name``) and :func:`~mirage2matter.robots.get_robot`
     robot_type          LeRobot's ``robot_type`` of datasets recorded with it
-    model               MJCF/URDF file: a path, or one inside Genesis' bundled assets
-    arm_joints          the arm's joint names in the model, base to tip (the first dofs)
+    model               the MJCF/URDF file (an absolute path, or one inside Genesis' bundled assets)
+    arm_joints          the arm's joint names in the model, base to tip (the model's first dofs)
     gripper_joints      the finger joint names in the model (the dofs after the arm's)
-    finger_links        the finger link names (they may touch what the gripper holds)
-    ee_link             the link the gripper hangs off (IK target, wrist camera mount)
-    gripper_open        finger joint value of the open gripper (m per finger)
-    gripper_closed      finger joint value of the closed gripper (m per finger)
+    finger_links        the links the finger joints move (they may touch what the gripper holds)
+    ee_link             the link the gripper hangs off (IK target, tool centre, wrist camera mount)
+    gripper_open        finger joint value of the open gripper (m or rad per finger)
+    gripper_closed      finger joint value of the closed gripper
     home                the arm's rest joints [n_arm] (rad)
-    kp                  PD position gains [n_arm + n_gripper]
-    kv                  PD velocity gains [n_arm + n_gripper]
-    force_limit         joint force / torque limits [n_arm + n_gripper] (N, N m)
-    finger_coupling     spring (N/m) on the difference of the finger joints while squeezing
+    joint_limits        (lo, hi) of every joint [n_dofs] (from the model)
+    kp                  PD position gains [n_dofs]
+    kv                  PD velocity gains [n_dofs]
+    force_limit         joint force / torque limits [n_dofs] (N, N m)
+    finger_coupling     spring (N/m) on the difference of the finger joints while squeezing (0: none)
     velocity_limit      arm joint speed limits [n_arm] (rad/s)
     acceleration_limit  arm joint acceleration limits [n_arm] (rad/s^2)
-    shoulder            xyz (m, base frame) of the first joint axis' intersection with the second
-    reach               distance (m) from the shoulder beyond which no hand pose is reachable
-    tcp_offset          distance (m) along the ee link's approach axis (z) to the point between the finger pads
-    tip_offset          distance (m) along the approach axis to the fingertip ends
+    shoulder            xyz (m, base frame): the point of the first joint's axis nearest the second's
+    reach               no joint configuration puts the ee link's origin farther than this (m) from the shoulder
+    tcp_position        the tool centre (between the finger pads) in the ee link's frame (m)
+    tcp_approach        the unit approach axis (towards the fingertips) in the ee link's frame
+    tcp_closing         the unit axis the fingers close along in the ee link's frame (normal to the approach)
+    tip_depth           how far (m) the fingertip ends reach beyond the tool centre along the approach
     max_grasp_width     widest object slab (m) the open fingers take, with margin
     pad_half_width      half the fingers' width (m) across the closing axis, with margin
-    min_grasp_height    lowest TCP height (m) over the table for a top-down grasp (the fingertips clear it)
+    min_grasp_height    lowest tool-centre height (m) over the table for a top-down grasp (the fingertips clear it)
     grasp_force         squeezing force (N per finger) while holding
     home_closing_axis   xy direction (base frame) of the fingers' closing axis at home: top-down grasps with
                         the closing axis near it need the least wrist rotation (see ``home_closing_yaw``)
-    wrist_camera        the default camera on the hand (wrist view)
+    cameras             (name, mount) of the cameras on the robot ("wrist": the default hand camera)
     finger_state_names  names of the finger entries of ``observation.state``
+    source              the spec file it was read from (None: made in code)
+    provenance          (quantity, where its values came from: "model", "spec" or "default") for the limits and
+                        gains, so a user can see which numbers their model gave
     """
 
     name: str
@@ -88,6 +98,7 @@ class RobotSpec:
     gripper_open: float
     gripper_closed: float
     home: tuple[float, ...]
+    joint_limits: tuple[tuple[float, float], ...]
     kp: tuple[float, ...]
     kv: tuple[float, ...]
     force_limit: tuple[float, ...]
@@ -96,25 +107,33 @@ class RobotSpec:
     acceleration_limit: tuple[float, ...]
     shoulder: tuple[float, float, float]
     reach: float
-    tcp_offset: float
-    tip_offset: float
+    tcp_position: tuple[float, float, float]
+    tcp_approach: tuple[float, float, float]
+    tcp_closing: tuple[float, float, float]
+    tip_depth: float
     max_grasp_width: float
     pad_half_width: float
     min_grasp_height: float
     grasp_force: float
     home_closing_axis: tuple[float, float]
-    wrist_camera: CameraMount
+    cameras: tuple[tuple[str, CameraMount], ...]
     finger_state_names: tuple[str, ...]
+    source: Path | None = None
+    provenance: tuple[tuple[str, str], ...] = field(default=(), compare=False)
 
     def __post_init__(self) -> None:
         n_arm, n_all = len(self.arm_joints), len(self.arm_joints) + len(self.gripper_joints)
         sizes = {"home": (self.home, n_arm), "velocity_limit": (self.velocity_limit, n_arm),
                  "acceleration_limit": (self.acceleration_limit, n_arm), "kp": (self.kp, n_all),
                  "kv": (self.kv, n_all), "force_limit": (self.force_limit, n_all),
+                 "joint_limits": (self.joint_limits, n_all),
                  "finger_state_names": (self.finger_state_names, len(self.gripper_joints))}  # fmt: skip
         wrong = [f"{k} has {len(v)} values, expected {n}" for k, (v, n) in sizes.items() if len(v) != n]
         if wrong:
             raise ValueError(f"robot {self.name!r}: " + "; ".join(wrong))
+        a, c = np.asarray(self.tcp_approach, np.float64), np.asarray(self.tcp_closing, np.float64)
+        if abs(np.linalg.norm(a) - 1) > 1e-6 or abs(np.linalg.norm(c) - 1) > 1e-6 or abs(a @ c) > 1e-6:
+            raise ValueError(f"robot {self.name!r}: tcp_approach and tcp_closing must be orthogonal unit vectors")
 
     @property
     def n_arm(self) -> int:
@@ -127,21 +146,57 @@ class RobotSpec:
         return len(self.arm_joints) + len(self.gripper_joints)
 
     @property
+    def T_ee_tcp(self) -> np.ndarray:
+        """[4,4] the tool frame in the ee link's frame: origin at the tool centre, z = approach, y = closing."""
+        z, y = np.asarray(self.tcp_approach, np.float64), np.asarray(self.tcp_closing, np.float64)
+        T = np.eye(4)
+        T[:3, :3] = np.stack([np.cross(y, z), y, z], axis=1)
+        T[:3, 3] = self.tcp_position
+        return T
+
+    @property
     def home_closing_yaw(self) -> float:
         """Yaw (rad, base frame) of ``home_closing_axis``."""
         return math.atan2(self.home_closing_axis[1], self.home_closing_axis[0])
 
+    def camera_mount(self, name: str) -> CameraMount:
+        """The mount of the robot's camera ``name``; KeyError naming the robot's cameras otherwise."""
+        for n, m in self.cameras:
+            if n == name:
+                return m
+        have = [n for n, _ in self.cameras]
+        raise KeyError(f"robot {self.name!r} has no {name!r} camera mount (its cameras: {have}); add cameras.{name} "
+                       "to its spec file")  # fmt: skip
+
+    @property
+    def wrist_camera(self) -> CameraMount:
+        """The default camera on the hand (wrist view)."""
+        return self.camera_mount("wrist")
+
     @property
     def state_names(self) -> tuple[str, ...]:
-        """``observation.state``: the arm joints (rad) then the fingers (m)."""
+        """``observation.state``: the arm joints (rad) then the fingers."""
         return (*self.arm_joints, *self.finger_state_names)
 
     @property
     def action_names(self) -> tuple[str, ...]:
-        """``action``: the arm joint targets then one gripper target (m per finger)."""
+        """``action``: the arm joint targets then one gripper target (per finger)."""
         return (*self.arm_joints, "gripper")
 
     def home_q(self, gripper: float | None = None) -> np.ndarray:
         """[n_dofs] the home arm joints with every finger at ``gripper`` (default: open)."""
         g = self.gripper_open if gripper is None else gripper
         return np.concatenate([np.asarray(self.home, dtype=np.float64), [g] * len(self.gripper_joints)])
+
+    def limits_array(self) -> np.ndarray:
+        """[n_dofs, 2] :attr:`joint_limits` as an array."""
+        return np.asarray(self.joint_limits, dtype=np.float64).reshape(-1, 2)
+
+
+class RobotError(M2MError, ValueError):
+    """An unknown robot name; the message lists the known robots."""
+
+
+class RobotSpecError(RobotError):
+    """A robot spec file (or its model) that cannot describe a robot: the message names the file, the field and
+    what to do."""

@@ -30,6 +30,7 @@ import numpy as np
 from ..atomic import atomic_dir
 from ..calib.board import BoardSpec, GridSpec, MarkerSpec
 from ..errors import M2MError
+from ..robots import DEFAULT_ROBOT
 from .inspect import BUNDLED_SAMPLE
 from .trajectory import OrbitConfig, orbit_poses
 
@@ -54,6 +55,9 @@ class SampleConfig:
     )
     handeye_views: int = 18
     crf: int = 23  # H.264 quality: visually clean at a few MB for the shipped sample
+    # The robot holding the board in the hand-eye images (a registered name or a robot spec file); its base
+    # stands at the origin like the default Panda's.
+    robot: str = DEFAULT_ROBOT
 
     @classmethod
     def short(cls, seed: int = 0) -> SampleConfig:
@@ -111,6 +115,30 @@ def _contact_sheet(path: Path, tiles: list[np.ndarray], columns: int = 4, width:
     sheet.save(path, quality=88)
 
 
+def _robot_ref(robot: str, renderer: Any) -> str:
+    """The joints file's robot: the default robot's bundled model file (as the shipped sample has it), else the robot
+    itself (a name or a spec file: a composed model lives in a machine's cache)."""
+    return renderer.robot_file if robot == DEFAULT_ROBOT else robot
+
+
+def _write_settings(path: Path, robot: str) -> None:
+    """The sample's m2m.yaml: the bundled one, with the robot named where the stages take one (align, compose)."""
+    if robot == DEFAULT_ROBOT:
+        shutil.copyfile(BUNDLED_SAMPLE / "m2m.yaml", path)
+        return
+    import yaml
+
+    from ..inputs import read_yaml
+
+    data = read_yaml(BUNDLED_SAMPLE / "m2m.yaml", "sample settings")
+    data.setdefault("align", {})["robot"] = robot
+    data.setdefault("world", {})["robot"] = robot
+    lines = (BUNDLED_SAMPLE / "m2m.yaml").read_text().splitlines()
+    head = "".join(line + "\n" for line in lines if line.startswith("#"))
+    path.write_text(f"{head}# The sample's robot: {robot} (`m2m sample make --robot {robot}`).\n"
+                    + yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120))  # fmt: skip
+
+
 def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Callable[[str], None] = print) -> dict:
     """Generate the sample into the new directory ``out``; returns the ground truth dict."""
     out = Path(out)
@@ -128,7 +156,7 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
         board.save(tmp / "board.json")
         config.handeye_board.save(tmp / "handeye" / "board.json")
         # the pipeline settings of the sample layout (inputs by relative path), as `m2m demo --sample` reads them
-        shutil.copyfile(BUNDLED_SAMPLE / "m2m.yaml", tmp / "m2m.yaml")
+        _write_settings(tmp / "m2m.yaml", config.robot)
         ground_truth_assets = [a for a in assets if a.category in ("board", "object", "button")]
         mesh_paths = export_assets(ground_truth_assets, tmp / "gt")
         log(f"assets: {len(assets)} meshes, ground truth for {', '.join(mesh_paths)}")
@@ -158,7 +186,8 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
         table_board = next(a for a in assets if a.category == "board")
         held_board = board_asset(config.handeye_board)  # same name: it replaces the table board
         with SampleRenderer(
-            assets, render_cfg, with_robot=True, held_board=held_board, workdir=tmp / ".render_robot"
+            assets, render_cfg, with_robot=True, held_board=held_board, workdir=tmp / ".render_robot",
+            robot=config.robot,
         ) as robot_renderer:
             try:
                 configurations = sample_handeye_configurations(
@@ -184,7 +213,8 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
             # the renderer mounts the slab's object frame; the ground truth is the ChArUco board frame
             T_hand_board = robot_renderer.T_hand_board @ np.asarray(held_board.meta["T_obj_board"])
         (tmp / "handeye" / "joints.json").write_text(
-            json.dumps({"robot": robot_renderer.robot_file, "link": robot_renderer.ee_link, "views": records}, indent=1)
+            json.dumps({"robot": _robot_ref(config.robot, robot_renderer), "link": robot_renderer.ee_link,
+                        "views": records}, indent=1)  # fmt: skip
         )
         log(f"hand-eye: {len(records)} views of the held board from the head camera")
 
@@ -217,6 +247,7 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
                 "images": "handeye/images",
                 "joints": "handeye/joints.json",
                 "mount": "head (eye-to-hand)",
+                "robot": config.robot,
                 "T_hand_board": np.asarray(T_hand_board).tolist(),
                 "board": config.handeye_board.to_json(),
             },

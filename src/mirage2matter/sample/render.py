@@ -1,7 +1,7 @@
 """Rendering layer of the bundled sample: one Genesis rasterizer scene, a camera in our convention.
 
 The scene holds the placed assets (textured meshes, robot-base frame = Genesis world) and, for the
-hand-eye images, the Franka Panda (base at the origin) holding a board between its fingers.
+hand-eye images, the robot (base at the origin; the Franka Panda by default) holding a board between its fingers.
 
 Genesis 1.4.5 camera convention, converted here at the border (checked by
 ``tests/sample/test_render.py::test_projection_convention``):
@@ -33,7 +33,8 @@ import trimesh
 from mirage2matter.geometry.camera import GL_TO_CV, look_at_pose
 from mirage2matter.geometry.rotation import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix, rotation_angle
 from mirage2matter.geometry.sim3 import invert_rigid
-from mirage2matter.robots import DEFAULT_ROBOT, get_robot
+from mirage2matter.robots import DEFAULT_ROBOT, RobotSpec, get_robot
+from mirage2matter.robots.model import genesis_morph, resolve_model
 from mirage2matter.sample.types import PlacedAsset
 
 __all__ = [
@@ -52,12 +53,14 @@ __all__ = [
     "sample_handeye_configurations",
 ]
 
-ROBOT = get_robot(DEFAULT_ROBOT)  # the sample's robot (model bundled with genesis-world); home, links, gripper
-# Hand-frame depth (along the approach axis z) of the board edge held by the fingers. The fingertip
-# pads span z ~ 0.094..0.111 m in the Panda hand frame, so the board is gripped over ~1.1 cm.
-BOARD_GRIP_EDGE_Z = 0.10
-# Inner face of a fingertip pad sits ~1.5 mm from the finger joint's zero, so the joint value that
-# just touches a board of thickness t is t/2 - 1.5 mm (clipped to the joint range).
+ROBOT = get_robot(DEFAULT_ROBOT)  # the sample's default robot (model bundled with genesis-world)
+# Where the fingers hold the board's edge: this far (m) behind the tool centre along the approach axis. The
+# Franka hand's fingertip pads span 0.094..0.111 m along its z, its tool centre is at 0.1034: the edge at 0.10
+# is gripped over ~1.1 cm.
+BOARD_GRIP_EDGE_DEPTH = 0.0034
+# Inner face of a Franka fingertip pad sits ~1.5 mm from the finger joint's zero, so the joint value that
+# just touches a board of thickness t is t/2 - 1.5 mm (clipped to the joint range; visual only, the board does
+# not collide).
 _PAD_INSET = 0.0015
 
 
@@ -183,23 +186,22 @@ def _face_normal_obj(board: PlacedAsset) -> np.ndarray:
     return np.asarray(board.meta.get("face_normal_obj", (0.0, 0.0, 1.0)), dtype=np.float64)
 
 
-def default_T_hand_board(board: PlacedAsset) -> np.ndarray:
-    """[4,4] fixed mount of a board in the Panda ``hand`` frame: gripped by one long edge.
+def default_T_hand_board(board: PlacedAsset, robot: RobotSpec = ROBOT) -> np.ndarray:
+    """[4,4] fixed mount of a board in the robot's end-effector link frame: gripped by one long edge.
 
-    The hand frame has z along the approach (fingers at z ~ 0.06..0.11 m) and the fingers close
-    along y. The board stands in the hand's x-z plane, centred between the fingers: its longer
-    in-plane axis a along hand x, its printed face looking along hand +y, its near edge at
-    z = ``BOARD_GRIP_EDGE_Z`` so the fingertip pads pinch its margin, the rest of it beyond the
-    fingers. Board axes (a, b, n) -> hand (x, -z, y).
+    In the tool frame (``robot.T_ee_tcp``: z along the approach, the fingers closing along y) the board
+    stands in the x-z plane, centred between the fingers: its longer in-plane axis a along x, its printed
+    face looking along +y, its near edge ``BOARD_GRIP_EDGE_DEPTH`` behind the tool centre so the fingertip
+    pads pinch its margin, the rest of it beyond the fingers. Board axes (a, b, n) -> tool (x, -z, y).
     """
     _, axes = board_face(board.mesh, _face_normal_obj(board))
     lo, hi = np.asarray(board.mesh.bounds, dtype=np.float64)
     b = axes[:, 1]
-    R_hand_board = np.stack([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]], axis=1) @ axes.T
+    R_tcp_board = np.stack([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]], axis=1) @ axes.T
     centre_obj = 0.5 * (lo + hi)  # mid-thickness, so the fingers grip it symmetrically
     extent_b = float(np.abs(b) @ (hi - lo))
-    mount_hand = np.array([0.0, 0.0, BOARD_GRIP_EDGE_Z + 0.5 * extent_b])
-    return _rigid(R_hand_board, mount_hand - R_hand_board @ centre_obj)
+    mount_tcp = np.array([0.0, 0.0, -BOARD_GRIP_EDGE_DEPTH + 0.5 * extent_b])
+    return robot.T_ee_tcp @ _rigid(R_tcp_board, mount_tcp - R_tcp_board @ centre_obj)
 
 
 def _board_thickness(board: PlacedAsset) -> float:
@@ -264,15 +266,16 @@ def _export_obj(mesh: trimesh.Trimesh, folder: Path) -> Path:
 
 
 class SampleRenderer:
-    """One Genesis scene of placed assets (optionally the Panda holding a board) and one camera.
+    """One Genesis scene of placed assets (optionally the robot holding a board) and one camera.
 
     assets        static / object meshes, placed at their ``T_base_obj`` (Genesis world = robot base)
     config        camera and lights
-    with_robot    add the Franka Panda (bundled MJCF), base at the origin
+    with_robot    add the robot, base at the origin
+    robot         which (a registered name, a robot spec file or a spec; default the Franka Panda)
     held_board    a board (category "board") mounted in the gripper at ``T_hand_board``; needs the robot.
                   Its printed face normal in its object frame is ``meta["face_normal_obj"]`` (default +z).
                   An asset of the same name in ``assets`` (the board lying on the table) is left out.
-    T_hand_board  [4,4] mount of the board in the ``hand`` link frame (default: :func:`default_T_hand_board`)
+    T_hand_board  [4,4] mount of the board in the end-effector link's frame (default: :func:`default_T_hand_board`)
     workdir       where the OBJ exports go
 
     Building the scene takes ~35-60 s (kernel caches in ~/.cache make it faster); use it as a
@@ -288,9 +291,12 @@ class SampleRenderer:
         *,
         workdir: Path,
         T_hand_board: np.ndarray | None = None,
+        robot: str | RobotSpec = DEFAULT_ROBOT,
     ) -> None:
         if held_board is not None and not with_robot:
             raise ValueError("held_board needs with_robot=True")
+        self.spec = spec = get_robot(robot)
+        self.robot_name = str(robot) if not isinstance(robot, RobotSpec) else robot.name
         self.config = config or RenderConfig()
         cfg = self.config
         workdir = Path(workdir)
@@ -315,21 +321,21 @@ class SampleRenderer:
         self._board_entity = None
         self.T_hand_board: np.ndarray | None = None
         if with_robot:
-            self.robot = self._scene.add_entity(gs.morphs.MJCF(file=ROBOT.model, pos=(0.0, 0.0, 0.0)))
+            keep = (spec.ee_link, *spec.finger_links)
+            self.robot = self._scene.add_entity(genesis_morph(gs, resolve_model(spec.model), keep_links=keep))
             self._register("robot", self.robot)
         if held_board is not None:
             self._board_entity = add_mesh(held_board, len(assets))
             self.T_hand_board = np.asarray(
-                default_T_hand_board(held_board) if T_hand_board is None else T_hand_board, dtype=np.float64
+                default_T_hand_board(held_board, spec) if T_hand_board is None else T_hand_board, dtype=np.float64
             )
             self.board_corners_obj, self.board_axes_obj = board_face(held_board.mesh, _face_normal_obj(held_board))
             # Fingers just touching the board (visual only: the board does not collide).
-            self.finger_q = float(
-                np.clip(0.5 * _board_thickness(held_board) - _PAD_INSET, ROBOT.gripper_closed, ROBOT.gripper_open)
-            )
+            span = sorted((spec.gripper_closed, spec.gripper_open))
+            self.finger_q = float(np.clip(0.5 * _board_thickness(held_board) - _PAD_INSET, *span))
         else:
             self.board_corners_obj = self.board_axes_obj = None
-            self.finger_q = ROBOT.gripper_open
+            self.finger_q = spec.gripper_open
 
         self._cam = self._scene.add_camera(
             res=(cfg.width, cfg.height),
@@ -345,7 +351,7 @@ class SampleRenderer:
             raise RuntimeError(f"Genesis intrinsics {self._cam.intrinsics} differ from ours {self.K}")
         self._seg_lut: np.ndarray | None = None
         if self.robot is not None:
-            self.set_joints(ROBOT.home)
+            self.set_joints(spec.home)
 
     def _register(self, name: str, entity: object) -> None:
         if name in self._entities:
@@ -431,13 +437,13 @@ class SampleRenderer:
     # ---- robot -----------------------------------------------------------------------------------
     @property
     def robot_file(self) -> str:
-        """The robot description, relative to Genesis' bundled assets."""
-        return ROBOT.model
+        """The robot's model file (relative to Genesis' bundled assets, or absolute)."""
+        return self.spec.model
 
     @property
     def ee_link(self) -> str:
         """The link holding the board (the hand)."""
-        return ROBOT.ee_link
+        return self.spec.ee_link
 
     def _need_robot(self) -> object:
         if self.robot is None:
@@ -446,18 +452,19 @@ class SampleRenderer:
 
     @property
     def joint_limits(self) -> tuple[np.ndarray, np.ndarray]:
-        """(lower [9], upper [9]) joint limits: 7 arm joints (rad) then 2 finger joints (m)."""
+        """(lower [n_dofs], upper [n_dofs]) joint limits: the arm joints (rad) then the finger joints."""
         lo, hi = self._need_robot().get_dofs_limit()
         return np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
 
     def set_joints(self, q: np.ndarray) -> None:
-        """Set the arm [7] (fingers then grip the board, or open) or arm + fingers [9]; re-place the board."""
-        robot = self._need_robot()
+        """Set the arm [n_arm] (fingers then grip the board, or open) or arm + fingers [n_dofs]; re-place the
+        board."""
+        robot, spec = self._need_robot(), self.spec
         q = np.asarray(q, dtype=np.float64).reshape(-1)
-        if q.shape == (ROBOT.n_arm,):
-            q = np.concatenate([q, [self.finger_q] * (ROBOT.n_dofs - ROBOT.n_arm)])
-        if q.shape != (ROBOT.n_dofs,):
-            raise ValueError(f"q must have {ROBOT.n_arm} or {ROBOT.n_dofs} values, got {q.shape}")
+        if q.shape == (spec.n_arm,):
+            q = np.concatenate([q, [self.finger_q] * (spec.n_dofs - spec.n_arm)])
+        if q.shape != (spec.n_dofs,):
+            raise ValueError(f"q must have {spec.n_arm} or {spec.n_dofs} values, got {q.shape}")
         robot.set_qpos(q)
         if self._board_entity is not None:
             pos, quat = _pos_quat(self.T_base_board)
@@ -465,13 +472,12 @@ class SampleRenderer:
             self._board_entity.set_quat(quat)
 
     def get_joints(self) -> np.ndarray:
-        """Current joint positions [9] (arm then fingers)."""
+        """Current joint positions [n_dofs] (arm then fingers)."""
         return np.asarray(self._need_robot().get_qpos(), dtype=np.float64)
 
     def T_base_link(self, name: str | None = None) -> np.ndarray:
-        """[4,4] pose of a robot link (default: the hand; the Panda's are "link0".."link7", "hand",
-        "left_finger", ...) from Genesis FK."""
-        link = self._need_robot().get_link(ROBOT.ee_link if name is None else name)
+        """[4,4] pose of a robot link (default: the end-effector link) from Genesis FK."""
+        link = self._need_robot().get_link(self.spec.ee_link if name is None else name)
         q = np.asarray(link.get_quat(), dtype=np.float64)
         return _rigid(quat_to_matrix(q / np.linalg.norm(q)), np.asarray(link.get_pos(), dtype=np.float64))
 
@@ -488,11 +494,16 @@ class SampleRenderer:
         return self.board_corners_obj @ T[:3, :3].T + T[:3, 3]
 
     def self_collision(self) -> bool:
-        """Whether the arm's collision geometry intersects itself in the current joint state."""
-        return len(self._need_robot().detect_collision()) > 0
+        """Whether the arm's collision geometry intersects itself in the current joint state (the fingers closed on
+        each other do not count: that is where they are on a thin board)."""
+        robot = self._need_robot()
+        link_of = {g.idx: g.link.name for g in robot.geoms}
+        fingers = set(self.spec.finger_links)
+        pairs = np.asarray(robot.detect_collision()).reshape(-1, 2)
+        return any(not (link_of.get(int(i)) in fingers and link_of.get(int(j)) in fingers) for i, j in pairs)
 
     def board_intersects_arm(self, clearance: float = 0.01) -> bool:
-        """Whether an arm link (link0..link7, hand; not the fingers holding it) reaches into the held
+        """Whether an arm link (any but the fingers holding it) reaches into the held
         board: the board does not collide in Genesis, so this is checked on the links' collision
         vertices, in the board's face frame. A link counts when its vertices over the face rectangle
         (grown by ``clearance``) come within ``clearance`` of the slab or lie on both sides of it.
@@ -506,7 +517,7 @@ class SampleRenderer:
         half_b = 0.5 * np.ptp(corners @ b)
         thickness = _board_thickness(self.board)
         for link in robot.links:
-            if link.name in ROBOT.finger_links or link.n_verts == 0:
+            if link.name in self.spec.finger_links or link.n_verts == 0:
                 continue
             X = np.asarray(link.get_verts(), dtype=np.float64)
             X_obj = (X - T[:3, 3]) @ T[:3, :3] - centre  # base -> board object frame, face centre origin
@@ -633,7 +644,7 @@ def sample_handeye_configurations(
     max_attempts: int = 2000,
     **check_kwargs: float,
 ) -> list[np.ndarray]:
-    """``n`` joint configurations [9] of the Panda for hand-eye images from the fixed head camera.
+    """``n`` joint configurations [n_dofs] of the robot for hand-eye images from the fixed head camera.
 
     Each draws a board pose in front of the camera: centre on a random ray through the middle
     half of the image at ``depth_range`` metres from the camera (default: where the board's diagonal
@@ -653,12 +664,13 @@ def sample_handeye_configurations(
     K_inv = np.linalg.inv(renderer.K)
     T_base_headcam = np.asarray(T_base_headcam, dtype=np.float64)
     cam_centre = T_base_headcam[:3, 3]
-    hand = renderer.robot.get_link(ROBOT.ee_link)
+    spec = renderer.spec
+    hand = renderer.robot.get_link(spec.ee_link)
     T_board_hand = invert_rigid(renderer.T_hand_board)
     axes_obj = renderer.board_axes_obj
     # Face centre -> object-frame origin, to place the face centre on the sampled ray.
     face_centre_obj = renderer.board_corners_obj.mean(axis=0)
-    q_home = ROBOT.home_q(renderer.finger_q)
+    q_home = spec.home_q(renderer.finger_q)
     if depth_range is None:
         diagonal = float(np.linalg.norm(renderer.board_corners_obj[2] - renderer.board_corners_obj[0]))
         span = renderer.K[1, 1] * diagonal / min(W, H)  # depth at which the diagonal fills the image
@@ -688,7 +700,7 @@ def sample_handeye_configurations(
             link=hand, pos=pos, quat=quat, init_qpos=q_home, max_samples=10, seed=int(rng.integers(2**31))
         )
         q = np.asarray(q, dtype=np.float64)
-        q[ROBOT.n_arm :] = renderer.finger_q
+        q[spec.n_arm :] = renderer.finger_q
         renderer.set_joints(q)
         T_err = invert_rigid(renderer.T_base_link()) @ (T_base_board @ T_board_hand)
         if np.linalg.norm(T_err[:3, 3]) > 2e-3 or rotation_angle(T_err[:3, :3]) > math.radians(1.0):

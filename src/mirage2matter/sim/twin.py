@@ -28,6 +28,7 @@ import trimesh
 from ..geometry.camera import GL_TO_CV
 from ..geometry.rotation import matrix_to_quat, quat_to_matrix
 from ..robots import RobotSpec
+from ..robots.model import genesis_morph, resolve_model
 from ..world.config import ArticulatedConfig, ObjectConfig, PartConfig, WorldConfig
 from ..world.validate import load_collision_parts, load_mesh, validate_world
 
@@ -230,12 +231,9 @@ class Twin:
         draw = opt.draw_scene or not opt.render
         draw_objects = draw or opt.draw_objects
         self.plane = self.scene.add_entity(gs.morphs.Plane(pos=(0.0, 0.0, cfg.table_z), visualization=draw))
-        robot_file = cfg.robot.file
-        if robot_file.lower().endswith(".urdf"):
-            morph = gs.morphs.URDF(file=robot_file, fixed=True)
-        else:
-            morph = gs.morphs.MJCF(file=robot_file)
-        self.robot = self.scene.add_entity(morph)
+        robot_file = str(resolve_model(cfg.robot.file, cfg.root))
+        keep = (cfg.robot.ee_link, *spec.finger_links, *{c.mount for c in cfg.cameras.values() if c.mount != "base"})
+        self.robot = self.scene.add_entity(genesis_morph(gs, robot_file, keep_links=keep))
 
         for o in cfg.objects:
             path = workdir / f"{o.name}.urdf"
@@ -278,9 +276,11 @@ class Twin:
 
         robot = self.robot
         n_arm, n_fingers = spec.n_arm, len(spec.gripper_joints)
-        if robot.n_dofs < spec.n_dofs:
+        dofs = [robot.get_joint(j).dofs_idx_local for j in (*spec.arm_joints, *spec.gripper_joints)]
+        if robot.n_dofs != spec.n_dofs or [d for ds in dofs for d in ds] != list(range(spec.n_dofs)):
             raise ValueError(
-                f"{robot_file}: the robot has {robot.n_dofs} dofs; expected a {n_arm}-dof arm + {n_fingers} fingers"
+                f"{robot_file}: Genesis loads {robot.n_dofs} dofs in another order than robot {spec.name!r}'s "
+                f"{n_arm}-dof arm then {n_fingers} fingers ({[*spec.arm_joints, *spec.gripper_joints]})"
             )
         self.ee_link = robot.get_link(cfg.robot.ee_link)
         self.arm_dofs = np.arange(n_arm)
@@ -289,12 +289,14 @@ class Twin:
         robot.set_dofs_kp(kp[: robot.n_dofs])
         robot.set_dofs_kv(kv[: robot.n_dofs])
         robot.set_dofs_force_range(-force[: robot.n_dofs], force[: robot.n_dofs])
-        lo, hi = robot.get_dofs_limit()
-        self.joint_limits = (np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64))
+        lo, hi = (np.asarray(v, dtype=np.float64) for v in robot.get_dofs_limit())
+        model = spec.limits_array()  # a joint the model leaves unlimited: the spec's finite range (planning bounds)
+        self.joint_limits = (np.where(np.isfinite(lo), lo, model[:, 0]), np.where(np.isfinite(hi), hi, model[:, 1]))
         for b in self.bodies.values():
             if b.kind == "press_button":
                 b.entity.set_dofs_stiffness(np.array([b.cfg.stiffness]))
         self._geom_owner = self._geom_owners()
+        self._finger_owners = {f"robot:{link}" for link in spec.finger_links}
         self.home = np.concatenate([np.asarray(cfg.robot.home, dtype=np.float64), [spec.gripper_open] * n_fingers])
         self._initial = {name: self._body_pose(b) for name, b in self.bodies.items()}
         self.reset(seed=0, randomize=False)
@@ -342,7 +344,7 @@ class Twin:
         return self.options.dt
 
     def robot_state(self) -> np.ndarray:
-        """[n_dofs] joint positions: the arm joints (rad) then the finger joints (m); [9] for the Panda."""
+        """[n_dofs] joint positions: the arm joints (rad) then the finger joints."""
         return np.asarray(self.robot.get_qpos(), dtype=np.float64)[: self.spec.n_dofs].copy()
 
     def set_robot_state(self, q: np.ndarray) -> None:
@@ -546,13 +548,19 @@ class Twin:
             self.robot.set_dofs_velocity(v)
 
     def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
-        """Set the robot to ``q`` [9] (no physics) and list the colliding geometry owners (robot vs anything).
+        """Set the robot to ``q`` [n_dofs] (no physics) and list the colliding geometry owners (robot vs anything).
+
+        The fingers touching each other are not a collision: closed on nothing, that is where they are. (Genesis drops
+        geometry pairs that overlap at the model's zero pose, which took the Panda's finger pair out but not the
+        UR5e + Franka hand's, whose zero pose holds the hand sideways: there closed fingers "collided", and a plan
+        from a closed gripper was refused.)
 
         Leaves the robot at ``q``: wrap queries in :meth:`restoring`.
         """
         self.robot.set_qpos(np.asarray(q, dtype=np.float64), zero_velocity=True)
         pairs = self.robot.detect_collision()
-        return [(self._geom_owner[i], self._geom_owner[j]) for i, j in np.asarray(pairs).reshape(-1, 2)]
+        out = [(self._geom_owner[i], self._geom_owner[j]) for i, j in np.asarray(pairs).reshape(-1, 2)]
+        return [p for p in out if not (p[0] in self._finger_owners and p[1] in self._finger_owners)]
 
     # ---- cameras ---------------------------------------------------------------------------------
     def camera(self, name: str) -> tuple[np.ndarray, np.ndarray, int, int]:

@@ -14,7 +14,7 @@ import numpy as np
 from ..atomic import atomic_write
 from ..calib.align import AlignError, align_scene, default_T_base_board, draw_base_overlay
 from ..calib.board import load_target
-from ..robots import DEFAULT_ROBOT
+from ..robots import DEFAULT_ROBOT, is_spec_file
 from ..workspace import Workspace
 from .base import Input, Log
 
@@ -30,8 +30,8 @@ class Config:
                  saw that surface near the base. Off by default: on the sample it made every target's alignment
                  worse (ChArUco, 48 keyframes: 1.20 -> 1.51 mm, 0.035 -> 0.060 deg; 16: 0.94 -> 2.40 mm), and on
                  a real capture 2.5 -> 13.4 mm
-    robot        the robot (a name from `mirage2matter.robots`) whose base footprint bounds the ICP region and
-                 is drawn in the overlay; "none" for a 10 cm circle
+    robot        the robot (a name from `mirage2matter.robots` or a robot spec file) whose base footprint bounds
+                 the ICP region and is drawn in the overlay; "none" for a 10 cm circle
     unaligned    no target: keep the SfM frame (not metric, not the robot's) for scene-only use
     """
 
@@ -50,6 +50,8 @@ class Config:
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
     out = [Input(ws.sfm_file, made_by="sfm"), Input(ws.sfm_model, made_by="sfm")]
     out += [Input(Path(p), field=f"align {n}") for p, n in ((cfg.board, "board"), (cfg.board_pose, "board_pose")) if p]
+    if is_spec_file(cfg.robot):  # a user's robot spec: its content counts
+        out.append(Input(Path(cfg.robot), field="align robot"))
     return out
 
 
@@ -68,9 +70,8 @@ def _footprint(robot: str) -> np.ndarray | None:
     if robot.lower() == "none":
         return None
     from ..calib.kinematics import RobotKinematics
-    from ..robots import get_robot
 
-    return RobotKinematics(get_robot(robot).model).base_footprint()
+    return RobotKinematics(robot).base_footprint()
 
 
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:

@@ -40,7 +40,7 @@ class Config:
     seed: int = GenerateConfig.seed
     size: int = GenerateConfig.size[0]
     fps: int = GenerateConfig.fps
-    out: Path | None = field(default=None)
+    out: Path | None = field(default=None, metadata={"output": True})  # written, not read
     objects: Literal["gaussians", "meshes"] = "gaussians"
 
     def validate(self) -> None:

@@ -33,7 +33,8 @@ class Config:
                 RealSense intrinsics JSON
     mount       head: eye-to-hand, the camera fixed in the base (T_base_headcam); wrist: eye-in-hand
     method      OpenCV's closed-form hand-eye solver
-    robot       robot model file (default: the joints file's, else the default robot's)
+    robot       the robot: a registered name (panda, ur5e), a robot spec file or a bare model file (MJCF/URDF)
+                (default: the joints file's, else the default robot)
     link        the link holding the board (head) or the camera (wrist) (default: the joints file's, else the
                 robot's end-effector link)
     refine      auto: pose_error or none, whichever has the lower leave-one-out corner error; pose_error: refine on
@@ -79,7 +80,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         cfg.images, cfg.joints, load_target(cfg.board), cam, mount=cfg.mount, method=cfg.method,
         robot=cfg.robot, link=cfg.link, refine=cfg.refine, poses=cfg.poses,
     )  # fmt: skip
-    out.update(width=cam.width, height=cam.height, distortion=dict(cam.distortion))
+    out.update(width=cam.width, height=cam.height, distortion=cam.distortion_json())
     ws.calib_dir.mkdir(parents=True, exist_ok=True)
     with atomic_write(ws.handeye_file, "w", encoding="utf-8") as f:
         json.dump(out, f, indent=1)

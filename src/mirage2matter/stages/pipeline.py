@@ -1,24 +1,32 @@
-"""Every stage in order over one workspace: ``m2m demo`` (the bundled sample) and, later, ``m2m run``.
+"""Every stage in order over one workspace: ``m2m run`` (a workspace's ``m2m.yaml``) and ``m2m demo`` (the
+bundled sample's, plus its ground truth).
 
-:class:`PipelineConfig` composes the stages' Configs; it is what a workspace's ``m2m.yaml`` holds (each
-stage's section lists only what differs from its Config's defaults, or everything). ``run_pipeline`` runs
-the stages through :func:`~.base.run_stage`, so a killed run resumes: finished stages whose config and input
-content are unchanged are skipped.
+:class:`PipelineConfig` composes the stages' Configs; it is what a workspace's ``m2m.yaml`` holds, written with
+every field and its doc as a comment (``m2m init``, :meth:`PipelineConfig.save`) and read strictly: an unknown key,
+a wrong type or a key given twice is a :class:`~..configs.ConfigError` naming the file and the line
+(:class:`SettingsFile`). :func:`plan_run` says which stages run and why the others are skipped (an optional input
+not given: no hand-eye images, no tasks), after checking that every file the settings name exists. ``run_pipeline``
+runs the stages through :func:`~.base.run_stage`, so a killed run resumes: finished stages whose config and input
+content are unchanged are skipped, and the stage that was killed resumes from its staging.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from ..atomic import atomic_write
-from ..configs import ConfigError, from_dict, to_dict
-from ..inputs import read_yaml
+from ..configs import ConfigError, from_dict, to_dict, to_yaml
+from ..errors import M2MError
+from ..inputs import read_yaml_lines
 from ..workspace import Workspace
 from . import (
     PIPELINE,
+    STAGES,
     align,
     capture,
     eval_policy,
@@ -34,9 +42,20 @@ from . import (
 from .base import Log, run_stage
 from .transaction import workspace_lock
 
-__all__ = ["PipelineConfig", "run_pipeline"]
+__all__ = ["PipelineConfig", "PipelineError", "SettingsFile", "input_paths", "plan_run", "run_pipeline"]
 
-_HEADER = "# Mirage2Matter pipeline settings: one section per stage (see `m2m <stage> --help` for each field).\n"
+_HEADER = """\
+# Mirage2Matter workspace settings (m2m.yaml): every input and setting of the pipeline, one section per stage.
+#   m2m run -w WORKSPACE      runs the stages in order from this file (--until / --from STAGE: part of them)
+#   m2m <stage> --help        explains a stage's fields; `m2m <stage> -w WORKSPACE --field VALUE` runs one stage
+# Every field is written, at its stage's default unless set. Paths: relative to this file's folder, or absolute.
+# An unknown key, a value of the wrong type or a missing file is an error naming its line here.
+# A stage command that changes a setting writes this file again (these comments regenerated, others dropped).
+"""
+
+
+class PipelineError(M2MError):
+    """A stage of a pipeline run failed; the message names the stage, its command, and how to go on."""
 
 
 @dataclass
@@ -70,27 +89,209 @@ class PipelineConfig:
 
     @classmethod
     def load(cls, path: str | Path) -> PipelineConfig:
-        """Read an ``m2m.yaml`` (paths relative to its folder); ConfigError names the file and the field."""
+        """Read an ``m2m.yaml`` (paths relative to its folder); ConfigError names the file, the line and the field."""
+        return cls.read(path)[0]
+
+    @classmethod
+    def read(cls, path: str | Path) -> tuple[PipelineConfig, SettingsFile]:
+        """The settings of an ``m2m.yaml`` and where each key is in it (for messages about a value)."""
         path = Path(path)
-        data = read_yaml(path, "pipeline settings (m2m.yaml)")
+        data, lines = read_yaml_lines(path, "pipeline settings (m2m.yaml)")
+        where = SettingsFile(path, lines)
         try:
-            return from_dict(cls, data, base_dir=path.parent.resolve())
+            return from_dict(cls, data, base_dir=path.parent.resolve()), where
         except ConfigError as e:
-            raise ConfigError(f"{path}: {e}") from None
+            what = "fix or remove the key" if "unknown setting" in str(e) else "fix the value"
+            raise ConfigError(f"{where.at(e.field)}: {e}; {what}", e.field) from None
 
     def save(self, path: str | Path) -> Path:
-        """Write every setting (defaults filled in) atomically; paths relative to the file's folder."""
-        import yaml
-
+        """Write every setting (defaults filled in, each field's doc as a comment) atomically; paths relative to
+        the file's folder when below it, else absolute."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        text = yaml.safe_dump(to_dict(self, base_dir=path.parent), sort_keys=False, width=120)
+        notes = {s.name: f"---- {s.name} (`m2m {s.command}`)" + ("" if s.pipeline else ": not part of `m2m run`")
+                 for s in STAGES}  # fmt: skip
+        text = to_yaml(self, base_dir=path.parent.resolve(), header=_HEADER, notes=notes)
         with atomic_write(path, "w", encoding="utf-8") as f:
-            f.write(_HEADER + text)
+            f.write(text)
         return path
 
     def stage_config(self, name: str) -> Any:
         return getattr(self, name)
+
+
+_KEY = re.compile(r"\[(\d+)\]|([^.\[\]]+)")
+
+
+@dataclass(frozen=True)
+class SettingsFile:
+    """An ``m2m.yaml`` as messages name it: its path and the line of each key and list item.
+
+    path    the file
+    lines   {key path (``("scene", "minutes")``, ``("objects", "names", 2)``): 1-based line}
+            (``inputs.read_yaml_lines``)
+    """
+
+    path: Path
+    lines: dict[tuple[str | int, ...], int] = field(default_factory=dict)
+
+    def line(self, name: str | None) -> int | None:
+        """The line of the dotted field ``name`` (``objects.names[2]``), else of the nearest enclosing key the
+        file has; None when it has none (the field is at its default)."""
+        keys = tuple(int(i) if i else k for i, k in _KEY.findall(name or ""))
+        for n in range(len(keys), 0, -1):
+            if keys[:n] in self.lines:
+                return self.lines[keys[:n]]
+        return None
+
+    def at(self, name: str | None) -> str:
+        """``<file>, line N``: where a message about the field ``name`` points."""
+        n = self.line(name)
+        return f"{self.path}, line {n}" if n else str(self.path)
+
+
+def _chosen(until: str | None, start: str | None) -> tuple:
+    names = [s.name for s in PIPELINE]
+    for flag, name in (("--until", until), ("--from", start)):
+        if name is not None and name not in names:
+            raise ConfigError(f"{flag} {name}: not a pipeline stage; stages: {', '.join(names)}")
+    lo = names.index(start) if start else 0
+    hi = names.index(until) + 1 if until else len(names)
+    if lo >= hi:
+        raise ConfigError(f"--from {start} comes after --until {until}")
+    return PIPELINE[lo:hi]
+
+
+def input_paths(cfg: Any, prefix: str) -> list[tuple[str, Path]]:
+    """(dotted field, path) of every input path in a stage's Config (nested Configs, lists and mappings walked;
+    fields with ``metadata={"output": True}`` are written, not read, and left out)."""
+    out: list[tuple[str, Path]] = []
+
+    def walk(value: Any, name: str) -> None:
+        if isinstance(value, Path):
+            out.append((name, value))
+        elif isinstance(value, list | tuple):
+            for i, v in enumerate(value):
+                walk(v, f"{name}[{i}]")
+        elif isinstance(value, dict):
+            for k, v in value.items():
+                walk(v, f"{name}.{k}")
+        elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+            for f in dataclasses.fields(value):
+                if not f.metadata.get("output"):
+                    walk(getattr(value, f.name), f"{name}.{f.name}")
+
+    walk(cfg, prefix)
+    return out
+
+
+def _check_files(cfg: PipelineConfig, where: SettingsFile, names: list[str]) -> None:
+    missing = [(n, p) for name in names for n, p in input_paths(getattr(cfg, name), name) if not p.exists()]
+    if len(missing) == 1:
+        (name, path), folder = missing[0], where.path.parent
+        raise ConfigError(f"{where.at(name)}: {name}: {path} not found; fix the path (a relative one is relative to "
+                          f"{folder}/)", name)  # fmt: skip
+    if missing:
+        lines = [f"  {f'line {where.line(n)}' if where.line(n) else '(not in the file)'}: {n}: {p}" for n, p in missing]
+        raise ConfigError(f"{where.path}: {len(missing)} files not found:\n" + "\n".join(lines) + "\nfix the paths (a "
+                          f"relative one is relative to {where.path.parent}/)", missing[0][0])  # fmt: skip
+
+
+def plan_run(
+    ws: Workspace,
+    cfg: PipelineConfig,
+    where: SettingsFile | None = None,
+    until: str | None = None,
+    start: str | None = None,
+) -> dict[str, str | None]:
+    """{stage: None when it runs, else why it is skipped} for the pipeline stages from ``start`` through
+    ``until`` (default: all), in order. Checked first, before anything runs (ConfigError naming the line of
+    ``where``, the workspace's m2m.yaml): every file the settings of those stages name exists, the inputs a
+    stage cannot do without are given, and each running stage's Config accepts its values.
+
+    Optional inputs make stages optional: no hand-eye images -> no hand-eye calibration (an earlier
+    ``calib/handeye.json`` is kept), and without a head camera's calibration no head-view check and no world;
+    no head-camera photo -> no head-view check; no tasks -> no demonstrations. Without object names the objects
+    stage takes every object it finds."""
+    where = where or SettingsFile(ws.config_file)
+    names = [s.name for s in _chosen(until, start)]
+    _check_files(cfg, where, names)
+    _check_required(cfg, where, names)
+    he_given = cfg.handeye.images is not None or cfg.handeye.joints is not None
+    head = cfg.handeye.mount == "head" if he_given else ws.handeye_file.is_file()
+    no_head = ("the hand-eye calibration is of a wrist camera (handeye.mount: wrist), not a head camera" if he_given
+               else "no head-camera calibration (the hand-eye calibration is skipped)")  # fmt: skip
+    imported = next((f"sfm.{k}" for k in ("from_transforms", "from_colmap") if getattr(cfg.sfm, k)), None)
+    kept = "; calib/handeye.json of an earlier calibration is kept" if ws.handeye_file.is_file() else ""
+    plan: dict[str, str | None] = {}
+    for name in names:
+        reason = None
+        if name == "capture" and cfg.capture.source is None:
+            reason = f"{imported} imports posed images"
+        elif name == "handeye" and not he_given:
+            reason = f"no hand-eye images (handeye.images and handeye.joints are not set){kept}"
+        elif name == "head_view" and not head:
+            reason = no_head
+        elif name == "head_view" and cfg.head_view.photo is None:  # the render alone checks nothing (measured: on
+            # the sample after a short training the board was not even found in it)
+            reason = (f"no head-camera photo to compare the scene with (head_view.photo is not set); `m2m head-view -w "
+                      f"{ws.root}` renders the head camera's view alone")  # fmt: skip
+        elif name == "world" and not head and cfg.world.sample is None:
+            reason = (f"{no_head}; the world's head camera needs one: give handeye.images, .joints, .board and "
+                      ".intrinsics (`m2m init --handeye-images DIR --handeye-poses FILE ...`)")  # fmt: skip
+        elif name == "generate" and plan.get("world"):
+            reason = "no world (skipped above)"
+        elif name == "generate" and not cfg.generate.task:
+            reason = 'no tasks (generate.task is empty); add some, e.g. "grasp banana", and run again'
+        plan[name] = reason
+    for name in names:
+        validate = getattr(getattr(cfg, name), "validate", None)
+        if plan[name] is None and validate is not None:
+            try:
+                validate()
+            except M2MError as e:
+                raise ConfigError(f"{where.at(name)}: section {name}: {e}", name) from None
+    return plan
+
+
+def _check_required(cfg: PipelineConfig, where: SettingsFile, names: list[str]) -> None:
+    """The inputs a stage cannot do without, and one robot throughout; ConfigError naming the line."""
+    from ..robots import get_robot
+
+    at = where.at
+    for name in ("align.robot", "world.robot"):
+        robot = getattr(cfg, name.split(".")[0]).robot
+        if not (name == "align.robot" and robot == "none"):
+            try:
+                get_robot(robot)
+            except M2MError as e:
+                raise ConfigError(f"{at(name)}: {name}: {e}", name) from None
+    if cfg.align.robot not in (cfg.world.robot, "none"):
+        raise ConfigError(f"{at('world.robot')}: world.robot is {cfg.world.robot!r} but align.robot "
+                          f"({at('align.robot')}) is {cfg.align.robot!r}; name the same robot in both (`m2m init "
+                          "--robot NAME` sets both)", "world.robot")  # fmt: skip
+    imports = cfg.sfm.from_transforms is not None or cfg.sfm.from_colmap is not None
+    if "capture" in names and cfg.capture.source is None and not imports:
+        raise ConfigError(f"{at('capture.source')}: capture.source: no video or image folder; give the capture (`m2m "
+                          "init --video FILE` or `--images DIR`), or import posed images with sfm.from_transforms or "
+                          "sfm.from_colmap", "capture.source")  # fmt: skip
+    if "align" in names and cfg.align.board is None and not cfg.align.unaligned:
+        raise ConfigError(f"{at('align.board')}: align.board: no calibration target; give the spec JSON of the board "
+                          "at the robot base (from `m2m board`; `m2m init --board FILE`), or set align.unaligned: true "
+                          "for a scene-only workspace (no robot twin)", "align.board")  # fmt: skip
+    he = cfg.handeye
+    lacking = [n for n in ("images", "joints", "board", "intrinsics") if getattr(he, n) is None]
+    if "handeye" in names and (he.images is not None or he.joints is not None) and lacking:
+        what = {
+            "images": "the folder of the head camera's images of the board",
+            "joints": "the robot's pose per image",
+            "board": "the spec JSON of the board the robot holds",
+            "intrinsics": "the head camera's calibration",
+        }
+        raise ConfigError(f"{at('handeye')}: the hand-eye calibration lacks "
+                          + "; ".join(f"handeye.{n} ({what[n]})" for n in lacking)
+                          + "; give them, or remove handeye.images and handeye.joints to run without a head camera "
+                          "(no world then)", f"handeye.{lacking[0]}")  # fmt: skip
 
 
 def run_pipeline(
@@ -100,27 +301,39 @@ def run_pipeline(
     until: str | None = None,
     start: str | None = None,
     ground_truth: dict | None = None,
+    where: SettingsFile | None = None,
+    command: str = "m2m run",
 ) -> dict[str, Any]:
-    """Run (or resume) the stages from ``start`` through ``until`` (names; default: all); returns
-    {"stages": {name: summary}, "seconds": ...}. ``ground_truth``: a sample's, compared with where it can."""
-    names = [s.name for s in PIPELINE]
-    lo = names.index(start) if start else 0
-    hi = names.index(until) + 1 if until else len(names)
-    if lo >= hi:
-        raise ConfigError(f"--from {start} comes after --until {until}")
-    chosen = PIPELINE[lo:hi]
+    """Run (or resume) the stages from ``start`` through ``until`` (names; default: all) as :func:`plan_run`
+    plans them; returns {"stages": {name: summary (a skipped stage's: {"skipped": why, "line"})}, "seconds": ...}.
+    ``ground_truth``: a sample's, compared with where it can. A stage that fails raises :class:`PipelineError`
+    naming it and ``command``, the command to run again once the cause is fixed."""
+    plan = plan_run(ws, cfg, where, until, start)
+    chosen = [s for s in PIPELINE if s.name in plan]
     with workspace_lock(ws):  # one writer for the whole run
-        return _run(ws, cfg, chosen, log, ground_truth)
+        return _run(ws, cfg, chosen, plan, log, ground_truth, where or SettingsFile(ws.config_file), command)
 
 
-def _run(ws: Workspace, cfg: PipelineConfig, chosen, log: Log, ground_truth: dict | None) -> dict[str, Any]:
+def _run(ws: Workspace, cfg: PipelineConfig, chosen, plan: dict[str, str | None], log: Log, ground_truth: dict | None,
+         where: SettingsFile, command: str) -> dict[str, Any]:  # fmt: skip
     t_start = time.perf_counter()
     summaries: dict[str, Any] = {}
     for i, stage in enumerate(chosen, 1):
         tag = f"[{i}/{len(chosen)}] {stage.name}"
+        if plan[stage.name] is not None:
+            log(f"{tag}: skipped - {plan[stage.name]}")
+            summaries[stage.name] = {"skipped": plan[stage.name], "line": f"skipped: {plan[stage.name]}"}
+            continue
         log(f"{tag} ...")
         t0 = time.perf_counter()
-        summary, skipped = run_stage(stage, ws, cfg.stage_config(stage.name), log, ground_truth=ground_truth)
+        try:
+            summary, skipped = run_stage(stage, ws, cfg.stage_config(stage.name), log, ground_truth=ground_truth)
+        except M2MError as e:
+            log(f"{tag}: failed")
+            raise PipelineError(
+                f"{stage.name} (stage {i} of {len(chosen)}, `m2m {stage.command}`): {e}\nFix that (the settings are in "
+                f"{where.path}) and run `{command} -w {ws.root}` again: the finished stages are kept"
+            ) from e
         summaries[stage.name] = summary
         if skipped:
             log(f"{tag}: done earlier - {summary['line']}")

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from ..robots import DEFAULT_ROBOT
+from ..robots import DEFAULT_ROBOT, is_spec_file
 from ..workspace import Workspace
 from ..world.config import CameraConfig, RandomizeConfig, RobotConfig, WorldConfigError
 from ..world.reconstruction import ReconstructionOptions
@@ -23,7 +23,8 @@ from .base import Input, Log
 class Config:
     """compose settings.
 
-    robot             the robot at the base origin (a name from `mirage2matter.robots`)
+    robot             the robot at the base origin (a name from `mirage2matter.robots`: panda, ur5e; or the path of a
+                      robot spec file, see `mirage2matter.robots.specfile`)
     buttons           reconstructed objects that are press buttons (names with "button" always are)
     crop_margin       scene Gaussians this close (m) to an object's mesh are removed
     means_margin      scene Gaussians this close (m) to an object's own opaque Gaussians are removed too
@@ -80,12 +81,13 @@ def _head_camera(ws: Workspace) -> CameraConfig:
 
 
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
+    robot = [Input(Path(cfg.robot), field="compose robot")] if is_spec_file(cfg.robot) else []  # its content counts
     if cfg.sample is not None:
         optional = [Input(p) for p in (ws.handeye_file, ws.scene_ply) if p.is_file()]
         truth = [Input(Path(cfg.sample) / n, field="compose sample") for n in ("ground_truth.json", "gt")]
-        return truth + optional
+        return truth + optional + robot
     return [Input(ws.handeye_file, made_by="calibrate-handeye"), Input(ws.scene_ply, made_by="train-scene"),
-            Input(ws.objects_summary, made_by="objects")]  # fmt: skip
+            Input(ws.objects_summary, made_by="objects"), *robot]  # fmt: skip
 
 
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
@@ -96,7 +98,8 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         he = json.loads(ws.handeye_file.read_text()) if ws.handeye_file.is_file() else {}
         T = np.asarray(he["T_base_headcam"], np.float64) if "T_base_headcam" in he else None
         scene = ws.scene_ply if ws.scene_ply.is_file() else None
-        world = sample_world(cfg.sample, ws.world_dir, scene_ply=scene, T_base_headcam=T, overwrite=True)
+        world = sample_world(cfg.sample, ws.world_dir, scene_ply=scene, T_base_headcam=T, overwrite=True,
+                             robot=cfg.robot)  # fmt: skip
     else:
         world = world_from_reconstruction(ws.world_dir, _head_camera(ws), ws.scene_ply, _object_dirs(ws),
                                           cfg.options(), log)  # fmt: skip

@@ -28,7 +28,7 @@ from ..atomic import atomic_write
 from ..errors import M2MError
 from ..geometry.sim3 import Sim3
 from ..inputs import InputError, check_image_size, check_intrinsics, check_joints, read_yaml
-from ..robots import DEFAULT_ROBOT, RobotError, RobotSpec, get_robot
+from ..robots import DEFAULT_ROBOT, RobotError, RobotSpec, get_robot, is_spec_file
 
 __all__ = [
     "ArticulatedConfig",
@@ -145,10 +145,16 @@ def _check_keys(data: Any, allowed: set[str] | None, where: str) -> dict:
 
 
 def _robot(data: Any, root: Path) -> RobotConfig:
-    """``robot:``; a world.yaml written before robots had names (file / ee_link / home only) is the default robot."""
+    """``robot:``; a world.yaml written before robots had names (file / ee_link / home only) is the default robot.
+    A robot spec file (``name: my_arm.yaml``) and a model file are taken relative to world.yaml's folder first."""
     r = _check_keys(data, {f.name for f in fields(RobotConfig)}, "robot")
+    ref = r.get("name", DEFAULT_ROBOT)
+    if not isinstance(ref, str) or not ref:
+        raise WorldConfigError(f"robot.name: expected a robot name or a robot spec file, got {ref!r}")
+    if is_spec_file(ref) and not Path(ref).is_absolute():
+        ref = str((root / ref).resolve())
     try:
-        spec = get_robot(str(r.get("name", DEFAULT_ROBOT)))
+        spec = get_robot(ref)
     except RobotError as e:
         raise WorldConfigError(f"robot.name: {e}") from None
     robot_file = str(r.get("file") or spec.model)
@@ -159,7 +165,7 @@ def _robot(data: Any, root: Path) -> RobotConfig:
         home = tuple(check_joints(home, spec.arm_joints, None, "robot.home").tolist())
     except InputError as e:
         raise WorldConfigError(f"{e} (rad)") from None
-    return RobotConfig(name=spec.name, file=robot_file, ee_link=str(r.get("ee_link") or spec.ee_link), home=home)
+    return RobotConfig(name=ref, file=robot_file, ee_link=str(r.get("ee_link") or spec.ee_link), home=home)
 
 
 # ---- the dataclasses -----------------------------------------------------------------------------
@@ -167,7 +173,8 @@ def _robot(data: Any, root: Path) -> RobotConfig:
 class RobotConfig:
     """The world's robot: a registered :class:`~mirage2matter.robots.RobotSpec` and what the world overrides.
 
-    name     the robot (``robots.get_robot``): joints, gains, limits, gripper; default ``robots.DEFAULT_ROBOT``
+    name     the robot (``robots.get_robot``): a registered name or a robot spec file (YAML/JSON; world.yaml
+             writes it relative to its folder); joints, gains, limits, gripper; default ``robots.DEFAULT_ROBOT``
     file     MJCF/URDF path, or a path inside Genesis' bundled assets (empty: the spec's model)
     ee_link  the link the gripper TCP hangs off (empty: the spec's)
     home     the arm's rest joints [n_arm] (rad) (empty: the spec's)
@@ -179,6 +186,8 @@ class RobotConfig:
     home: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
+        if is_spec_file(self.name):
+            self.name = str(Path(self.name).resolve())
         spec = get_robot(self.name)  # RobotError (an M2MError) for an unknown name
         self.file = self.file or spec.model
         self.ee_link = self.ee_link or spec.ee_link
@@ -187,6 +196,15 @@ class RobotConfig:
     @property
     def spec(self) -> RobotSpec:
         return get_robot(self.name)
+
+    def to_dict(self, root: Path) -> dict:
+        """world.yaml's ``robot:``; a spec file relative to ``root``, the model file only where it is not the
+        spec's generated one (a composed model in the robot cache is made again from the spec when missing)."""
+        spec = self.spec
+        out: dict[str, Any] = {"name": _rel(Path(self.name), root) if is_spec_file(self.name) else self.name}
+        if self.file != spec.model or not Path(self.file).is_absolute():
+            out["file"] = self.file
+        return {**out, "ee_link": self.ee_link, "home": list(self.home)}
 
 
 @dataclass
@@ -464,12 +482,7 @@ class WorldConfig:
 
         return {
             "version": 1,
-            "robot": {
-                "name": self.robot.name,
-                "file": self.robot.file,
-                "ee_link": self.robot.ee_link,
-                "home": list(self.robot.home),
-            },
+            "robot": self.robot.to_dict(root),
             "cameras": {
                 name: {
                     "mount": c.mount,

@@ -433,7 +433,7 @@ def world_from_reconstruction(
     cfg = WorldConfig(
         root=world_dir,
         robot=opt.robot,
-        cameras={"head": head, "wrist": default_wrist_camera()},
+        cameras={"head": head, "wrist": default_wrist_camera(robot=opt.robot.spec)},
         scene_gaussians=out_scene,
         objects=objects,
         articulated=articulated,

@@ -25,13 +25,14 @@ from ..gaussians.model import Gaussians
 from ..gaussians.ply import write_ply
 from ..geometry.rotation import matrix_to_quat
 from ..geometry.sim3 import Sim3
-from ..robots import DEFAULT_ROBOT, RobotSpec, get_robot
+from ..robots import DEFAULT_ROBOT, RobotError, RobotSpec, get_robot
 from .config import (
     ArticulatedConfig,
     CameraConfig,
     LightConfig,
     ObjectConfig,
     PartConfig,
+    RobotConfig,
     WorldConfig,
     WorldConfigError,
     save_world,
@@ -110,7 +111,11 @@ def default_wrist_camera(
     """The robot's wrist camera at its mount (``RobotSpec.wrist_camera``; default robot: ``robots.DEFAULT_ROBOT``,
     whose camera sits on the hand, behind the fingers, looking between the fingertips); size and vertical field
     of view default to the mount's."""
-    mount = (robot or get_robot(DEFAULT_ROBOT)).wrist_camera
+    spec = robot or get_robot(DEFAULT_ROBOT)
+    try:
+        mount = spec.wrist_camera
+    except KeyError as e:
+        raise WorldConfigError(str(e.args[0])) from None
     width = mount.width if width is None else width
     height = mount.height if height is None else height
     fov_deg = mount.fov_deg if fov_deg is None else fov_deg
@@ -170,10 +175,12 @@ def sample_world(
     max_collision_parts: int = 8,
     seed: int = 0,
     overwrite: bool = False,
+    robot: str = DEFAULT_ROBOT,
 ) -> WorldConfig:
     """Write ``<assets_dir>/<name>/...`` (default ``world_dir/assets``) and ``world_dir/world.yaml`` from a sample's
-    ground truth (see the module docstring). Existing asset folders are kept (delete them, or pass
-    ``overwrite``, to rebuild). Returns the config."""
+    ground truth (see the module docstring), with ``robot`` (a registered name or a robot spec file) at the base
+    and its wrist camera. Existing asset folders are kept (delete them, or pass ``overwrite``, to rebuild).
+    Returns the config."""
     sample_dir, world_dir = Path(sample_dir), Path(world_dir)
     assets = Path(assets_dir) if assets_dir is not None else world_dir / "assets"
     gt_path = sample_dir / "ground_truth.json"
@@ -231,12 +238,16 @@ def sample_world(
         scene_ply = world_dir / "scene_stand_in.ply"
         if overwrite or not scene_ply.is_file():
             write_ply(scene_ply, _scene_stand_in(seed, scene_density_per_m2))
+    try:
+        robot_cfg = RobotConfig(name=str(robot))
+    except RobotError as e:
+        raise WorldConfigError(f"robot: {e}") from None
     head = gt["head_camera"]
     if T_base_headcam is None:
         T_base_headcam = np.asarray(head["T_base_headcam"], dtype=np.float64)
     cameras = {
         "head": CameraConfig("base", T_base_headcam, np.asarray(head["K"]), int(head["width"]), int(head["height"])),
-        "wrist": default_wrist_camera(),
+        "wrist": default_wrist_camera(robot=robot_cfg.spec),
     }
     lights = [
         LightConfig(dir=(-0.6, -0.8, -1.0), intensity=3.0),
@@ -244,6 +255,7 @@ def sample_world(
     ]
     cfg = WorldConfig(
         root=world_dir.resolve(),
+        robot=robot_cfg,
         cameras=cameras,
         scene_gaussians=Path(scene_ply).resolve(),
         objects=objects,

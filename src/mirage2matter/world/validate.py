@@ -14,6 +14,7 @@ import numpy as np
 import trimesh
 
 from ..inputs import InputError, check_joints, check_mesh
+from ..robots.model import ModelInfo
 from .config import _NAME_RE, ArticulatedConfig, ObjectConfig, PartConfig, WorldConfig, WorldConfigError
 
 __all__ = ["check_overlaps", "load_collision_parts", "placed_parts", "validate_world"]
@@ -22,31 +23,20 @@ __all__ = ["check_overlaps", "load_collision_parts", "placed_parts", "validate_w
 OVERLAP_TOL = 0.002
 
 
-def _robot_model(file: str) -> tuple[list[str], list[str], dict[str, tuple[float, float]]]:
-    """(body names, joint names, {limited joint: (lo, hi)}) of the robot model (MuJoCo loads MJCF and URDF in
-    well under a second)."""
-    import importlib.util
+def _robot_model(file: str) -> ModelInfo:
+    """What the robot model file says (MuJoCo reads MJCF and URDF in well under a second, without Genesis)."""
+    from ..robots.model import ModelError, model_info, resolve_model
 
-    from ..calib.kinematics import resolve_robot_path
-
-    # Genesis' bundled assets without importing Genesis (10-20 s): validation must answer at once.
-    spec = importlib.util.find_spec("genesis")
-    bundled = Path(spec.origin).parent / "assets" / file if spec is not None and spec.origin else None
     try:
-        path = bundled if bundled is not None and bundled.is_file() else resolve_robot_path(file)
-    except FileNotFoundError as e:
+        path = resolve_model(file)
+    except ModelError as e:
         raise WorldConfigError(f"robot.file: {e}") from None
     if path.suffix.lower() not in (".xml", ".urdf", ".mjcf"):
         raise WorldConfigError(f"robot.file: {path} is neither MJCF (.xml) nor URDF (.urdf)")
     try:
-        import mujoco
-
-        model = mujoco.MjModel.from_xml_path(str(path))
-    except Exception as e:  # noqa: BLE001 - any parse failure is the same user error
+        return model_info(path)
+    except ModelError as e:
         raise WorldConfigError(f"robot.file: {path} cannot be loaded as a robot model ({e})") from None
-    joints = [model.joint(i).name for i in range(model.njnt)]
-    limits = {joints[i]: tuple(map(float, model.jnt_range[i])) for i in range(model.njnt) if model.jnt_limited[i]}
-    return [model.body(i).name for i in range(model.nbody)], joints, limits
 
 
 def _check_part(p: PartConfig, where: str, need_gaussians: bool) -> None:
@@ -161,7 +151,8 @@ def check_overlaps(cfg: WorldConfig, tol: float = OVERLAP_TOL) -> None:
 
 def validate_world(cfg: WorldConfig, need_gaussians: bool = False, overlaps: bool = True) -> None:
     """Raise :class:`WorldConfigError` on the first problem; see the module docstring."""
-    links, joints, limits = _robot_model(cfg.robot.file)
+    info = _robot_model(cfg.robot.file)
+    links, joints = list(info.bodies), info.joint_names
     spec = cfg.robot.spec
     missing = [j for j in (*spec.arm_joints, *spec.gripper_joints) if j not in joints]
     if missing:
@@ -169,7 +160,12 @@ def validate_world(cfg: WorldConfig, need_gaussians: bool = False, overlaps: boo
             f"robot.file: {cfg.robot.file} lacks the joints {missing} of robot {spec.name!r}; give the model of that "
             "robot, or set robot.name to the robot this model is"
         )
-    lim = np.array([limits.get(j, (-np.inf, np.inf)) for j in spec.arm_joints])
+    if joints != (*spec.arm_joints, *spec.gripper_joints):
+        raise WorldConfigError(
+            f"robot.file: the joints of {cfg.robot.file} are, in order, {list(joints)}; robot {spec.name!r} needs "
+            f"exactly its arm's then its gripper's {[*spec.arm_joints, *spec.gripper_joints]}"
+        )
+    lim = np.array([info.joint(j).limits or (-np.inf, np.inf) for j in spec.arm_joints])
     try:
         check_joints(cfg.robot.home, spec.arm_joints, lim, "robot.home")
     except InputError as e:

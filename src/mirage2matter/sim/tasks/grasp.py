@@ -80,7 +80,7 @@ class GraspTask(Task):
             for w in yaw_choices(yaw, spec.home_closing_yaw):
                 tried += 1
                 axis = np.array([math.cos(w), math.sin(w)])
-                T_grasp = topdown(tcp, axis, spec.tcp_offset)
+                T_grasp = topdown(tcp, axis, spec.T_ee_tcp)
                 T_pre = T_grasp.copy()
                 T_pre[2, 3] += 0.10
                 T_lift = T_grasp.copy()

@@ -24,7 +24,7 @@ from ..twin import Twin
 
 __all__ = [
     "Executor", "StepRecord", "line", "move_to", "placed", "placed_com", "steps_per_tick", "surface_points",
-    "tick_ends", "topdown",
+    "tcp_pose", "tick_ends", "topdown",
 ]  # fmt: skip
 
 
@@ -173,17 +173,27 @@ def placed_com(twin: Twin, name: str) -> tuple[np.ndarray, np.ndarray]:
     return T, T[:3, :3] @ com + T[:3, 3]
 
 
-def topdown(tcp: np.ndarray, closing_axis: np.ndarray, tcp_offset: float) -> np.ndarray:
-    """T_base_ee with the approach (ee z) straight down, the TCP (``tcp_offset`` along the approach axis) at
-    ``tcp`` and the fingers closing along ``closing_axis`` (xy)."""
+def topdown(tcp: np.ndarray, closing_axis: np.ndarray, T_ee_tcp: np.ndarray) -> np.ndarray:
+    """T_base_ee [4,4] with the tool pointing straight down, its centre at ``tcp`` [3] and the fingers closing along
+    ``closing_axis`` [2] (xy); ``T_ee_tcp`` [4,4] is the tool frame in the ee link (``RobotSpec.T_ee_tcp``: z the
+    approach, y the closing axis)."""
     y = np.array([closing_axis[0], closing_axis[1], 0.0])
     y /= np.linalg.norm(y)
     z = np.array([0.0, 0.0, -1.0])
     x = np.cross(y, z)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z], axis=1)
-    T[:3, 3] = tcp - tcp_offset * z
-    return T
+    T_base_tcp = np.eye(4)
+    T_base_tcp[:3, :3] = np.stack([x, y, z], axis=1)
+    T_base_tcp[:3, 3] = tcp
+    R, t = T_ee_tcp[:3, :3], T_ee_tcp[:3, 3]
+    T_tcp_ee = np.eye(4)
+    T_tcp_ee[:3, :3] = R.T
+    T_tcp_ee[:3, 3] = -R.T @ t
+    return T_base_tcp @ T_tcp_ee
+
+
+def tcp_pose(twin: Twin) -> np.ndarray:
+    """T_base_tcp [4,4]: the tool frame now (the ee link's pose times the spec's ``T_ee_tcp``)."""
+    return twin.T_base_link() @ twin.spec.T_ee_tcp
 
 
 # ---- motions -----------------------------------------------------------------------------------------

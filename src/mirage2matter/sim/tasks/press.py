@@ -80,8 +80,8 @@ class PressTask(Task):
             return f"{name}: only buttons pressed downwards are supported (axis {axis})", {}
         q_now = twin.robot_state()
         # Closed fingers press with their tips; any hand yaw does, the one of the home pose moves the wrist least.
-        tips = top + np.array([0, 0, spec.tip_offset - spec.tcp_offset])
-        T_touch = topdown(tips, np.asarray(spec.home_closing_axis, dtype=np.float64), spec.tcp_offset)
+        tips = top + np.array([0, 0, spec.tip_depth])
+        T_touch = topdown(tips, np.asarray(spec.home_closing_axis, dtype=np.float64), spec.T_ee_tcp)
         T_pre = T_touch.copy()
         T_pre[2, 3] += 0.08
         T_deep = T_touch.copy()

@@ -140,7 +140,7 @@ def _sweep(ex: Executor, name: str, goal: np.ndarray, d: np.ndarray, speed: floa
     back = float(((points[:, :2] - c0) @ d).min())  # most negative extent along d
     z_top = float(points[:, 2].max())
     start_xy = c0 + d * (back - 0.025)
-    z_tcp = twin.cfg.table_z + 0.004 + (spec.tip_offset - spec.tcp_offset)  # fingertips 4 mm over the table
+    z_tcp = twin.cfg.table_z + 0.004 + spec.tip_depth  # fingertips 4 mm over the table
     z_tcp = max(z_tcp, min(z_tcp + 0.01, z_top - 0.01))
     perp = np.array([-d[1], d[0]])
     q_now = ex.q_now()
@@ -148,7 +148,7 @@ def _sweep(ex: Executor, name: str, goal: np.ndarray, d: np.ndarray, speed: floa
     # Fingers closing across the motion make a 5 cm wide pusher; the other hand yaws are fallbacks for spots
     # (close to the base) where that wrist pose is out of reach.
     for axis in (perp, -perp, d, -d):
-        T_low = topdown(np.array([*start_xy, z_tcp]), axis, spec.tcp_offset)
+        T_low = topdown(np.array([*start_xy, z_tcp]), axis, spec.T_ee_tcp)
         T_pre = T_low.copy()
         T_pre[2, 3] += max(z_top + 0.04, z_tcp + 0.05) - z_tcp  # hand above the object's top
         try:
@@ -164,7 +164,7 @@ def _sweep(ex: Executor, name: str, goal: np.ndarray, d: np.ndarray, speed: floa
     _steer(ex, name, T_low, goal, d, speed)
     T_here = twin.T_base_link()
     T_up = T_here.copy()
-    T_up[2, 3] += max(0.04, z_top + 0.02 - (T_here[2, 3] - spec.tcp_offset))
+    T_up[2, 3] += max(0.04, z_top + 0.02 - (T_here @ spec.T_ee_tcp)[2, 3])
     line(ex, T_here, T_up, closed, 0.35)
     for _ in range(10):  # let a rolling object come to rest (<= 1 s)
         ex.hold(0.1, closed)

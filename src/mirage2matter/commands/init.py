@@ -1,0 +1,204 @@
+"""``m2m init``: a workspace's ``m2m.yaml`` from your inputs, for ``m2m run``.
+
+The file holds every stage's section with every field, at its default unless given, each under its doc as
+a comment (:meth:`~..stages.pipeline.PipelineConfig.save`). The common inputs have short flags (``--video``,
+``--board``, ``--handeye-images``, ``--task`` ...); any field can be given as ``--<stage>.<field>``. Every input
+is checked before the file is written: a missing file, a board spec or a calibration that cannot be read, an
+unknown robot, a hand-eye calibration without the head camera's intrinsics are errors naming the flag.
+
+Paths are written relative to the workspace when they lie inside it and absolute otherwise: a path with
+``..`` would break when the workspace folder is moved or copied on its own, an absolute one keeps pointing
+at your capture, and inputs you keep inside the workspace travel with it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from ..configs import add_flags, from_flags
+from ..errors import M2MError
+from ..workspace import Workspace, WorkspaceError
+from .args import CliError, int_at_least, show
+
+__all__ = ["register"]
+
+# the short flags, and the m2m.yaml field each sets (a field's own --<stage>.<field> flag overrides it)
+SHORT = {
+    "video": "capture.source", "images": "capture.source", "intrinsics": "sfm.intrinsics", "board": "align.board",
+    "board_pose": "align.board_pose", "handeye_images": "handeye.images", "handeye_poses": "handeye.joints",
+    "handeye_board": "handeye.board", "handeye_intrinsics": "handeye.intrinsics", "head_photo": "head_view.photo",
+    "robot": "align.robot", "objects": "objects.names", "task": "generate.task", "episodes": "generate.episodes",
+}  # fmt: skip
+
+EXAMPLE = """example:
+  m2m init -w ws --video table.mp4 --board board.json --intrinsics phone.json \\
+      --handeye-images he/images --handeye-poses he/joints.json --handeye-board he/board.json \\
+      --handeye-intrinsics head_cam.yaml --head-photo head.png \\
+      --objects banana croissant button --task "grasp banana" "press button" --episodes 50
+  m2m run -w ws
+"""
+
+
+def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
+    p = sub.add_parser(
+        "init",
+        help="write a workspace's m2m.yaml (every setting, explained) from your capture, board, robot and tasks",
+        description=(
+            "Write <workspace>/m2m.yaml for `m2m run`: every stage's section with every field, at its default unless "
+            "given, each explained in a comment; edit it to change any setting. The inputs are checked first (files "
+            "exist, the board and calibrations read). Paths are written relative to the workspace when inside it, "
+            "else absolute. Without hand-eye images the run skips the hand-eye calibration, the head-view check and "
+            "the world; without a head-camera photo, the head-view check; without tasks, the demonstrations."
+        ),
+        epilog=EXAMPLE,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("-w", "--workspace", required=True, metavar="DIR", help="the workspace folder (created)")
+    p.add_argument("--force", action="store_true", help="replace the workspace's m2m.yaml if it has one")
+    g = p.add_argument_group("your inputs (paths relative to the current folder)")
+    source = g.add_mutually_exclusive_group()
+    source.add_argument("--video", type=Path, metavar="FILE", help="the capture: a video orbiting the table "
+                        "(mp4/mov/mkv)")  # fmt: skip
+    source.add_argument("--images", type=Path, metavar="DIR", help="the capture as a folder of images instead")
+    g.add_argument("--intrinsics", type=Path, metavar="FILE", help="the capture camera's calibration (any format "
+                   "`m2m intrinsics FILE` reads), held fixed in SfM; without it SfM estimates one")  # fmt: skip
+    g.add_argument("--board", type=Path, metavar="FILE", help="spec JSON of the calibration target at the robot base "
+                   "(from `m2m board`)")  # fmt: skip
+    g.add_argument("--board-pose", type=Path, metavar="FILE", help="a JSON with T_base_board when the target is not "
+                   "centred on the base with its x along base x")  # fmt: skip
+    g.add_argument("--handeye-images", type=Path, metavar="DIR", help="the head camera's images of a board the robot "
+                   "holds (hand-eye calibration); without them no head camera, so no world")  # fmt: skip
+    g.add_argument("--handeye-poses", type=Path, metavar="FILE", help="the robot's pose per hand-eye image (JSON: "
+                   "joints or end-effector poses; see `m2m calibrate-handeye --help`)")  # fmt: skip
+    g.add_argument("--handeye-board", type=Path, metavar="FILE", help="spec JSON of the board the robot holds "
+                   "(default: --board)")  # fmt: skip
+    g.add_argument("--handeye-intrinsics", type=Path, metavar="FILE", help="the head camera's calibration")
+    g.add_argument("--head-photo", type=Path, metavar="FILE", help="a photo the head camera took of the table (the "
+                   "head-view check compares the scene with it; without one the check is skipped)")  # fmt: skip
+    g.add_argument("--robot", metavar="NAME", help="the robot at the base (a registered robot name; default: the "
+                   "default robot): sets align.robot and world.robot, and the hand-eye's robot model")  # fmt: skip
+    g.add_argument("--objects", nargs="+", metavar="NAME", help="the objects on the table, nearest the base first "
+                   "(default: every object found, named object_0, object_1, ...)")  # fmt: skip
+    g.add_argument("--task", nargs="+", action="extend", metavar="TEXT", help='task instructions, e.g. "grasp banana" '
+                   '"press button" (default: none, no demonstrations)')  # fmt: skip
+    g.add_argument("--episodes", type=int_at_least(1), metavar="N", help="successful episodes per task")
+    if full:  # every field as --<stage>.<field> (imports every stage's libraries)
+        from ..stages.pipeline import PipelineConfig
+
+        add_flags(p, PipelineConfig)
+    p.set_defaults(func=run)
+
+
+def _flag(field: str) -> str:
+    """The flags that set the m2m.yaml field ``field`` (``align.board`` -> ``--board / --align.board``; a section:
+    ``--scene.*``)."""
+    field = field.split("[")[0]
+    section, _, rest = field.partition(".")
+    short = [f"--{k.replace('_', '-')}" for k, v in SHORT.items() if v == field]
+    return " / ".join([*short, f"--{section.replace('_', '-')}.{rest.replace('_', '-') or '*'}"])
+
+
+def _settings(args: argparse.Namespace) -> Any:
+    """The PipelineConfig of the flags: the short ones, then every --<stage>.<field> given on top."""
+    from ..stages.pipeline import PipelineConfig
+
+    cfg = PipelineConfig()
+    given: dict[str, Any] = {}
+    for name, field in SHORT.items():
+        value = getattr(args, name, None)
+        if value is not None:
+            given[field] = value.resolve() if isinstance(value, Path) else value
+    if args.handeye_images is not None and args.handeye_board is None and args.board is not None:
+        given["handeye.board"] = args.board.resolve()  # one board for both, unless a second is named
+    if args.robot is not None:
+        from ..robots import get_robot
+
+        try:
+            model = get_robot(args.robot).model
+        except M2MError as e:
+            raise CliError(f"--robot: {e}") from None
+        given["world.robot"] = args.robot
+        given["handeye.robot"] = model  # the hand-eye poses' kinematics: the same robot
+    sections: dict[str, dict[str, Any]] = {}
+    for field, value in given.items():
+        section, key = field.split(".")
+        sections.setdefault(section, {})[key] = tuple(value) if key == "task" else value
+    for section, changes in sections.items():
+        cfg = dataclasses.replace(cfg, **{section: dataclasses.replace(getattr(cfg, section), **changes)})
+    return from_flags(PipelineConfig, args, cfg)
+
+
+def _check_inputs(cfg: Any, args: argparse.Namespace) -> None:
+    """Every input file exists and the ones init can read do read; CliError naming the flag."""
+    from ..stages.pipeline import input_paths
+
+    given = {SHORT[k]: (f"--{k.replace('_', '-')}", v) for k, v in vars(args).items()
+             if k in SHORT and isinstance(v, Path)}  # fmt: skip
+    missing = [given.get(f, (_flag(f), p)) for s in dataclasses.fields(cfg)
+               for f, p in input_paths(getattr(cfg, s.name), s.name) if not p.exists()]  # fmt: skip
+    if missing:
+        raise CliError("not found: " + "; ".join(f"{flag} {show(p)}" for flag, p in missing))
+    if args.video is not None and not args.video.is_file():
+        raise CliError(f"--video {args.video} is a folder; give the video file, or the folder as --images")
+    if args.images is not None and not args.images.is_dir():
+        raise CliError(f"--images {args.images} is a file; give the folder of images, or a video as --video")
+    if cfg.capture.source is None and cfg.sfm.from_transforms is None and cfg.sfm.from_colmap is None:
+        raise CliError("no capture: give --video FILE or --images DIR (or --sfm.from-transforms FILE to import poses)")
+    if cfg.align.board is None and not cfg.align.unaligned:
+        raise CliError("no calibration target: give --board FILE (its spec JSON, from `m2m board`), or "
+                       "--align.unaligned for a scene-only workspace (no robot twin)")  # fmt: skip
+    he = cfg.handeye
+    if he.images is not None or he.joints is not None:
+        lacking = [n for n in ("images", "joints", "board", "intrinsics") if getattr(he, n) is None]
+        if lacking:
+            raise CliError("the hand-eye calibration also needs " + ", ".join(_flag(f"handeye.{n}") for n in lacking))
+    _read_inputs(cfg)
+
+
+def _read_inputs(cfg: Any) -> None:
+    """The boards and calibrations read as the stages will read them (their errors name the file)."""
+    from ..calib.board import load_target
+    from ..geometry.camera import load_intrinsics
+
+    checks = [("align.board", load_target), ("handeye.board", load_target), ("sfm.intrinsics", load_intrinsics),
+              ("handeye.intrinsics", lambda p: load_intrinsics(p, keys=("head_camera",)))]  # as the stages read them
+    for field, read in checks:
+        section, key = field.split(".")
+        path = getattr(getattr(cfg, section), key)
+        if path is not None:
+            try:
+                read(path)
+            except M2MError as e:
+                raise CliError(f"{_flag(field)}: {e}") from None
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..configs import ConfigError
+    from ..stages.pipeline import SettingsFile, plan_run
+    from ..stages.transaction import workspace_lock
+
+    ws = Workspace(args.workspace)
+    if ws.root.exists() and not ws.root.is_dir():
+        raise WorkspaceError(f"workspace {ws.root} exists and is not a folder; choose another with -w")
+    if ws.config_file.exists() and not args.force:
+        raise CliError(f"{ws.config_file} exists; edit it, or `m2m init --force ...` replaces it")
+    cfg = _settings(args)
+    _check_inputs(cfg, args)
+    try:  # the checks `m2m run` makes, before anything is written
+        plan = plan_run(ws, cfg, SettingsFile(Path("m2m init")))
+    except ConfigError as e:
+        raise CliError(f"{str(e).removeprefix('m2m init: ')} (flag {_flag(e.field or '')})") from None
+    with workspace_lock(ws, "m2m init"):
+        if ws.config_file.exists() and not args.force:  # written meanwhile
+            raise CliError(f"{ws.config_file} exists; edit it, or `m2m init --force ...` replaces it")
+        cfg.save(ws.config_file)
+    runs = [name for name, why in plan.items() if why is None]
+    lines = [f"m2m init: wrote {show(ws.config_file)} (every setting, each explained; edit it to change any)",
+             f"  m2m run will run  {', '.join(runs)}"]  # fmt: skip
+    lines += [f"  and skip {name:<9} {why}" for name, why in plan.items() if why is not None]
+    lines.append(f"next: m2m run -w {show(ws.root)}")
+    print("\n".join(lines))
+    return 0

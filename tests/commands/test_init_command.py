@@ -1,0 +1,94 @@
+"""``m2m init``: the workspace's m2m.yaml from a user's inputs; read back, the same settings as the sample's own
+m2m.yaml names; every input checked before anything is written."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+from fixtures import SAMPLE
+from mirage2matter.cli import main
+from mirage2matter.stages.pipeline import PipelineConfig
+
+S = str(SAMPLE)
+SAMPLE_FLAGS = [
+    "--video", f"{S}/scene.mp4", "--intrinsics", f"{S}/ground_truth.json", "--board", f"{S}/board.json",
+    "--board-pose", f"{S}/ground_truth.json", "--handeye-images", f"{S}/handeye/images",
+    "--handeye-poses", f"{S}/handeye/joints.json", "--handeye-board", f"{S}/handeye/board.json",
+    "--handeye-intrinsics", f"{S}/ground_truth.json", "--head-photo", f"{S}/head_view.png",
+    "--objects", "banana", "croissant", "button", "--task", "grasp banana", "grasp croissant", "press button",
+    "--task", "push croissant --direction 0,1 --distance 0.1", "--episodes", "3",
+    "--capture.max-keyframes", "40", "--scene.minutes", "6", "--generate.workers", "2",
+]  # fmt: skip
+
+
+def test_init_with_the_samples_inputs_writes_the_samples_settings(tmp_path, capsys):
+    """The sample's own m2m.yaml (hand-written) and `m2m init` with the same inputs give the same settings."""
+    ws = tmp_path / "ws"
+    assert main(["init", "-w", str(ws), *SAMPLE_FLAGS]) == 0
+    out = capsys.readouterr().out
+    assert "m2m run will run  capture, sfm, align, handeye, scene, head_view, objects, world, generate" in out
+    assert PipelineConfig.load(ws / "m2m.yaml") == PipelineConfig.load(SAMPLE / "m2m.yaml")
+    text = (ws / "m2m.yaml").read_text()
+    assert "# ---- handeye (`m2m calibrate-handeye`)\n" in text
+    assert "  # successful episodes wanted per task\n  episodes: 3\n" in text
+    assert f"  source: {(SAMPLE / 'scene.mp4').resolve()}\n" in text  # outside the workspace: absolute
+    # an existing m2m.yaml is not replaced without --force
+    assert main(["init", "-w", str(ws), "--video", f"{S}/scene.mp4", "--board", f"{S}/board.json"]) == 2
+    assert "m2m.yaml exists; edit it, or `m2m init --force" in capsys.readouterr().err
+    assert (ws / "m2m.yaml").read_text() == text
+    assert main(["init", "-w", str(ws), "--force", "--video", f"{S}/scene.mp4", "--board", f"{S}/board.json"]) == 0
+    assert PipelineConfig.load(ws / "m2m.yaml").generate.task == ()
+
+
+def test_inputs_inside_the_workspace_are_written_relative_to_it(tmp_path, capsys):
+    ws = tmp_path / "ws"
+    (ws / "inputs").mkdir(parents=True)
+    shutil.copy(SAMPLE / "board.json", ws / "inputs" / "board.json")
+    assert main(["init", "-w", str(ws), "--video", f"{S}/scene.mp4", "--board", str(ws / "inputs" / "board.json"),
+                 "--robot", "panda"]) == 0  # fmt: skip
+    out = capsys.readouterr().out
+    text = (ws / "m2m.yaml").read_text()
+    assert "  board: inputs/board.json\n" in text
+    moved = tmp_path / "moved"
+    (ws / "capture").mkdir()
+    shutil.move(ws, moved)  # a workspace moved with its inputs still reads them
+    cfg = PipelineConfig.load(moved / "m2m.yaml")
+    assert cfg.align.board == moved / "inputs" / "board.json" and cfg.world.robot == cfg.align.robot == "panda"
+    # no hand-eye images, no tasks: the run skips what needs them, and says so now
+    for line in ("and skip handeye   no hand-eye images", "and skip head_view no head-camera calibration",
+                 "and skip world     no head-camera calibration", "and skip generate  no world"):  # fmt: skip
+        assert line in out, out
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--video", f"{S}/nothing.mp4", "--board", f"{S}/board.json", "--head-photo", "no.png",
+          "--objects.masks", "no_masks"], "not found: --video .*nothing.mp4; --head-photo no.png; --objects.masks no_"),
+        (["--video", S, "--board", f"{S}/board.json"], "--video .* is a folder; give the video file"),
+        (["--board", f"{S}/board.json"], "no capture: give --video FILE or --images DIR"),
+        (["--video", f"{S}/scene.mp4"], "no calibration target: give --board FILE"),
+        (["--video", f"{S}/scene.mp4", "--board", f"{S}/ground_truth.json"],
+         "--board / --align.board: .*ground_truth.json: BoardSpec JSON has unknown keys"),
+        (["--video", f"{S}/scene.mp4", "--board", f"{S}/board.json", "--handeye-images", f"{S}/handeye/images"],
+         "the hand-eye calibration also needs --handeye-poses / --handeye.joints, --handeye-intrinsics"),
+        (["--video", f"{S}/scene.mp4", "--board", f"{S}/board.json", "--intrinsics", f"{S}/board.json"],
+         "--intrinsics / --sfm.intrinsics: .*board.json"),
+        (["--video", f"{S}/scene.mp4", "--board", f"{S}/board.json", "--robot", "robbie"],
+         "--robot: unknown robot 'robbie'; known robots: panda"),
+        (["--video", f"{S}/scene.mp4", "--board", f"{S}/board.json", "--scene.minutes", "0"],
+         r"section scene: train-scene: give a positive --minutes budget .*\(flag --scene\.\*\)"),
+    ],
+    ids=["missing files", "video is a folder", "no capture", "no board", "not a board", "hand-eye half given",
+         "not intrinsics", "unknown robot", "a stage refuses a value"],  # fmt: skip
+)
+def test_bad_inputs_are_named_by_their_flag_and_nothing_is_written(tmp_path, capsys, flags, message):
+    import re
+
+    ws = tmp_path / "ws"
+    assert main(["init", "-w", str(ws), *flags]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("m2m: error: ") and re.search(message, err), err
+    assert not ws.exists()
