@@ -102,8 +102,11 @@ class PolicyTrainConfig:
     device: str = "auto"
     augment: AugmentConfig = field(default_factory=AugmentConfig)
     state_noise: float = 0.5
-    aux_horizons: tuple[int, ...] = ()
-    aux_weight: float = 0.0
+    # On by default: measured on the sample (300 hybrid grasp demos, 20 unseen episodes per world), the ground-truth
+    # world went from 0/20 without it (2,974 steps) to 8/20 (9,976 steps) and 5/20 (6,786 steps, with blur/sharpen
+    # augmentation), the reconstructed world from 11/20 to 16/20 and 17/20.
+    aux_horizons: tuple[int, ...] = (10, 20, 30, 40)
+    aux_weight: float = 1.0
 
     def problems(self) -> list[str]:
         """Every invalid value, worded for the user (empty: valid)."""
