@@ -17,15 +17,22 @@ __all__ = ["points_inside"]
 
 
 @njit(cache=True)
+def _cells_of(t, tri_xy_lo, tri_xy_hi, lo, cell, nx, ny):
+    """(i0, i1, j0, j1): the inclusive cell range triangle ``t``'s xy box overlaps."""
+    i0 = max(0, min(nx - 1, int((tri_xy_lo[t, 0] - lo[0]) / cell[0])))
+    i1 = max(0, min(nx - 1, int((tri_xy_hi[t, 0] - lo[0]) / cell[0])))
+    j0 = max(0, min(ny - 1, int((tri_xy_lo[t, 1] - lo[1]) / cell[1])))
+    j1 = max(0, min(ny - 1, int((tri_xy_hi[t, 1] - lo[1]) / cell[1])))
+    return i0, i1, j0, j1
+
+
+@njit(cache=True)
 def _bin_triangles(tri_xy_lo, tri_xy_hi, lo, cell, nx, ny):
     """CSR (start [nx*ny+1], ids) of the triangles whose xy box overlaps each cell."""
     n = tri_xy_lo.shape[0]
     counts = np.zeros(nx * ny + 1, np.int64)
     for t in range(n):
-        i0 = max(0, min(nx - 1, int((tri_xy_lo[t, 0] - lo[0]) / cell[0])))
-        i1 = max(0, min(nx - 1, int((tri_xy_hi[t, 0] - lo[0]) / cell[0])))
-        j0 = max(0, min(ny - 1, int((tri_xy_lo[t, 1] - lo[1]) / cell[1])))
-        j1 = max(0, min(ny - 1, int((tri_xy_hi[t, 1] - lo[1]) / cell[1])))
+        i0, i1, j0, j1 = _cells_of(t, tri_xy_lo, tri_xy_hi, lo, cell, nx, ny)
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
                 counts[i * ny + j + 1] += 1
@@ -33,10 +40,7 @@ def _bin_triangles(tri_xy_lo, tri_xy_hi, lo, cell, nx, ny):
     fill = start[:-1].copy()
     ids = np.empty(start[-1], np.int64)
     for t in range(n):
-        i0 = max(0, min(nx - 1, int((tri_xy_lo[t, 0] - lo[0]) / cell[0])))
-        i1 = max(0, min(nx - 1, int((tri_xy_hi[t, 0] - lo[0]) / cell[0])))
-        j0 = max(0, min(ny - 1, int((tri_xy_lo[t, 1] - lo[1]) / cell[1])))
-        j1 = max(0, min(ny - 1, int((tri_xy_hi[t, 1] - lo[1]) / cell[1])))
+        i0, i1, j0, j1 = _cells_of(t, tri_xy_lo, tri_xy_hi, lo, cell, nx, ny)
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
                 c = i * ny + j

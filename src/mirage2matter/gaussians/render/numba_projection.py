@@ -146,13 +146,10 @@ def _rotation(qw, qx, qy, qz):
     )  # fmt: skip
 
 
-@njit(parallel=True, cache=True)
-def project_forward(means, quats, log_scales, logit_opacities, sh, degree, V, K, width, height,
-                    mean2d, conic, depth, opacity, color, radius):  # fmt: skip
-    """Inputs float32 [N,3], [N,4], [N,3], [N], [N,K,3] (K >= (degree+1)^2), V [4,4] world-to-camera and K
-    [3,3] float64. Writes mean2d [N,2], conic [N,3], depth [N], opacity [N], color [N,3], radius [N,2]
-    (float32; culled: radius 0, conic (1, 0, 1), the rest 0)."""
-    n = means.shape[0]
+@njit(cache=True, inline="always")
+def _view_constants(V, K, width, height):
+    """The clamp limits of x/z and y/z (positive and negative sides, gsplat's FOV clamp) and the camera centre in
+    the world (-R^T t) of world-to-camera V [4,4] and intrinsics K [3,3]."""
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     lim_xp = (width - cx) / fx + FOV_CLAMP * 0.5 * width / fx
     lim_xn = cx / fx + FOV_CLAMP * 0.5 * width / fx
@@ -161,6 +158,18 @@ def project_forward(means, quats, log_scales, logit_opacities, sh, degree, V, K,
     camx = -(V[0, 0] * V[0, 3] + V[1, 0] * V[1, 3] + V[2, 0] * V[2, 3])
     camy = -(V[0, 1] * V[0, 3] + V[1, 1] * V[1, 3] + V[2, 1] * V[2, 3])
     camz = -(V[0, 2] * V[0, 3] + V[1, 2] * V[1, 3] + V[2, 2] * V[2, 3])
+    return lim_xp, lim_xn, lim_yp, lim_yn, camx, camy, camz
+
+
+@njit(parallel=True, cache=True)
+def project_forward(means, quats, log_scales, logit_opacities, sh, degree, V, K, width, height,
+                    mean2d, conic, depth, opacity, color, radius):  # fmt: skip
+    """Inputs float32 [N,3], [N,4], [N,3], [N], [N,K,3] (K >= (degree+1)^2), V [4,4] world-to-camera and K
+    [3,3] float64. Writes mean2d [N,2], conic [N,3], depth [N], opacity [N], color [N,3], radius [N,2]
+    (float32; culled: radius 0, conic (1, 0, 1), the rest 0)."""
+    n = means.shape[0]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    lim_xp, lim_xn, lim_yp, lim_yn, camx, camy, camz = _view_constants(V, K, width, height)
     nb = (degree + 1) * (degree + 1)
     for i in prange(n):
         mean2d[i, 0] = mean2d[i, 1] = depth[i] = opacity[i] = 0.0
@@ -218,14 +227,8 @@ def project_backward(means, quats, log_scales, logit_opacities, sh, degree, V, K
     written to g_* (zeros for culled Gaussians). Recomputes the forward per Gaussian (cheaper than storing
     it)."""
     n = means.shape[0]
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    lim_xp = (width - cx) / fx + FOV_CLAMP * 0.5 * width / fx
-    lim_xn = cx / fx + FOV_CLAMP * 0.5 * width / fx
-    lim_yp = (height - cy) / fy + FOV_CLAMP * 0.5 * height / fy
-    lim_yn = cy / fy + FOV_CLAMP * 0.5 * height / fy
-    camx = -(V[0, 0] * V[0, 3] + V[1, 0] * V[1, 3] + V[2, 0] * V[2, 3])
-    camy = -(V[0, 1] * V[0, 3] + V[1, 1] * V[1, 3] + V[2, 1] * V[2, 3])
-    camz = -(V[0, 2] * V[0, 3] + V[1, 2] * V[1, 3] + V[2, 2] * V[2, 3])
+    fx, fy = K[0, 0], K[1, 1]
+    lim_xp, lim_xn, lim_yp, lim_yn, camx, camy, camz = _view_constants(V, K, width, height)
     nb = (degree + 1) * (degree + 1)
     kk = sh.shape[1]
     for i in prange(n):
