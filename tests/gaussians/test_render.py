@@ -6,6 +6,7 @@ two independent implementations (and precisions). Scenes are small: the referenc
 
 import functools
 import math
+import re
 
 import numpy as np
 import pytest
@@ -175,6 +176,78 @@ def test_empty_scene_renders_background(backend, requires_grad):
         assert g.means.grad is not None and g.means.grad.shape == (0, 3)
 
 
+@pytest.fixture
+def fake_gpu(monkeypatch):
+    """backend="cuda" resolves as on a machine with a GPU and gsplat; gsplat's renderer is replaced by a
+    recorder, so a test sees what would have reached the GPU (and dies loudly if something should not)."""
+    import mirage2matter.gaussians.render as render_mod
+
+    calls: list[int] = []
+
+    def gsplat_stand_in(g, *args, **kwargs):
+        calls.append(len(g))
+        if len(g) == 0:  # what gsplat 1.5.3 does: SIGFPE in fully_fused_projection, the process is gone
+            raise AssertionError("an empty Gaussian set reached gsplat")
+        return render(g, *args[:4], background=args[4] if len(args) > 4 else None, backend="cpu")
+
+    monkeypatch.setattr(render_mod, "cuda_unavailable_reason", lambda: None)
+    monkeypatch.setattr(render_mod, "render_gsplat", gsplat_stand_in)
+    return calls
+
+
+@pytest.mark.parametrize("requires_grad", [False, True])
+def test_empty_scene_never_reaches_gsplat(fake_gpu, requires_grad):
+    g = empty_gaussians().map(lambda t: t.requires_grad_(requires_grad))
+    w, h = 40, 23
+    info: dict = {}
+    out = render(g, look_at([3, 0, 0], [0, 0, 0]), intrinsics(w, h), w, h, background=BG, backend="cuda", info=info)
+    assert fake_gpu == []
+    torch.testing.assert_close(out.rgb.detach(), BG.expand(h, w, 3), atol=0, rtol=0)
+    assert not out.alpha.any() and not out.depth.any()
+    assert info["mean2d"].shape == (0, 2) and info["radius"].shape == (0, 2)
+    if requires_grad:
+        (out.rgb.sum() + out.alpha.sum() + out.depth.sum()).backward()
+        assert all(getattr(g, k).grad is not None and not getattr(g, k).grad.numel() for k in PARAMS)
+    # and a set that is not empty does reach it
+    render(random_gaussians(3, 3, seed=0), look_at([3, 0, 0], [0, 0, 0]), intrinsics(w, h), w, h, backend="cuda")
+    assert fake_gpu == [3]
+
+
+def test_training_pruned_to_nothing_keeps_running():
+    """A training run whose every Gaussian is pruned (an object that was not there) ends with zero
+    Gaussians and renders the background (test_render_cuda.py runs the same on a GPU)."""
+    from mirage2matter.gaussians.train import TrainConfig, View, train
+
+    V, K = torch.as_tensor(look_at([3, 0, 0], [0, 0, 0])).float(), torch.as_tensor(intrinsics(32, 24)).float()
+    view = View(torch.full((24, 32, 3), 0.3), V, K)
+    g = random_gaussians(50, 1, seed=0)
+    g = with_(g, logit_opacities=torch.full_like(g.logit_opacities, -9.0))  # below prune_opa: all go
+    cfg = TrainConfig(iterations=30, sh_degree=1, refine_start=0.0, refine_every=5, backend="cpu",
+                      background=(0.3, 0.3, 0.3))  # fmt: skip
+    out, metrics = train([view], [view], g, cfg, progress=False)
+    assert len(out) == 0 and metrics["iterations"] == 30
+    assert metrics["psnr"] > 100  # the background is the photo
+
+
+@pytest.mark.parametrize("backend", ["cpu", "reference"])
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_tiny_sets_match_the_reference(backend, n):
+    """One, two and three Gaussians: each seen, one of them behind the camera, one beyond the image."""
+    g = random_gaussians(3, 3, seed=5, extent=0.3)
+    g = with_(g, means=torch.tensor([[0.0, 0.1, 0.0], [6.0, 0.0, 0.0], [0.0, 5.0, 0.0]]),
+              log_scales=torch.full((3, 3), math.log(0.6)), logit_opacities=torch.full((3,), 3.0))  # fmt: skip
+    g = g.select(slice(0, n))
+    V, K, w, h = look_at([3, 0, 0], [0, 0, 0]), intrinsics(40, 30), 40, 30
+    ref = render(g.to(torch.float64), V, K, w, h, background=BG.double(), backend="reference")
+    dtype = torch.float32 if backend == "cpu" else torch.float64
+    gg = g.to(dtype).map(lambda t: t.clone().requires_grad_(True))
+    out = render(gg, V, K, w, h, background=BG.to(dtype), backend=backend)
+    assert_images_match(out, ref)
+    (out.rgb.sum() + out.alpha.sum()).backward()
+    assert torch.isfinite(gg.means.grad).all() and gg.means.grad[0].abs().sum() > 0
+    assert not gg.means.grad[1:].any()  # behind the camera, beyond the image: no pixel, no gradient
+
+
 @pytest.mark.parametrize("backend", ["cpu", "reference"])
 def test_scene_behind_the_camera_is_invisible(backend):
     dtype = torch.float32 if backend == "cpu" else torch.float64
@@ -237,7 +310,42 @@ def test_gradients_match_reference(name):
     assert all(e > 10 * GRAD_RTOL for e in wrong.values()), wrong
 
 
-# ---- 3. the grad path (torch projection) and the fused no-grad path -------------------------------
+# ---- 3. the grad path (numba projection with its backward) and the fused no-grad path --------------
+@pytest.mark.parametrize("name", ["random", "tabletop", "outside", "dark"])
+@pytest.mark.parametrize("degree", [0, 1, 3])
+def test_numba_projection_matches_torch_projection(name, degree):
+    """ProjectNumba (the training path's projection + SH, hand-written backward) against the torch projection
+    differentiated by autograd: the same culling, outputs and input gradients. "outside" has Gaussians at the
+    FOV clamp; "dark" has colours the clamp at 0 cuts."""
+    from mirage2matter.gaussians.render.numba_projection import ProjectNumba
+    from mirage2matter.gaussians.render.projection import project
+
+    g, V, K, w, h, _ = scene("random" if name == "dark" else name)
+    g = g.with_sh_degree(degree)
+    if name == "dark":
+        g = with_(g, sh=g.sh - 1.2 * (torch.arange(len(g)) % 2)[:, None, None])  # half of them below zero
+    V64, K64 = np.asarray(V, np.float64), np.asarray(K, np.float64)
+    gt, gn = (g.map(lambda t: t.detach().clone().requires_grad_(True)) for _ in range(2))
+    ref = project(gt, torch.from_numpy(V64), torch.from_numpy(K64), w, h)
+    out = ProjectNumba.apply(gn.means, gn.quats, gn.log_scales, gn.logit_opacities, gn.sh, V64, K64, w, h)
+    keep = (ref.radius > 0).all(1)
+    assert torch.equal(keep, (out[5] > 0).all(1)) and keep.sum() > 50
+    assert (out[5] - ref.radius).abs().max() <= 1
+    refs = (ref.mean2d, ref.conic, ref.depth, ref.opacity, ref.color)
+    for a, b in zip(out[:5], refs, strict=True):
+        torch.testing.assert_close(a[keep], b[keep].float(), rtol=1e-4, atol=1e-4 * float(b[keep].abs().max()))
+    if name == "dark":
+        assert (ref.color[keep] == 0).any()
+    rng = torch.Generator().manual_seed(1)  # upstream gradients where the rasterizer would give them
+    ws = [torch.randn(o.shape, generator=rng) * keep.reshape(-1, *[1] * (o.ndim - 1)) for o in out[:5]]
+    sum((o * u).sum() for o, u in zip(refs, ws, strict=True)).backward()
+    sum((o * u).sum() for o, u in zip(out[:5], ws, strict=True)).backward()
+    for k in PARAMS:
+        a, b = getattr(gn, k).grad, getattr(gt, k).grad
+        assert float((a - b).norm() / b.norm()) <= 1e-4, k
+        assert not a[~keep].any(), k  # culled Gaussians get no gradient
+
+
 @pytest.mark.parametrize("name", ["random", "tabletop", "outside"])
 def test_grad_and_nograd_paths_agree(name):
     g, V, K, w, h, bg = scene(name)
@@ -376,6 +484,44 @@ def test_cuda_backend_without_cuda_says_use_cpu(monkeypatch):
     out = render(g, V, K, 16, 12)
     ref = render(g.to(torch.float64), V, K, 16, 12, backend="reference")
     assert out.rgb.dtype == torch.float32 and psnr(out.rgb, ref.rgb) >= 60
+
+
+def test_cuda_backend_without_gsplat_kernels_says_why(monkeypatch):
+    """A GPU but gsplat without its CUDA kernels (no toolkit to JIT-build them): gsplat would fail on the
+    first render with "'NoneType' object has no attribute ..."; the backend says what is missing first."""
+    from mirage2matter.commands.args import CliError, backend
+    from mirage2matter.gaussians.render import gsplat_cuda
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(gsplat_cuda, "_gsplat_kernels_problem", lambda: "gsplat found no CUDA toolkit to build")
+    g, V, K = _tiny()
+    with pytest.raises(BackendError, match="no CUDA toolkit.*use 'cpu'"):
+        render(g, V, K, 16, 12, backend="cuda")
+    with pytest.raises(CliError, match="--backend cuda: .*no CUDA toolkit"):
+        backend("cuda")
+    monkeypatch.delenv("M2M_RENDER_BACKEND", raising=False)
+    assert backend("auto") == "cpu"
+
+
+def test_no_gpu_reason_names_the_torch_build(monkeypatch):
+    from mirage2matter.gaussians.render import resolve_backend
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(BackendError, match=re.escape(f"torch sees no CUDA GPU (torch {torch.__version__}")):
+        resolve_backend("cuda")
+
+
+def test_gpu_out_of_memory_says_what_to_lower(fake_gpu, monkeypatch):
+    import mirage2matter.gaussians.render as render_mod
+    from mirage2matter.errors import M2MError
+
+    def out_of_memory(*args, **kwargs):
+        raise torch.cuda.OutOfMemoryError("CUDA out of memory. Tried to allocate 20.00 GiB")
+
+    monkeypatch.setattr(render_mod, "render_gsplat", out_of_memory)
+    g, V, K = _tiny()
+    with pytest.raises(M2MError, match=r"GPU out of memory rendering 5 Gaussians at 16x12.*lower .*--max-gaussians"):
+        render(g, V, K, 16, 12, backend="cuda")
 
 
 @pytest.mark.parametrize("backend", ["cpu", "reference", "auto"])

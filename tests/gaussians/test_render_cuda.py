@@ -1,31 +1,25 @@
-"""gsplat CUDA backend (backend="cuda") against the numba CPU rasterizer and the dense reference.
+"""gsplat CUDA backend (backend="cuda") against the numba CPU rasterizer and the dense reference, and the
+training loop on it: each feature with a CPU test has its CUDA twin here (test_render.py, test_train.py).
 
 Needs a CUDA GPU, torch built with CUDA and gsplat (its kernels may be JIT-compiled on first use,
 which can take minutes once per machine). Everything else skips. Outputs are compared on the CPU.
 """
 
+import math
+
 import pytest
 import torch
 from render_helpers import intrinsics, look_at, psnr
 
+from fixtures.cuda import CUDA_MARKS
 from fixtures.gaussians import random_gaussians
+from mirage2matter.errors import M2MError
 from mirage2matter.gaussians.model import Gaussians
 from mirage2matter.gaussians.render import render
 from mirage2matter.gaussians.synthetic import orbit_cameras, tabletop_scene
+from mirage2matter.gaussians.train import TrainConfig, View, init_gaussians_from_points, train
 
-
-def _why_no_gsplat_cuda() -> str | None:
-    if not torch.cuda.is_available():
-        return "needs a CUDA GPU (torch.cuda.is_available() is False)"
-    try:
-        import gsplat  # noqa: F401
-    except Exception as e:  # ImportError, or a broken CUDA extension
-        return f"needs gsplat, which does not import: {e!r}"
-    return None
-
-
-_REASON = _why_no_gsplat_cuda()
-pytestmark = [pytest.mark.cuda, pytest.mark.skipif(_REASON is not None, reason=_REASON or "")]
+pytestmark = CUDA_MARKS
 
 BG = torch.tensor([0.2, 0.5, 0.8])
 PARAMS = ("means", "quats", "log_scales", "logit_opacities", "sh")
@@ -94,3 +88,104 @@ def test_gsplat_gradients_match_reference():
     g_ref = grads(g.to(torch.float64), "reference", "cpu")
     errs = {k: ((g_gpu[k] - g_ref[k]).norm() / g_ref[k].norm()).item() for k in PARAMS}
     assert all(e <= 1e-2 for e in errs.values()), errs
+
+
+@pytest.mark.parametrize("requires_grad", [False, True])
+def test_gsplat_empty_scene_with_gradients_and_info(requires_grad):
+    z = lambda *shape: torch.zeros(*shape, device="cuda", requires_grad=requires_grad)  # noqa: E731
+    g = Gaussians(z(0, 3), z(0, 4), z(0, 3), z(0), z(0, 16, 3))
+    info: dict = {}
+    out = render(g, look_at([3.0, 0, 0], [0, 0, 0]), intrinsics(40, 24), 40, 24, BG.cuda(), "cuda", info)
+    torch.testing.assert_close(out.rgb.detach().cpu(), BG.expand(24, 40, 3), atol=1e-6, rtol=0)
+    assert info["mean2d"].shape == (0, 2)
+    if requires_grad:
+        (out.rgb.sum() + out.alpha.sum() + out.depth.sum()).backward()
+        assert g.means.grad is not None and g.means.grad.shape == (0, 3)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_gsplat_tiny_sets_match_cpu(n):
+    """One, two and three Gaussians: one seen, one behind the camera, one beyond the image."""
+    g = random_gaussians(3, 3, seed=5, extent=0.3)
+    g = Gaussians(torch.tensor([[0.0, 0.1, 0.0], [6.0, 0.0, 0.0], [0.0, 5.0, 0.0]]), g.quats,
+                  torch.full((3, 3), math.log(0.6)), torch.full((3,), 3.0), g.sh).select(slice(0, n))  # fmt: skip
+    V, K = look_at([3.0, 0, 0], [0, 0, 0]), intrinsics(40, 30)
+    cpu = render(g, V, K, 40, 30, background=BG, backend="cpu")
+    gg = g.to("cuda").map(lambda t: t.clone().requires_grad_(True))
+    gpu = render(gg, V, K, 40, 30, background=BG.cuda(), backend="cuda")
+    assert psnr(gpu.rgb, cpu.rgb) >= 35.0 and psnr(gpu.alpha, cpu.alpha) >= 35.0
+    (gpu.rgb.sum() + gpu.alpha.sum()).backward()
+    assert torch.isfinite(gg.means.grad).all() and gg.means.grad[0].abs().sum() > 0
+
+
+def test_gsplat_out_of_memory_is_a_clear_error():
+    """An image far beyond any GPU's memory (200k x 200k: 640 GB of output): an M2MError naming what to
+    lower, and the process (and the GPU) still usable afterwards."""
+    g = random_gaussians(100, 3, seed=0).to("cuda")
+    with pytest.raises(M2MError, match="GPU out of memory rendering 100 Gaussians at 200000x200000.*lower"):
+        render(g, look_at([3.0, 0, 0], [0, 0, 0]), intrinsics(200_000, 200_000), 200_000, 200_000, backend="cuda")
+    out = render(g, look_at([3.0, 0, 0], [0, 0, 0]), intrinsics(40, 30), 40, 30, backend="cuda")
+    assert out.alpha.max() > 0
+
+
+# ---- training on the GPU (the CPU twins are in test_train.py) ----------------------------------------
+def _tabletop_views(n_views: int = 12, w: int = 64, h: int = 48) -> list[View]:
+    gt = tabletop_scene(3000, sh_degree=1, seed=0)
+    views = []
+    for i, (vm, K) in enumerate(orbit_cameras(n_views, w, h, seed=0)):
+        vm_t, K_t = torch.tensor(vm, dtype=torch.float32), torch.tensor(K, dtype=torch.float32)
+        with torch.no_grad():
+            img = render(gt, vm_t, K_t, w, h, torch.zeros(3), backend="cpu").rgb.clamp(0, 1)
+        views.append(View(img, vm_t, K_t, name=f"view{i:02d}"))
+    return views
+
+
+def _tabletop_init(n: int = 1000):
+    import numpy as np
+
+    gt = tabletop_scene(3000, sh_degree=1, seed=0)
+    rng = np.random.default_rng(0)
+    pts = gt.means[rng.choice(len(gt), n, replace=False)].numpy() + rng.normal(0.0, 0.02, (n, 3))
+    return init_gaussians_from_points(pts, rng.uniform(0.3, 0.7, (n, 3)), sh_degree=1)
+
+
+def test_gsplat_training_raises_held_out_psnr():
+    """test_train.py's run (240 steps, densification, SH 1) on the GPU reaches the same bar."""
+    views = _tabletop_views()
+    held, train_views = [v for i, v in enumerate(views) if i % 8 == 0], [v for i, v in enumerate(views) if i % 8]
+    cfg = TrainConfig(iterations=240, sh_degree=1, sh_increase_every=100 / 240, eval_points=4, checkpoint_every=0,
+                      max_gaussians=3000, backend="cuda", seed=0)  # fmt: skip
+    g, m = train(train_views, held, _tabletop_init(), cfg, progress=False)
+    assert m["backend"] == "cuda" and m["iterations"] == 240 and g.means.device.type == "cpu"
+    assert m["psnr"] >= m["initial"]["psnr"] + 5.0 and m["psnr"] >= 21.0
+    assert len(g) != 1000 and len(g) <= 3000
+    g.check_finite("trained on the GPU")
+
+
+def test_gsplat_time_budget_is_used_and_the_schedule_completes():
+    """A 10 s budget on the GPU: trains for 9-10 s (not the few steps a warm-up-timed plan allowed), with
+    densification stopping at its fraction, SH at its degree and the learning rate at its final value."""
+    views = _tabletop_views()
+    cfg = TrainConfig(iterations=0, max_seconds=10.0, sh_degree=1, refine_stop=0.5, eval_points=3,
+                      checkpoint_every=0, max_gaussians=20000, backend="cuda", seed=0)  # fmt: skip
+    _, m = train(views, views[:1], _tabletop_init(), cfg, progress=False)
+    assert 0.9 * 10.0 <= m["seconds"] <= 10.0
+    s = m["schedule"]
+    assert s["sh_degree"] == 1 and s["last_step_progress"] >= 0.95
+    lr0, lr1 = cfg.lr["means"], cfg.lr["means_final"]
+    assert math.log(s["means_lr"] / lr1) <= 0.05 * math.log(lr0 / lr1) + 1e-9
+    assert s["refinements"] and max(r[1] for r in s["refinements"]) < 0.5 <= max(r[1] for r in s["refinements"]) + 0.05
+    assert m["iterations"] >= 300  # the GPU's speed, not a planner's guess
+
+
+def test_gsplat_training_pruned_to_nothing_keeps_running():
+    """Every Gaussian pruned mid-run (an object that was not there): the empty set renders the background
+    instead of reaching gsplat (SIGFPE in its projection with N = 0)."""
+    V, K = torch.as_tensor(look_at([3.0, 0, 0], [0, 0, 0])).float(), torch.as_tensor(intrinsics(32, 24)).float()
+    view = View(torch.full((24, 32, 3), 0.3), V, K)
+    g = random_gaussians(50, 1, seed=0)
+    g = Gaussians(g.means, g.quats, g.log_scales, torch.full((50,), -9.0), g.sh)
+    cfg = TrainConfig(iterations=30, sh_degree=1, refine_start=0.0, refine_every=5, backend="cuda",
+                      background=(0.3, 0.3, 0.3))  # fmt: skip
+    out, metrics = train([view], [view], g, cfg, progress=False)
+    assert len(out) == 0 and metrics["iterations"] == 30 and metrics["psnr"] > 100

@@ -9,7 +9,7 @@ import trimesh
 
 from mirage2matter.geometry.camera import Camera, look_at_pose
 from mirage2matter.objects import ObjectsError
-from mirage2matter.objects.carve import Grid, carve, signed_distance_image, surface_mesh
+from mirage2matter.objects.carve import Grid, _view_distances, carve, signed_distance_image, surface_mesh
 
 K = np.array([[300.0, 0, 80], [0, 300.0, 60], [0, 0, 1]])
 LO, HI = np.array([-0.03, -0.02, 0.0]), np.array([0.03, 0.02, 0.03])  # a 6 x 4 x 3 cm box on the table
@@ -77,6 +77,42 @@ def test_box_is_recovered_and_one_bad_mask_is_outvoted():
 
     strict = surface_mesh(carve(grid, cams, masks, plane_height=lambda p: p[:, 2], skip=0, depths=depths), grid)
     assert strict.volume < 0.85 * true_volume  # without the vote the bad mask cuts the box
+
+
+def _view_distances_numpy(pts, cam, sdi, depth, margin):
+    """The carving evidence of one view as numpy formulates it (the numba kernel's reference): project,
+    sample sdi bilinearly (pixel centres at +0.5; NaN off the image), lower by the depth behind the surface."""
+    uv, z = cam.project(pts)
+    h, w = sdi.shape
+    x, y = uv[:, 0] - 0.5, uv[:, 1] - 0.5
+    ok = (x >= 0) & (y >= 0) & (x <= w - 1) & (y <= h - 1)
+    x0, y0 = np.clip(np.floor(x).astype(int), 0, w - 2), np.clip(np.floor(y).astype(int), 0, h - 2)
+    fx, fy = np.clip(x - x0, 0, 1), np.clip(y - y0, 0, 1)
+    v = (sdi[y0, x0] * (1 - fx) * (1 - fy) + sdi[y0, x0 + 1] * fx * (1 - fy) + sdi[y0 + 1, x0] * (1 - fx) * fy
+         + sdi[y0 + 1, x0 + 1] * fx * fy)  # fmt: skip
+    sd = np.where(ok, v, np.nan)
+    if depth is not None:
+        ij = np.floor(uv).astype(int)
+        inside = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < w) & (ij[:, 1] < h)
+        d = np.full(len(uv), np.nan)
+        d[inside] = depth[ij[inside, 1], ij[inside, 0]]
+        behind = (z - d + margin) * cam.fx / np.maximum(z, 1e-9)
+        sd = np.where(np.isfinite(behind), np.minimum(sd, behind), sd)
+    sd[z <= 0] = np.nan
+    return sd.astype(np.float32)
+
+
+def test_view_evidence_matches_numpy():
+    cam = _cameras(3)[1]
+    sdi = signed_distance_image(_silhouette(cam))
+    depth = np.where(sdi >= 2, _depth(cam), np.nan)
+    grid = Grid.around(LO - 0.6, HI + 0.6, 0.01)  # reaches beyond the image and behind the camera
+    pts = grid.centres()
+    assert (cam.project(pts)[1] <= 0).any()
+    for d in (None, depth):
+        ours, ref = _view_distances(pts, cam, sdi, d, 0.0005), _view_distances_numpy(pts, cam, sdi, d, 0.0005)
+        assert np.array_equal(np.isnan(ours), np.isnan(ref)) and np.isnan(ours).mean() > 0.1
+        np.testing.assert_allclose(ours, ref, rtol=1e-6, atol=1e-5)
 
 
 def test_too_few_views_and_nothing_left_are_errors():

@@ -108,5 +108,17 @@ def test_resize_area_and_augment_shapes():
     a1 = augment(x, AugmentConfig(), torch.Generator().manual_seed(3))
     a2 = augment(x, AugmentConfig(), torch.Generator().manual_seed(3))
     assert a1.shape == (5, 3, 16, 16) and torch.equal(a1, a2) and 0 <= a1.min() and a1.max() <= 1
-    off = AugmentConfig(0, 0, 0, 0, 0, 0, 0, 0, 0)
+    off = AugmentConfig(0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
     torch.testing.assert_close(augment(x, off, torch.Generator()), x.float() / 255, atol=1e-5, rtol=0)
+
+
+def test_augment_softens_or_sharpens_focus():
+    # a fine checker of mid greys (no clipping): a blur lowers its contrast, an unsharp mask raises it
+    checker = (np.indices((16, 16)).sum(0) % 2).astype(np.float32)
+    x = torch.from_numpy(0.4 + 0.2 * checker).expand(8, 3, 16, 16).clone()
+    only = dict(shift=0, scale=0, rotate_deg=0, brightness=0, contrast=0, saturation=0, hue=0, gain=0, noise=0)
+    soft = augment(x, AugmentConfig(**only, blur=1.0, sharpen=0.0), torch.Generator().manual_seed(0))
+    sharp = augment(x, AugmentConfig(**only, blur=0.0, sharpen=1.0), torch.Generator().manual_seed(0))
+    spread = lambda t: t[:, :, 4:12, 4:12].std(dim=(1, 2, 3))  # noqa: E731
+    assert (spread(soft) < spread(x)).all() and (spread(sharp) > spread(x)).all()
+    assert torch.allclose(soft.mean(), x.mean(), atol=1e-3) and torch.allclose(sharp.mean(), x.mean(), atol=1e-3)

@@ -84,12 +84,24 @@ def test_resume_after_a_kill_gives_the_uninterrupted_result(make_dataset, tmp_pa
     assert any("training from scratch" in s for s in logs), logs
 
 
-def test_minutes_budget_plans_steps_and_keeps_the_plan(make_dataset, tmp_path):
+@pytest.mark.parametrize("seconds_per_step", [0.1, 0.01, 0.001])
+def test_minutes_budget_is_time_on_a_slow_or_fast_machine(make_dataset, tmp_path, seconds_per_step):
+    """A fake clock whose steps take 10x longer or shorter: the run uses 90-100 % of its budget whatever its speed,
+    and its learning-rate schedule ends where planned (at 0, when the budget is spent)."""
     ds, _ = make_dataset(seeds=(0,), length=8)
-    cfg = tiny_config(steps=0, minutes=0.01, widths=(4,), keypoints=4, hidden=16, batch_size=4)
-    s = train_policy(ds, tmp_path / "run", cfg, log=lambda s: None, progress=False)
-    plan = json.loads((tmp_path / "run" / "plan.json").read_text())
-    assert s["steps"] == plan["steps"] >= 1 and plan["step_seconds"] > 0
+    cfg = tiny_config(steps=0, minutes=0.01, widths=(4,), keypoints=4, hidden=16, batch_size=4, eval_every=10**6,
+                      checkpoint_every=10**6)  # fmt: skip
+    t = {"now": 0.0}
+
+    def clock() -> float:  # a step is the time between its start and end readings
+        t["now"] += seconds_per_step
+        return t["now"]
+
+    s = train_policy(ds, tmp_path / "run", cfg, log=lambda s: None, progress=False, clock=clock)
+    budget = cfg.minutes * 60
+    assert 0.9 <= s["seconds"]["train"] / budget <= 1.0, s["seconds"]
+    assert s["steps"] == pytest.approx(0.97 * budget / seconds_per_step, abs=2)
+    assert s["final_lr"] < 1e-3 * cfg.lr and s["budget_minutes"] == cfg.minutes
 
 
 def test_bad_config_and_inputs(make_dataset, tmp_path):

@@ -108,3 +108,24 @@ def test_train_scene_resumes_after_a_kill(imported, tmp_path):
     assert m["iterations"] == 120
     steps = [c["step"] for c in m["curve"]]
     assert steps == sorted(steps) and steps[-1] == 120
+
+
+def test_train_scene_minutes_is_bench_trains_budget(imported, tmp_path):
+    """`m2m train-scene --minutes M` trains with budget_config, the configuration `m2m bench train` times (one
+    code path), and uses the minutes: no step count planned ahead."""
+    from mirage2matter.gaussians.budget import budget_config
+    from mirage2matter.gaussians.train import TrainConfig
+
+    _, ws_src = imported
+    ws = tmp_path / "ws"
+    ws.mkdir()
+    for sub in ("capture", "sfm"):
+        os.symlink(ws_src / sub, ws / sub)
+    cfg = SceneConfig(minutes=0.15, downscale=4, max_gaussians=20000, checkpoint_every=0)
+    m, _ = train_scene(ws, cfg)
+    plan = json.loads((ws / "scene" / "plan.json").read_text())["train_config"]
+    expect = budget_config(0.15, TrainConfig(max_gaussians=20000, backend="cpu", checkpoint_every=0))
+    assert plan == json.loads(json.dumps(vars(expect)))
+    # a step stalled by another process on the machine can end past the budget: at most a step's worth
+    assert 0.9 <= m["train_minutes"] / 0.15 <= 1.0 + 2 * 0.15 * 60 / max(m["iterations"], 1)
+    assert m["iterations"] >= 20 and m["curve"][-1]["step"] == m["iterations"]

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from ..geometry.camera import load_transforms_json
-from .budget import budgeted_config, estimate_step_seconds
+from .budget import DENSIFY_FRACTION, budget_config
 from .dataset import build_views
 from .train import TrainConfig, View, init_gaussians_from_points, train, view_loss
 
@@ -53,7 +53,7 @@ def bench_train(
     poses: str = "given",
     work_dir: str | os.PathLike[str] | None = None,
     max_gaussians: int = 150_000,
-    densify_fraction: float = 0.55,
+    densify_fraction: float = DENSIFY_FRACTION,
     backend: str = "auto",
     progress: bool = False,
     curve_points: int = 12,
@@ -64,9 +64,10 @@ def bench_train(
 
     poses: ``"given"`` (transforms.json poses; initial points from our SfM mapped into that frame)
     or ``"sfm"`` (our SfM cameras and points, evaluated in the SfM frame).
-    The iteration count is planned from the measured step time (x2.5 for growth); densification
-    runs for the first ``densify_fraction`` of it. Returns psnr_heldout, ssim_heldout, iterations,
-    gaussians, minutes, backend, curve, seconds_per_step, init info and (``profile``) a step profile.
+    The training is ``budget_config``'s, the one ``m2m train-scene --minutes`` runs: it trains until the
+    minutes are spent, densifying for the first ``densify_fraction`` of them. Returns psnr_heldout,
+    ssim_heldout, iterations, gaussians, minutes, backend, curve, seconds_per_step, schedule (where it
+    ended), init info and (``profile``) a step profile.
     """
     if poses not in ("given", "sfm"):
         raise ValueError(f"poses must be 'given' or 'sfm', got {poses!r}")
@@ -90,9 +91,7 @@ def bench_train(
     init = init_gaussians_from_points(points, np.asarray(colors, np.float64) / 255.0, sh_degree=3)
 
     config = TrainConfig(backend=backend, max_gaussians=max_gaussians, checkpoint_every=0)
-    step_s = estimate_step_seconds(init, views_train, config)
-    config = budgeted_config(step_s, minutes, config, densify_fraction=densify_fraction, curve_points=curve_points)
-    iterations = config.iterations
+    config = budget_config(minutes, config, densify_fraction=densify_fraction, curve_points=curve_points)
     g, metrics = train(views_train, views_eval, init, config, progress=progress)
     out: dict[str, Any] = {
         "psnr_heldout": metrics["psnr"],
@@ -106,9 +105,9 @@ def bench_train(
         "views": {"train": len(views_train), "heldout": len(views_eval)},
         "image_size": [views_train[0].width, views_train[0].height],
         "init": {"points": len(points), "seconds": t_points, **init_info},
-        "planned_iterations": iterations,
         "seconds_per_step": metrics["seconds"] / max(metrics["iterations"], 1),
-        "initial_step_seconds": step_s,
+        "budget_used": metrics["seconds"] / config.max_seconds,
+        "schedule": metrics["schedule"],
         "curve": metrics["curve"],
     }
     if profile:
@@ -120,20 +119,18 @@ def bench_train(
 
 def profile_step(g, views: list[View], config: TrainConfig, repeats: int = 3) -> dict[str, float]:
     """Median milliseconds of the stages of one CPU training step on Gaussians ``g``, measured on the
-    real code path (``view_loss`` with the cpu backend) by timing its parts in place: torch
-    projection, numba raster forward, the rest of the loss, raster backward, the rest of autograd
-    (projection + SH + SSIM backward), gsplat strategy bookkeeping, Adam."""
-    from gsplat.strategy import DefaultStrategy
-
+    real code path (``view_loss`` with the cpu backend) by timing its parts in place: projection + SH
+    forward and backward, raster forward and backward, the rest of the loss (L1 + SSIM) and of autograd,
+    the densification statistics, Adam."""
     from .render import numba_cpu
-    from .train import _make_optimizers, _strategy_info, _to_gaussians, _to_params, scene_extent
+    from .train import _make_optimizers, _make_strategy, _strategy_info, _to_gaussians, _to_params, scene_extent
 
     extent = scene_extent(views)
     params = _to_params(g, config.sh_degree, torch.device("cpu"))
     opts = _make_optimizers(params, config.lr, extent)
-    strategy = DefaultStrategy(refine_start_iter=10**9, refine_stop_iter=0)
+    strategy = _make_strategy(config)
     state = strategy.initialize_state(scene_scale=extent)
-    spent = {"project": 0.0, "raster_fwd": 0.0, "raster_bwd": 0.0}
+    spent = {"project": 0.0, "project_bwd": 0.0, "raster_fwd": 0.0, "raster_bwd": 0.0}
 
     def timed(fn, key):
         def wrapper(*args, **kwargs):
@@ -145,22 +142,24 @@ def profile_step(g, views: list[View], config: TrainConfig, repeats: int = 3) ->
 
         return wrapper
 
-    originals = (numba_cpu.project, numba_cpu.RasterizeNumba.forward, numba_cpu.RasterizeNumba.backward)
+    originals = (numba_cpu.project, numba_cpu.RasterizeNumba.forward, numba_cpu.RasterizeNumba.backward,
+                 numba_cpu.ProjectNumba.backward)  # fmt: skip
     numba_cpu.project = timed(originals[0], "project")
     numba_cpu.RasterizeNumba.forward = staticmethod(timed(originals[1], "raster_fwd"))
     numba_cpu.RasterizeNumba.backward = staticmethod(timed(originals[2], "raster_bwd"))
+    numba_cpu.ProjectNumba.backward = staticmethod(timed(originals[3], "project_bwd"))
     rows: dict[str, list[float]] = {}
     try:
         for i in range(repeats + 1):
             v = views[i % len(views)]
-            spent.update(project=0.0, raster_fwd=0.0, raster_bwd=0.0)
+            spent.update(project=0.0, project_bwd=0.0, raster_fwd=0.0, raster_bwd=0.0)
             info: dict = {}
             t0 = time.perf_counter()
             loss, _ = view_loss(_to_gaussians(params, config.sh_degree), v, config, info, backend="cpu")
             t1 = time.perf_counter()
             loss.backward()
             t2 = time.perf_counter()
-            strategy.step_post_backward(params, opts, state, 1, _strategy_info(info, v, len(params["means"])))
+            strategy.update(params, opts, state, _strategy_info(info, v, len(params["means"])), False, i)
             t3 = time.perf_counter()
             for o in opts.values():
                 o.step()
@@ -175,7 +174,8 @@ def profile_step(g, views: list[View], config: TrainConfig, repeats: int = 3) ->
                 "loss_fwd_ms": 1000.0 * (t1 - t0) - ms["project"] - ms["raster_fwd"],
                 "backward_ms": 1000.0 * (t2 - t1),
                 "raster_bwd_ms": ms["raster_bwd"],
-                "other_bwd_ms": 1000.0 * (t2 - t1) - ms["raster_bwd"],
+                "projection_bwd_ms": ms["project_bwd"],
+                "other_bwd_ms": 1000.0 * (t2 - t1) - ms["raster_bwd"] - ms["project_bwd"],
                 "strategy_ms": 1000.0 * (t3 - t2),
                 "optimizer_ms": 1000.0 * (t4 - t3),
                 "total_ms": 1000.0 * (t4 - t0),
@@ -186,6 +186,7 @@ def profile_step(g, views: list[View], config: TrainConfig, repeats: int = 3) ->
         numba_cpu.project = originals[0]
         numba_cpu.RasterizeNumba.forward = staticmethod(originals[1])
         numba_cpu.RasterizeNumba.backward = staticmethod(originals[2])
+        numba_cpu.ProjectNumba.backward = staticmethod(originals[3])
     res = {k: round(float(np.median(v)), 2) for k, v in rows.items()}
     res["gaussians"] = len(params["means"])
     res["threads"] = torch.get_num_threads()

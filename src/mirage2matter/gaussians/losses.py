@@ -46,7 +46,8 @@ def l1(img1: torch.Tensor, img2: torch.Tensor, mask: torch.Tensor | None = None)
     if m is None:
         return diff.mean()
     m = m.expand_as(diff)
-    return diff[m].sum() / m.sum().clamp_min(1)
+    # where, not diff[m]: boolean indexing copies and its backward scatters (3x slower at 480x270)
+    return torch.where(m, diff, 0.0).sum() / m.sum().clamp_min(1)
 
 
 def psnr(img1: torch.Tensor, img2: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
@@ -102,6 +103,16 @@ def ssim(
     if min(a.shape[-2:]) < window:
         raise ValueError(f"images {tuple(a.shape[-2:])} are smaller than the SSIM window ({window})")
     m = _mask_batch(mask, a)
+    if a.device.type == "cpu" and not b.requires_grad and a.dtype in (torch.float32, torch.float64):
+        from .ssim_cpu import ssim_cpu  # numba forward + closed-form backward; this function is its reference
+
+        return ssim_cpu(a, b, m, window, sigma)
+    return _ssim_torch(a, b, m, window, sigma)
+
+
+def _ssim_torch(a: torch.Tensor, b: torch.Tensor, m: torch.Tensor | None, window: int, sigma: float) -> torch.Tensor:
+    """``ssim`` of batches [B,C,H,W] with the mask m [B,1,H,W] (or None) in torch ops, differentiated by
+    autograd: the reference of the CPU path, and the path on a GPU."""
     if m is not None:
         a, b = a * m, b * m
     w1 = gaussian_window(window, sigma, a.dtype, a.device)

@@ -127,13 +127,14 @@ def distance_to_mesh(points: np.ndarray, mesh) -> np.ndarray:
 
 
 def signed_distance(mesh, points: np.ndarray) -> np.ndarray:
-    """Signed distance [N] of ``points`` [N,3] to a watertight ``mesh`` (> 0 inside), in chunks."""
-    import trimesh
+    """Signed distance [N] of ``points`` [N,3] to a watertight ``mesh`` (> 0 inside): the exact unsigned
+    distance, signed by a ray-parity inside test (``inside.points_inside``; trimesh's own sign, its ray
+    tests, took ~95 % of the time)."""
+    from .inside import points_inside
 
-    pts = np.asarray(points, np.float64)
-    return np.concatenate(
-        [trimesh.proximity.signed_distance(mesh, pts[k : k + 4096]) for k in range(0, len(pts), 4096)] or [np.zeros(0)]
-    )
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    sign = np.where(points_inside(mesh.vertices, mesh.faces, pts), 1.0, -1.0)
+    return sign * distance_to_mesh(pts, mesh)
 
 
 def object_frame(mesh_base, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:

@@ -10,10 +10,12 @@ underside is closed against the table. Marching cubes (scikit-image) turns the z
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit, prange
 
 from ..geometry.camera import Camera
 from .errors import ObjectsError
@@ -53,30 +55,48 @@ def signed_distance_image(mask: np.ndarray) -> np.ndarray:
     return np.where(m > 0, inside - 0.5, -(outside - 0.5)).astype(np.float32)
 
 
-def _bilinear(img: np.ndarray, uv: np.ndarray, outside: float) -> np.ndarray:
-    """Sample img [H,W] at pixel coordinates uv [N,2] (pixel centres at +0.5), ``outside`` off-image."""
-    h, w = img.shape
-    x, y = uv[:, 0] - 0.5, uv[:, 1] - 0.5
-    ok = (x >= 0) & (y >= 0) & (x <= w - 1) & (y <= h - 1)
-    x0 = np.clip(np.floor(x).astype(np.int64), 0, w - 2)
-    y0 = np.clip(np.floor(y).astype(np.int64), 0, h - 2)
-    fx, fy = np.clip(x - x0, 0, 1), np.clip(y - y0, 0, 1)
-    v = (
-        img[y0, x0] * (1 - fx) * (1 - fy)
-        + img[y0, x0 + 1] * fx * (1 - fy)
-        + img[y0 + 1, x0] * (1 - fx) * fy
-        + img[y0 + 1, x0 + 1] * fx * fy
-    )
-    return np.where(ok, v, outside)
+@njit(parallel=True, cache=True)
+def _view_distances_kernel(pts, V, K, sdi, depth, use_depth, depth_margin, out):
+    h, w = sdi.shape
+    for n in prange(pts.shape[0]):
+        px, py, pz = pts[n, 0], pts[n, 1], pts[n, 2]
+        x = V[0, 0] * px + V[0, 1] * py + V[0, 2] * pz + V[0, 3]
+        y = V[1, 0] * px + V[1, 1] * py + V[1, 2] * pz + V[1, 3]
+        z = V[2, 0] * px + V[2, 1] * py + V[2, 2] * pz + V[2, 3]
+        if z <= 0.0:
+            out[n] = np.nan
+            continue
+        u = (K[0, 0] * x + K[0, 1] * y + K[0, 2] * z) / z
+        v = (K[1, 0] * x + K[1, 1] * y + K[1, 2] * z) / z
+        # bilinear in the signed distance image (pixel centres at +0.5), no evidence off the image
+        bx, by = u - 0.5, v - 0.5
+        if not (bx >= 0.0 and by >= 0.0 and bx <= w - 1 and by <= h - 1):
+            out[n] = np.nan
+            continue
+        x0 = min(max(int(math.floor(bx)), 0), w - 2)
+        y0 = min(max(int(math.floor(by)), 0), h - 2)
+        fx, fy = min(max(bx - x0, 0.0), 1.0), min(max(by - y0, 0.0), 1.0)
+        sd = (sdi[y0, x0] * (1 - fx) * (1 - fy) + sdi[y0, x0 + 1] * fx * (1 - fy)
+              + sdi[y0 + 1, x0] * (1 - fx) * fy + sdi[y0 + 1, x0 + 1] * fx * fy)  # fmt: skip
+        if use_depth:
+            i, j = int(math.floor(u)), int(math.floor(v))
+            if 0 <= i < w and 0 <= j < h:
+                behind = (z - depth[j, i] + depth_margin) * K[0, 0] / max(z, 1e-9)  # pixels, > 0 behind
+                if np.isfinite(behind):
+                    sd = min(sd, behind)
+        out[n] = sd
 
 
-def _nearest(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """img [H,W] at the pixels containing uv [N,2] (NaN off-image)."""
-    h, w = img.shape
-    ij = np.floor(uv).astype(np.int64)
-    ok = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < w) & (ij[:, 1] < h)
-    out = np.full(len(uv), np.nan, np.float64)
-    out[ok] = img[ij[ok, 1], ij[ok, 0]]
+def _view_distances(pts: np.ndarray, cam: Camera, sdi: np.ndarray, depth: np.ndarray | None, margin: float):
+    """One view's evidence [N] float32 for voxel centres pts [N,3]: the signed distance image sdi [H,W]
+    sampled bilinearly where each centre projects (pixels, > 0 inside the mask), lowered to the distance
+    behind the surface the depth [H,W] (NaN: unknown) sees there; NaN off the image and behind the
+    camera. One fused numba pass (numpy's projection of a 1M-voxel grid took 0.27 s per view)."""
+    out = np.empty(len(pts), np.float32)
+    d = np.zeros((1, 1), np.float64) if depth is None else np.ascontiguousarray(depth, np.float64)
+    _view_distances_kernel(np.ascontiguousarray(pts, np.float64), np.ascontiguousarray(cam.viewmat, np.float64),
+                           np.ascontiguousarray(cam.K, np.float64), np.ascontiguousarray(sdi, np.float64), d,
+                           depth is not None, float(margin), out)  # fmt: skip
     return out
 
 
@@ -106,18 +126,12 @@ def carve(
             continue
         if mask.shape != (cam.height, cam.width):
             raise ObjectsError(f"{name}: mask of {cam.name} is {mask.shape[::-1]}, camera is {cam.width}x{cam.height}")
-        uv, z = cam.project(pts)
         sdi = signed_distance_image(mask)
-        sd = _bilinear(sdi, uv, np.nan)  # off-image: no evidence
         depth = None if depths is None else depths[k]
-        if depth is not None:
-            # depth jumps at the silhouette: a voxel beside the object may fall in a pixel that sees
-            # its front; only depth well inside the mask is used
-            d = _nearest(np.where(sdi >= depth_edge_px, depth, np.nan), uv)
-            behind = (z - d + depth_margin) * cam.fx / np.maximum(z, 1e-9)  # pixels, > 0 behind the surface
-            sd = np.where(np.isfinite(behind), np.minimum(sd, behind), sd)
-        sd[z <= 0] = np.nan
-        dists.append(sd.astype(np.float32))
+        # depth jumps at the silhouette: a voxel beside the object may fall in a pixel that sees its
+        # front; only depth well inside the mask is used
+        near = None if depth is None else np.where(sdi >= depth_edge_px, depth, np.nan)
+        dists.append(_view_distances(pts, cam, sdi, near, depth_margin))
     if len(dists) <= skip + 1:
         raise ObjectsError(f"{name}: masks in only {len(dists)} keyframe(s); carving needs at least {skip + 2}")
     d = np.stack(dists)  # [V, N]

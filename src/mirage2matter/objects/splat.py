@@ -181,7 +181,7 @@ def train_object_gaussians(
     cfg = TrainConfig(
         iterations=config.iterations,
         sh_degree=config.sh_degree,
-        sh_increase_every=max(1, config.iterations // (config.sh_degree + 1)),
+        sh_increase_every=1.0 / (config.sh_degree + 1),
         max_gaussians=config.max_gaussians,
         checkpoint_every=0,
         lambda_alpha=config.lambda_alpha,

@@ -3,8 +3,9 @@
 What differs between our hybrid renders and the real camera (or the ground-truth world) is mostly where the
 camera sits by a few pixels, the exposure, white balance, saturation and noise; the geometry of the scene is
 the same. So: a small random affine warp (shift, scale, rotation; DrQ's random shift generalised) and colour
-jitter (brightness, contrast, saturation, hue, per-channel gain), plus pixel noise. Every random number
-comes from the caller's generator, so a resumed run draws exactly what an uninterrupted one would.
+jitter (brightness, contrast, saturation, hue, per-channel gain), softer or sharper focus, plus pixel noise.
+Every random number comes from the caller's generator, so a resumed run draws exactly what an uninterrupted one
+would.
 """
 
 from __future__ import annotations
@@ -28,6 +29,13 @@ def _u(n: int, half: float, g: torch.Generator, device: torch.device) -> torch.T
 _RGB2YIQ = torch.tensor([[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.523, 0.312]])
 
 
+def _gaussian5(device: torch.device) -> torch.Tensor:
+    """[1, 1, 5, 5] Gaussian kernel, sigma 1 px, sums to 1."""
+    t = torch.exp(-0.5 * torch.arange(-2.0, 3.0, device=device) ** 2)
+    k = torch.outer(t, t)
+    return (k / k.sum()).view(1, 1, 5, 5)
+
+
 def augment(images: torch.Tensor, cfg: AugmentConfig, g: torch.Generator) -> torch.Tensor:
     """uint8 or float [B, 3, S, S] -> float [B, 3, S, S] in [0, 1], each image changed at random."""
     x = images.float() / 255.0 if images.dtype == torch.uint8 else images.float()
@@ -41,6 +49,12 @@ def augment(images: torch.Tensor, cfg: AugmentConfig, g: torch.Generator) -> tor
     theta = torch.stack([torch.stack([cos, -sin, tx], -1), torch.stack([sin, cos, ty], -1)], 1)  # [B, 2, 3]
     grid = F.affine_grid(theta, list(x.shape), align_corners=False)
     x = F.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
+
+    # sharpness: x + a (x - blur(x)), a in [-blur, sharpen]; a = -1 is the blur itself, a > 0 an unsharp mask
+    if cfg.blur > 0 or cfg.sharpen > 0:
+        a = (torch.rand(b, generator=g) * (cfg.blur + cfg.sharpen) - cfg.blur).to(dev).view(b, 1, 1, 1)
+        soft = F.conv2d(F.pad(x, (2, 2, 2, 2), mode="replicate"), _gaussian5(dev).expand(3, 1, 5, 5), groups=3)
+        x = x + a * (x - soft)
 
     # colour: a per-image 3x3 matrix in YIQ (saturation scales chroma, hue rotates it), then gain/brightness
     sat = 1.0 + _u(b, cfg.saturation, g, dev)

@@ -42,6 +42,7 @@ class ModelSpec:
     widths       encoder channels per resolution stage (stage i > 0 halves the resolution)
     keypoints    spatial-softmax keypoints per camera
     hidden       width of the state MLP and the head
+    aux_dim      outputs of the auxiliary head (training only, from the cameras alone; 0: none)
     """
 
     cameras: tuple[str, ...]
@@ -52,6 +53,7 @@ class ModelSpec:
     widths: tuple[int, ...] = (16, 32, 64)
     keypoints: int = 32
     hidden: int = 256
+    aux_dim: int = 0
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -146,8 +148,21 @@ class VisuomotorPolicy(nn.Module):
             nn.Linear(spec.hidden, spec.hidden), nn.ReLU(inplace=True),
             nn.Linear(spec.hidden, spec.chunk * spec.action_dim),
         )  # fmt: skip
+        self.aux_head = None
+        if spec.aux_dim:  # what the cameras must tell without the state (see policy.targets)
+            n_img = len(spec.cameras) * 2 * spec.keypoints
+            self.aux_head = nn.Sequential(nn.Linear(n_img, spec.hidden), nn.ReLU(inplace=True),
+                                          nn.Linear(spec.hidden, spec.aux_dim))  # fmt: skip
 
-    def forward(self, images: dict[str, torch.Tensor], state: torch.Tensor) -> torch.Tensor:
-        feats = [self.encoders[c](images[c]) for c in self.spec.cameras]
-        h = torch.cat([*feats, self.state_mlp(state)], -1)
-        return self.head(h).view(-1, self.spec.chunk, self.spec.action_dim)
+    def forward(
+        self, images: dict[str, torch.Tensor], state: torch.Tensor, with_aux: bool = False
+    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """Action chunk [B, K, A]; with ``with_aux`` also the auxiliary head's output [B, aux_dim]."""
+        feats = torch.cat([self.encoders[c](images[c]) for c in self.spec.cameras], -1)
+        h = torch.cat([feats, self.state_mlp(state)], -1)
+        actions = self.head(h).view(-1, self.spec.chunk, self.spec.action_dim)
+        if not with_aux:
+            return actions
+        if self.aux_head is None:
+            raise ValueError("this policy has no auxiliary head (aux_dim 0)")
+        return actions, self.aux_head(feats)

@@ -4,15 +4,19 @@ Cameras and SfM points come from :meth:`Workspace.posed_capture` (robot-base fra
 so the trained Gaussians live in the frame the simulator uses. Outputs in ``<ws>/scene/``:
 ``gaussians.ply``, ``metrics.json`` (held-out PSNR / SSIM, curve, timings), ``heldout.png`` (held-out
 keyframes: photo above render), ``checkpoint.pt`` + ``plan.json`` while training. Interrupted: resumed
-from the last checkpoint (``plan.json`` pins the planned schedule, keyed by the stage's fingerprint, so the
-resumed run is the same run).
+from the last checkpoint when ``plan.json`` (the stage's fingerprint and the training configuration) still
+matches; the checkpoint holds the training time spent and the schedule's state, and the schedule follows
+the fraction of the budget spent, so the resumed run continues the same schedule.
+
+With ``--minutes`` the training is ``gaussians.budget.budget_config``'s, the one ``m2m bench train``
+times: it trains until the minutes are spent, with every schedule a fraction of them.
 """
 
 from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -29,7 +33,8 @@ __all__ = ["Config", "inputs", "outputs", "run"]
 class Config:
     """train-scene settings.
 
-    minutes         training-time budget; the iteration count is planned from a measured step
+    minutes         training-time budget (steps only; evaluation and checkpoints are extra): it trains until
+                    it is spent, on any device, with every schedule a fraction of it
     iterations      fixed iteration count instead of a budget (0: use ``minutes``)
     downscale       train and evaluate at 1/downscale resolution (area filter)
     holdout_every   every n-th keyframe (sorted by name) is held out for evaluation
@@ -90,7 +95,7 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
     """Train the scene Gaussians; writes and returns the metrics of ``scene/metrics.json``."""
     from PIL import Image
 
-    from ..gaussians.budget import budgeted_config, estimate_step_seconds
+    from ..gaussians.budget import budget_config
     from ..gaussians.dataset import build_views
     from ..gaussians.ply import write_ply
     from ..gaussians.render import resolve_backend
@@ -117,31 +122,31 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
         checkpoint_every=config.checkpoint_every,
     )  # fmt: skip
 
-    # The plan (iterations and schedules) is made once per fingerprint and pinned, so a resumed run
-    # continues the same schedule instead of re-planning from a different step time.
-    plan_path, ckpt = out / "plan.json", out / "checkpoint.pt"
-    plan = json.loads(plan_path.read_text()) if plan_path.is_file() else {}
-    resume = plan.get("fingerprint") == key and ckpt.is_file()
-    if plan.get("fingerprint") == key:
-        train_cfg = TrainConfig(**{f.name: plan["train_config"][f.name] for f in fields(TrainConfig)})
-        train_cfg.background = tuple(train_cfg.background)
+    if config.iterations:
+        train_cfg = replace(base, iterations=config.iterations, eval_points=10)
     else:
-        if config.iterations:
-            from dataclasses import replace
-
-            train_cfg = replace(base, iterations=config.iterations, eval_every=max(1, config.iterations // 10))
-        else:
-            step_s = estimate_step_seconds(init, views_train, base)
-            train_cfg = budgeted_config(step_s, config.minutes, base)
+        train_cfg = budget_config(config.minutes, base)
+    # A checkpoint is resumed only by the same stage fingerprint and the same training configuration
+    # (the schedule is a function of it and of the progress the checkpoint holds).
+    plan_path, ckpt = out / "plan.json", out / "checkpoint.pt"
+    plan = {"fingerprint": key, "train_config": json.loads(json.dumps(asdict(train_cfg)))}
+    try:
+        previous = json.loads(plan_path.read_text()) if plan_path.is_file() else None
+    except ValueError:
+        previous = None
+    resume = previous == plan and ckpt.is_file()
+    if previous != plan:
         ckpt.unlink(missing_ok=True)
         with atomic_write(plan_path, "w", encoding="utf-8") as f:
-            json.dump({"fingerprint": key, "train_config": asdict(train_cfg)}, f, indent=1)
+            json.dump(plan, f, indent=1)
     if resume:
         log(f"scene: resuming from {ckpt}")
     log(
         f"scene: {len(views_train)} training + {len(views_eval)} held-out keyframes at "
         f"{views_train[0].width}x{views_train[0].height}, {len(init):,} initial Gaussians from SfM points, "
-        f"{posed.frame} frame, {train_cfg.iterations} iterations planned ({backend})"
+        f"{posed.frame} frame, "
+        + (f"{train_cfg.iterations} iterations" if config.iterations else f"{config.minutes:g} minutes of training")
+        + f" ({backend})"
     )
     g, metrics = train(views_train, views_eval, init, train_cfg, progress=True, checkpoint_path=ckpt, resume=resume)
 

@@ -6,6 +6,11 @@
 - ``reference``: a slow dense pure-torch renderer for tests.
 ``backend="auto"`` picks cuda if available, else cpu; the ``M2M_RENDER_BACKEND`` environment
 variable overrides "auto".
+
+``render`` is the one dispatch point, so the guards live here: an empty Gaussian set renders the
+background on every backend without reaching a rasterizer (gsplat 1.5.3's ``fully_fused_projection``
+dies with SIGFPE on N = 0, killing the process: an object pruned to nothing, a culled world part), and
+a CUDA out-of-memory becomes a :class:`GpuOutOfMemory` that says what to lower.
 """
 
 from __future__ import annotations
@@ -16,7 +21,7 @@ import torch
 
 from ...errors import M2MError
 from ..model import Gaussians
-from .gsplat_cuda import cuda_available, render_gsplat
+from .gsplat_cuda import cuda_available, cuda_unavailable_reason, render_gsplat
 from .numba_cpu import render_numba
 from .reference import render_reference
 from .types import RenderOutput
@@ -28,6 +33,25 @@ class BackendError(M2MError, ValueError):
     """A render backend that does not exist or cannot run here."""
 
 
+class GpuOutOfMemory(M2MError, RuntimeError):
+    """The GPU ran out of memory; the message says what to lower."""
+
+
+def gpu_out_of_memory(what: str, n_gaussians: int, width: int, height: int, lower: str) -> GpuOutOfMemory:
+    """A :class:`GpuOutOfMemory` for ``what`` (e.g. "rendering") of ``n_gaussians`` at ``width`` x ``height``,
+    naming the memory the GPU has and ``lower`` (the settings that shrink the work, e.g. "--max-gaussians")."""
+    total = ""
+    try:
+        free, size = torch.cuda.mem_get_info()
+        total = f" ({free / 2**30:.1f} of {size / 2**30:.1f} GiB free)"
+    except Exception:  # the query itself may fail on a GPU in a bad state; the message stands without it
+        pass
+    return GpuOutOfMemory(
+        f"GPU out of memory {what} {n_gaussians:,} Gaussians at {width}x{height}{total}; lower {lower}, "
+        "free the GPU of other processes, or use --backend cpu"
+    )
+
+
 def resolve_backend(backend: str = "auto") -> str:
     if backend == "auto":
         backend = os.environ.get("M2M_RENDER_BACKEND", "auto")
@@ -35,8 +59,10 @@ def resolve_backend(backend: str = "auto") -> str:
         return "cuda" if cuda_available() else "cpu"
     if backend not in BACKENDS:
         raise BackendError(f"unknown render backend {backend!r}; choose one of auto, {', '.join(BACKENDS)}")
-    if backend == "cuda" and not cuda_available():
-        raise BackendError("render backend 'cuda' needs a CUDA GPU, torch with CUDA and gsplat; use 'cpu'")
+    if backend == "cuda":
+        why = cuda_unavailable_reason()
+        if why is not None:
+            raise BackendError(f"render backend 'cuda' needs a CUDA GPU, torch with CUDA and gsplat: {why}; use 'cpu'")
     return backend
 
 
@@ -55,20 +81,44 @@ def render(
     if width <= 0 or height <= 0:
         raise ValueError(f"image size must be positive, got {width}x{height}")
     backend = resolve_backend(backend)
+    if len(gaussians) == 0:
+        return _render_nothing(gaussians, width, height, background, info)
     if backend == "cpu":
         return render_numba(gaussians, viewmat, K, width, height, background, info)
     if backend == "cuda":
-        return render_gsplat(gaussians, viewmat, K, width, height, background, info)
+        try:
+            return render_gsplat(gaussians, viewmat, K, width, height, background, info)
+        except torch.cuda.OutOfMemoryError as e:
+            lower = "the number of Gaussians (--max-gaussians) or the image size (--downscale / --size)"
+            raise gpu_out_of_memory("rendering", len(gaussians), width, height, lower) from e
     return render_reference(gaussians, viewmat, K, width, height, background)
+
+
+def _render_nothing(
+    g: Gaussians, width: int, height: int, background: torch.Tensor | None, info: dict | None
+) -> RenderOutput:
+    """What every backend renders of an empty set: the background, alpha 0, depth 0, on the Gaussians'
+    device and dtype. The output still depends on the (empty) tensors, so ``backward`` gives each its
+    empty gradient, as a rendered set would; ``info`` gets empty screen-space means and radii."""
+    dev, dtype = g.means.device, g.means.dtype
+    zero = sum(t.sum() for t in g.tensors().values()) * 0.0  # 0 with a graph to every tensor when they need it
+    bg = torch.zeros(3, dtype=dtype, device=dev) if background is None else torch.as_tensor(background)
+    rgb = bg.to(dev, dtype).expand(height, width, 3) + zero
+    alpha = torch.zeros(height, width, dtype=dtype, device=dev) + zero
+    if info is not None:
+        info.update(mean2d=torch.zeros(0, 2, device=dev), radius=torch.zeros(0, 2, dtype=torch.int32, device=dev))
+    return RenderOutput(rgb, alpha, alpha.clone())
 
 
 __all__ = [
     "BACKENDS",
     "BackendError",
+    "GpuOutOfMemory",
     "RenderOutput",
     "render",
     "render_gsplat",
     "render_numba",
     "render_reference",
     "resolve_backend",
+    "gpu_out_of_memory",
 ]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
 from ..model import Gaussians
@@ -9,14 +11,34 @@ from .conventions import EPS2D, FAR_PLANE, NEAR_PLANE
 from .types import RenderOutput
 
 
-def cuda_available() -> bool:
+def cuda_unavailable_reason() -> str | None:
+    """None when the cuda backend can run here, else why it cannot (for an error message)."""
     if not torch.cuda.is_available():
-        return False
+        built = f"built with CUDA {torch.version.cuda}" if torch.version.cuda else "a CPU-only build"
+        return f"torch sees no CUDA GPU (torch {torch.__version__}, {built})"
+    return _gsplat_kernels_problem()
+
+
+@functools.cache
+def _gsplat_kernels_problem() -> str | None:
+    # gsplat imports without CUDA and, with no CUDA toolkit to JIT-build its kernels, leaves them None:
+    # the first render would then fail with "'NoneType' object has no attribute ...". Loading the kernels
+    # here (the JIT build, ~1 min once per machine) turns that into a reason given before any work.
     try:
         import gsplat  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    except Exception as e:  # ImportError, or a dependency gsplat needs (e.g. packaging) missing
+        return f"gsplat does not import ({e!r}); pip install gsplat"
+    try:
+        from gsplat.cuda._backend import _C
+    except Exception as e:  # a failed JIT build raises from torch.utils.cpp_extension
+        return f"gsplat's CUDA kernels failed to build or load ({e!r})"
+    if _C is None:
+        return "gsplat found no CUDA toolkit to build its kernels (install one and set CUDA_HOME)"
+    return None
+
+
+def cuda_available() -> bool:
+    return cuda_unavailable_reason() is None
 
 
 def render_gsplat(

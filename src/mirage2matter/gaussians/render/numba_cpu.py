@@ -1,8 +1,9 @@
 """CPU backend: numba tile rasterizer, forward and backward, wrapped for torch autograd.
 
 Without gradients everything runs in numba (projection, SH colour, sort, binning, compositing).
-With gradients, the projection runs in torch (projection.py) and ``RasterizeNumba`` supplies the
-rasterization's backward, so the whole render is differentiable w.r.t. every Gaussian parameter.
+With gradients, ``ProjectNumba`` (numba_projection.py: projection + SH colour, hand-written backward,
+tested against the torch projection.py) and ``RasterizeNumba`` supply the backward, so the whole render is
+differentiable w.r.t. every Gaussian parameter.
 """
 
 from __future__ import annotations
@@ -13,8 +14,13 @@ import torch
 
 from ..model import Gaussians
 from . import numba_kernels as nk
-from .projection import Projected, project
+from .numba_projection import ProjectNumba
 from .types import RenderOutput
+
+
+def project(g: Gaussians, viewmat64: np.ndarray, K64: np.ndarray, width: int, height: int):
+    """Differentiable projection: (mean2d, conic, depth, opacity, color, radius) float32 tensors."""
+    return ProjectNumba.apply(g.means, g.quats, g.log_scales, g.logit_opacities, g.sh, viewmat64, K64, width, height)
 
 
 def _np32(t: torch.Tensor) -> np.ndarray:
@@ -106,12 +112,11 @@ def render_numba(
     K64 = np.asarray(torch.as_tensor(K).detach().cpu(), np.float64)
     needs_grad = torch.is_grad_enabled() and any(t.requires_grad for t in g.tensors().values())
     if needs_grad:
-        p: Projected = project(g, torch.from_numpy(viewmat64), torch.from_numpy(K64), width, height)
-        f32 = [t.to(torch.float32) for t in (p.mean2d, p.conic, p.opacity, p.color, p.depth)]
+        mean2d, conic, depth, opacity, color, radius = project(g, viewmat64, K64, width, height)
         if info is not None:
-            f32[0].retain_grad()
-            info.update(mean2d=f32[0], radius=p.radius)
-        rgb, dsum, T = RasterizeNumba.apply(*f32, p.radius, width, height, info)
+            mean2d.retain_grad()
+            info.update(mean2d=mean2d, radius=radius)
+        rgb, dsum, T = RasterizeNumba.apply(mean2d, conic, opacity, color, depth, radius, width, height, info)
         return _finish(rgb, dsum, T, background, dtype)
 
     rec = np.empty((len(g), nk.REC_SIZE), np.float32)

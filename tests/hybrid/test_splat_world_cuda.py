@@ -1,0 +1,63 @@
+"""Datagen frames on the GPU: the Gaussian world (SplatWorld) rendered by gsplat agrees with the numba CPU
+frames of test_composite.py, including a part culled to nothing (which must never reach gsplat with N = 0:
+gsplat 1.5.3 kills the process with SIGFPE). Skipped without a CUDA GPU and gsplat."""
+
+from __future__ import annotations
+
+import numpy as np
+from test_composite import H, K, W, _blob, _camera
+
+from fixtures.cuda import CUDA_MARKS
+from mirage2matter.render import MovablePart, SplatRenderOptions, SplatWorld
+
+pytestmark = CUDA_MARKS
+
+
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    return float(10 * np.log10(1.0 / max(np.mean((a - b) ** 2), 1e-30)))
+
+
+def _worlds(**kw):
+    scene = _blob((0.5, 0.0, -0.05), (0.3, 0.3, 0.3), n=1500, radius=0.12, seed=4)
+    a, b = _blob((0, 0, 0.02), (0.9, 0.1, 0.1), seed=5), _blob((0, 0, 0.02), (0.1, 0.1, 0.9), seed=6)
+    parts = [MovablePart("a", a), MovablePart("b", b, scale=1.2)]
+    return tuple(SplatWorld(scene, parts, SplatRenderOptions(backend=be, **kw)) for be in ("cpu", "cuda"))
+
+
+def test_frames_match_the_cpu_frames_as_parts_move():
+    cpu, gpu = _worlds()
+    poses = {"a": np.eye(4), "b": np.eye(4)}
+    poses["a"][:3, 3] = (0.45, -0.08, 0.0)
+    poses["b"][:3, 3] = (0.55, 0.08, 0.0)
+    head, wrist = _camera((0.0, 0.0, 0.5)), _camera((0.4, 0.1, 0.3), target=(0.5, 0.0, 0.0))
+    for lift in (0.0, 0.05, 0.12):
+        poses["a"][2, 3] = lift
+        for world in (cpu, gpu):
+            world.set_poses(poses)
+        for view in (head, wrist):
+            c, g = cpu.render(view, K, W, H), gpu.render(view, K, W, H)
+            assert _psnr(g[0], c[0]) >= 35.0 and _psnr(g[1], c[1]) >= 35.0
+            sure = (c[1] > 0.5) & (g[1] > 0.5)
+            assert sure.mean() > 0.05
+            assert np.abs(g[2][sure] - c[2][sure]).mean() <= 1e-2 * c[2][sure].mean()
+        c, g = cpu.render_static_camera("head", head, K, W, H), gpu.render_static_camera("head", head, K, W, H)
+        assert _psnr(g[0], c[0]) >= 35.0
+
+
+def test_a_part_out_of_view_renders_without_reaching_gsplat_empty():
+    """The moving part carried out of the head camera's view: culled to nothing, rendered as nothing."""
+    cpu, gpu = _worlds(cull=True)
+    poses = {"a": np.eye(4), "b": np.eye(4)}
+    poses["b"][:3, 3] = (0.55, 0.08, 0.0)
+    head = _camera((0.0, 0.0, 0.5))
+    for world in (cpu, gpu):
+        world.render_static_camera("head", head, K, W, H)  # first frame: everything at rest
+    poses["a"][:3, 3] = (0.5, 0.0, 3.0)  # far above the camera: out of its view
+    for world in (cpu, gpu):
+        world.set_poses(poses)
+    c, g = cpu.render_static_camera("head", head, K, W, H), gpu.render_static_camera("head", head, K, W, H)
+    assert _psnr(g[0], c[0]) >= 35.0
+    empty = SplatWorld(None, [MovablePart("a", _blob((0, 0, 0), (1, 0, 0)))], SplatRenderOptions(backend="cuda"))
+    empty.set_poses({"a": poses["a"]})
+    rgb, alpha, depth = empty.render(head, K, W, H, background=(0.2, 0.4, 0.6))
+    assert not alpha.any() and not depth.any() and np.allclose(rgb, (0.2, 0.4, 0.6))
