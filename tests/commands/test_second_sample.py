@@ -51,6 +51,8 @@ EPISODES = 20
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 18: on this layout the croissant's and the banana's masks miss issue 6's "
+                   "bars (IoU 0.82 / 0.81; volume 0.84 / 1.16), so compose refuses the world; strict, so a fix shows")
 def test_second_sample_init_and_run_self_calibrated_with_the_ur5e(tmp_path, capsys):
     times = {}
     t0 = time.perf_counter()
