@@ -162,3 +162,47 @@ def test_grabcut_is_the_same_whatever_drew_from_opencvs_rng_before():
             cv2.randu(np.zeros((draws + 1, 1)), 0, 1)  # someone else drew from the global RNG
             masks.append(refine_grabcut(img, alpha))
         assert all(np.array_equal(masks[0], m) for m in masks[1:]), seed
+
+
+def test_keyframes_and_a_mask_folder_with_a_lens_are_seen_through_its_pinhole(tmp_path):
+    """A camera with a lens: `pinhole_keyframes` undistorts each keyframe to the pinhole with the same K (the object
+    steps project with a pinhole) and FolderMasks(lens=...) undistorts masks drawn on the keyframes as captured, so
+    a disc the lens imaged at its distorted place lands where the pinhole projects it. Pinhole cameras pass as they
+    are."""
+    from dataclasses import replace
+
+    from mirage2matter.objects.reconstruct import load_keyframes_rgb, pinhole_keyframes
+
+    lens = {"k1": -0.3, "k2": 0.05, "p1": 0.001, "p2": -0.0008, "k3": 0.0}
+    plain = _cams(7)
+    bent = [replace(c, distortion=lens, distortion_model="opencv") for c in plain]
+    ideal = np.array([[296.0, 34.0]])  # where the pinhole images the disc's centre: far off-axis, where the lens bends
+    (tmp_path / "images").mkdir()
+    (tmp_path / "masks" / "cup").mkdir(parents=True)
+    for cam in bent:
+        (u, v) = cam.distort_pixels(ideal)[0] - 0.5  # OpenCV draws with pixel centres at integers
+        assert np.hypot(u + 0.5 - ideal[0, 0], v + 0.5 - ideal[0, 1]) > 5  # the lens moves it visibly
+        m = np.zeros((240, 320), np.uint8)
+        cv2.circle(m, (round(16 * u), round(16 * v)), 16 * 12, 255, -1, lineType=cv2.LINE_AA, shift=4)
+        cv2.imwrite(str(tmp_path / "images" / cam.name), np.repeat(m[..., None], 3, axis=2))
+        cv2.imwrite(str(tmp_path / "masks" / "cup" / f"{Path(cam.name).stem}.png"), m)
+
+    def centre(mask: np.ndarray) -> np.ndarray:
+        v, u = np.nonzero(mask)
+        return np.array([u.mean() + 0.5, v.mean() + 0.5])
+
+    cams, images = pinhole_keyframes(bent, tmp_path / "images")
+    assert not any(c.has_distortion for c in cams)
+    for cam, pinhole, image in zip(bent, cams, images, strict=True):
+        np.testing.assert_array_equal(pinhole.K, cam.K)
+        np.testing.assert_array_equal(pinhole.T_world_cam, cam.T_world_cam)
+        assert image.shape == (240, 320, 3) and image.dtype == np.float32
+        np.testing.assert_allclose(centre(image[..., 0] > 0.5), ideal[0], atol=0.5)
+    masks = FolderMasks(tmp_path / "masks", lens=bent).masks(Target("cup", None, None), cams, images).masks
+    for mask in masks:
+        np.testing.assert_allclose(centre(mask), ideal[0], atol=0.5)
+    # without a lens: the keyframes as they are
+    same_cams, same_images = pinhole_keyframes(plain, tmp_path / "images")
+    assert all(a is b for a, b in zip(same_cams, plain, strict=True))
+    for a, b in zip(same_images, load_keyframes_rgb(plain, tmp_path / "images"), strict=True):
+        np.testing.assert_array_equal(a, b)

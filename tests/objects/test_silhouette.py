@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-from test_objects_sample import silhouette  # ground-truth masks: pixel coverage > 1/2, supersampled
 
+from fixtures.object_checks import silhouette  # ground-truth masks: pixel coverage > 1/2, supersampled
 from mirage2matter.geometry.camera import Camera, look_at_pose
 from mirage2matter.geometry.rotation import axis_angle_to_matrix, rotation_angle
 from mirage2matter.geometry.sim3 import Sim3

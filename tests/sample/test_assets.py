@@ -100,9 +100,9 @@ def test_objects_are_watertight_with_sane_sizes(assets):
     assert assets["button_cap"].meta["travel"] == assets["button_base"].meta["travel"] == 0.008
 
 
-@pytest.mark.parametrize("seed", [0, 1, 7])
-def test_objects_rest_on_the_table_apart_in_the_workspace(seed):
-    assets = {a.name: a for a in build_assets(seed)}
+@pytest.mark.parametrize("seed, layout", [(0, "nominal"), (1, "nominal"), (7, "nominal"), (8, "random"), (3, "random")])
+def test_objects_rest_on_the_table_apart_in_the_workspace(seed, layout):
+    assets = {a.name: a for a in build_assets(seed, layout=layout)}
     board = _footprint(assets["board"])
     boxes = {n: _footprint(assets[n]) for n in ON_TABLE}
     for name, box in boxes.items():
@@ -229,7 +229,31 @@ def test_ground_truth_entries_are_json(assets):
     assert ground_truth_entries(list(assets.values()))[0]["mesh"] == "floor.obj"
 
 
+def test_a_random_layout_places_the_objects_anew_with_room_for_the_gripper(assets):
+    """`layout="random"` (the second sample): every object elsewhere than in the nominal layout, any yaw, the
+    footprints 6 cm apart (the open gripper fits between two objects); the textures are the seed's either way."""
+    nominal = {a.name: a for a in build_assets(8)}
+    moved = {a.name: a for a in build_assets(8, layout="random")}
+    boxes = {n: _footprint(moved[n]) for n in ON_TABLE}
+    for name in ON_TABLE:
+        shift = np.linalg.norm(np.asarray(moved[name].T_base_obj)[:2, 3] - np.asarray(nominal[name].T_base_obj)[:2, 3])
+        assert shift > 0.05, name
+        assert np.array_equal(moved[name].mesh.vertices, nominal[name].mesh.vertices)  # same object, moved
+        x, y = np.asarray(moved[name].T_base_obj)[:2, 3]
+        assert 0.32 <= x <= 0.72 and -0.30 <= y <= 0.30
+    names = list(boxes)
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            gap = np.maximum(boxes[a][0] - boxes[b][1], boxes[b][0] - boxes[a][1]).max()
+            assert gap >= 0.06, (a, b, gap)
+    # seed 0's nominal layout is the shipped one, whatever else changed
+    for name, (x, y, _) in {"banana": (0.42, 0.16, 0), "croissant": (0.55, -0.15, 0)}.items():
+        np.testing.assert_allclose(np.asarray(assets[name].T_base_obj)[:2, 3], [x, y], atol=1e-12)
+
+
 def test_bad_arguments():
+    with pytest.raises(ValueError, match="layout must be one of nominal, random"):
+        build_assets(0, layout="scattered")
     with pytest.raises(ValueError, match="seed"):
         build_assets(-1)
     with pytest.raises(ValueError, match="does not fit"):

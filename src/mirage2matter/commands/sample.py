@@ -26,6 +26,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     sm.add_argument("--marker", choices=("charuco", "aruco", "apriltag", "aruco_grid"), default="charuco",
                     help="the target on the table: the ChArUco board (default), an 18 cm ArUco marker or AprilTag, or "
                     "an ArUco grid")
+    sm.add_argument("--lens", choices=("pinhole", "phone"), default="pinhole",
+                    help="the video camera: the renderer's pinhole (default; the head camera's), or a phone's main "
+                    "camera with barrel distortion and an off-centre principal point (k1 -0.16; ground_truth.json "
+                    "holds it under \"camera\"; the sample's m2m.yaml leaves it out, so SfM calibrates it)")
+    sm.add_argument("--layout", choices=("nominal", "random"), default="nominal",
+                    help="where the objects stand: the bundled sample's places (default; jittered by 1.5 cm for "
+                    "seeds other than 0), or drawn anywhere in the workspace for the seed")
     sm.add_argument("--robot", default=DEFAULT_ROBOT, metavar="ROBOT",
                     help="the robot holding the board in the hand-eye images: a registered robot "
                     f"({', '.join(ROBOTS)}) or a robot spec file (default {DEFAULT_ROBOT})")
@@ -49,10 +56,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..sample.make import SampleConfig, make_sample, with_marker
+    from ..sample.make import SampleConfig, make_sample, with_layout, with_lens, with_marker
 
     config = SampleConfig.short(args.seed) if args.short else SampleConfig(seed=args.seed)
-    config = with_marker(config, args.marker)
+    config = with_layout(with_lens(with_marker(config, args.marker), args.lens), args.layout)
     if args.robot != config.robot:
         from dataclasses import replace
         from pathlib import Path

@@ -202,10 +202,13 @@ class PromptMasks(GeometricMasks):
 # ---- a folder of masks --------------------------------------------------------------------------
 @dataclass
 class FolderMasks:
-    """``root/<name>/<keyframe stem>.png`` (any image format OpenCV reads; non-zero = object)."""
+    """``root/<name>/<keyframe stem>.png`` (any image format OpenCV reads; non-zero = object), of the keyframes as
+    captured. ``lens``: the keyframes' cameras with their lens when the object steps see them undistorted (the masks
+    are undistorted likewise)."""
 
     root: Path
     min_views: int = 6
+    lens: Sequence[Camera] | None = None
 
     def masks(self, target: Target, cameras: Sequence[Camera], images: Sequence[np.ndarray]) -> MaskResult:
         import cv2
@@ -215,7 +218,7 @@ class FolderMasks:
             raise ObjectsError(f"object {target.name!r}: mask folder {folder} not found (expected <masks>/<name>/)")
         files = {p.stem: p for p in folder.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".bmp")}
         out: list[np.ndarray | None] = []
-        for cam in cameras:
+        for i, cam in enumerate(cameras):
             path = files.get(Path(cam.name).stem)
             if path is None:
                 out.append(None)
@@ -228,7 +231,13 @@ class FolderMasks:
                     f"object {target.name!r}: mask {path} is {m.shape[1]}x{m.shape[0]}, its keyframe "
                     f"{cam.width}x{cam.height}"
                 )
-            out.append(m > 0)
+            mask = m > 0
+            if self.lens is not None and self.lens[i].has_distortion:
+                from ..gaussians.dataset import undistort_image
+
+                # object where more than half of the pixel's bilinear footprint was
+                mask = undistort_image(mask.astype(np.float32)[..., None], self.lens[i], erode_px=0)[0][..., 0] > 0.5
+            out.append(mask)
         seen = sum(1 for m in out if m is not None and m.any())
         if seen < self.min_views:
             raise ObjectsError(

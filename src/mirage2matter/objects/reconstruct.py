@@ -10,7 +10,9 @@ mesh (masks + the 3DGS depth, or the user's) -> alignment -> one object frame, w
     figure.png                  Gaussians beside the mesh from the same keyframes
 
 Inputs are the base-frame keyframe cameras, images and SfM points; the folder is built under a temporary
-name and swapped in complete. The ``objects`` stage (``stages/objects.py``) runs this per object found.
+name and swapped in complete. Every step works on a pinhole: a camera with a lens comes in through
+:func:`pinhole_keyframes` (its images undistorted to the same K), so masks/ are of the undistorted keyframes.
+The ``objects`` stage (``stages/objects.py``) runs this per object found.
 """
 
 from __future__ import annotations
@@ -32,7 +34,8 @@ from .masks import FolderMasks, GeometricMasks, MaskProvider, Sam2Masks, Target,
 from .matting import MattingConfig, render_alpha, sample_in_hull
 from .splat import SplatConfig, mask_crop
 
-__all__ = ["ObjectsConfig", "load_keyframes_rgb", "process_object", "find_targets", "target_fingerprint"]
+__all__ = ["ObjectsConfig", "find_targets", "load_keyframes_rgb", "pinhole_keyframes", "process_object",
+           "target_fingerprint"]
 
 
 @dataclass
@@ -100,6 +103,24 @@ def load_keyframes_rgb(cameras: list[Camera], image_dir: Path) -> list[np.ndarra
     return images
 
 
+def pinhole_keyframes(cameras: list[Camera], image_dir: Path) -> tuple[list[Camera], list[np.ndarray]]:
+    """The keyframes as a pinhole with the same K sees them: the cameras without their lens, and the images [H,W,3]
+    float32 in [0,1] undistorted (``gaussians.dataset.undistort_image``, as the scene's training views are). The
+    object steps project points with a pinhole (masks, carving, the object 3DGS): a phone's lens (k1 -0.16 at 640x480)
+    puts the image corners ~35 px from where a pinhole does. Where a lens saw nothing of the pinhole's view (a
+    pincushion lens's border) the image is black."""
+    from ..gaussians.dataset import undistort_image
+
+    out_cameras, out_images = [], []
+    for cam, image in zip(cameras, load_keyframes_rgb(cameras, image_dir), strict=True):
+        if cam.has_distortion:
+            image, _ = undistort_image(image, cam, erode_px=0)
+            cam = replace(cam, T_world_cam=cam.T_world_cam.copy(), distortion={}, distortion_model="")
+        out_cameras.append(cam)
+        out_images.append(image)
+    return out_cameras, out_images
+
+
 def find_targets(config: ObjectsConfig, cameras, points) -> tuple[Any, list[Target]]:
     """(support plane, the objects to reconstruct) from the base-frame points [M,3], named by the config."""
     from .support import find_objects, name_clusters
@@ -121,9 +142,9 @@ def find_targets(config: ObjectsConfig, cameras, points) -> tuple[Any, list[Targ
     return plane, targets
 
 
-def _provider(config: ObjectsConfig, progress: bool) -> MaskProvider:
+def _provider(config: ObjectsConfig, progress: bool, lens: list[Camera] | None = None) -> MaskProvider:
     if config.masks:
-        return FolderMasks(Path(config.masks), config.matting.min_views)
+        return FolderMasks(Path(config.masks), config.matting.min_views, lens)
     if config.sam2_checkpoint:
         return Sam2Masks(Path(config.sam2_checkpoint), min_views=config.matting.min_views)
     return GeometricMasks(config.matting, config.grabcut, progress)
@@ -185,8 +206,11 @@ def process_object(
     out_dir: Path,
     log: Callable[[str], None],
     progress: bool = False,
+    lens: list[Camera] | None = None,
 ) -> dict[str, Any]:
-    """Masks, mesh, object 3DGS, alignment and files for one object; returns its summary."""
+    """Masks, mesh, object 3DGS, alignment and files for one object; returns its summary. ``cameras`` are pinholes
+    (:func:`pinhole_keyframes`); ``lens``: the same cameras with their lens, when the images were undistorted (a
+    folder of masks drawn on the keyframes as captured is undistorted with it)."""
     import cv2
     import torch
     import trimesh
@@ -215,7 +239,7 @@ def process_object(
         log(f"{name}: mesh from {user_mesh}")
         mesh_input = ensure_watertight(load_mesh(user_mesh, name), name, source=str(user_mesh))
     log(f"{name}: masks")
-    result = _provider(config, progress).masks(target, cameras, images)
+    result = _provider(config, progress, lens).masks(target, cameras, images)
     masks = result.masks
 
     if not user_mesh and (target.cluster is None or target.plane is None):

@@ -41,6 +41,7 @@ __all__ = [
     "BOARD_MARGIN_SQUARES",
     "BOARD_PX_PER_SQUARE",
     "FLOOR_Z",
+    "LAYOUTS",
     "NOMINAL_PLACEMENTS",
     "TABLE_X",
     "TABLE_Y",
@@ -74,6 +75,14 @@ NOMINAL_PLACEMENTS: dict[str, tuple[float, float, float]] = {
 _JITTER_XY = 0.015  # metres, seeds != 0
 _JITTER_YAW_DEG = 12.0
 _CLEARANCE = 0.01  # between footprints of objects and the board
+# Where the objects stand (`build_assets(layout=...)`): "nominal" is NOMINAL_PLACEMENTS (jittered for seeds != 0);
+# "random" draws each object's position over this part of the workspace and any yaw, footprints at least
+# _RANDOM_CLEARANCE apart (room for the open gripper's fingers, 8 cm across, between two objects) and clear of the
+# base (x >= 0.32: an arm reaching down next to its own base folds against its joint limits).
+LAYOUTS = ("nominal", "random")
+_RANDOM_X = (0.32, 0.72)
+_RANDOM_Y = (-0.30, 0.30)
+_RANDOM_CLEARANCE = 0.06
 
 _DENSITY = {"banana": 950.0, "croissant": 250.0, "button_base": 600.0, "button_cap": 1000.0}  # kg / m^3
 _FRAME_NOTE = "origin at the bottom centre of the object, z up"
@@ -830,33 +839,42 @@ def _disjoint(a: np.ndarray, b: np.ndarray, gap: float) -> bool:
     return bool((a[0] > b[1] + gap).any() or (b[0] > a[1] + gap).any())
 
 
-def _placements(seed: int, meshes: dict[str, trimesh.Trimesh], board_box: np.ndarray) -> dict[str, np.ndarray]:
-    """T_base_obj per object: nominal for seed 0, jittered otherwise; footprints kept apart and in the workspace."""
+def _placements(
+    seed: int, meshes: dict[str, trimesh.Trimesh], board_box: np.ndarray, layout: str = "nominal"
+) -> dict[str, np.ndarray]:
+    """T_base_obj per object: nominal for seed 0, jittered otherwise, or drawn anew (``layout="random"``); footprints
+    kept apart and in the workspace."""
     rng = _rng(seed, "placement")
     ws = np.array([[WORKSPACE_X[0], WORKSPACE_Y[0]], [WORKSPACE_X[1], WORKSPACE_Y[1]]])
+    clearance = _RANDOM_CLEARANCE if layout == "random" else _CLEARANCE
     for _ in range(200):
         poses, boxes = {}, [board_box]
         ok = True
         for name, (x, y, yaw) in NOMINAL_PLACEMENTS.items():
-            if seed != 0:
+            if layout == "random":
+                x, y, yaw = rng.uniform(*_RANDOM_X), rng.uniform(*_RANDOM_Y), rng.uniform(-180.0, 180.0)
+            elif seed != 0:
                 dx, dy = rng.uniform(-_JITTER_XY, _JITTER_XY, 2)
                 x, y, yaw = x + dx, y + dy, yaw + rng.uniform(-_JITTER_YAW_DEG, _JITTER_YAW_DEG)
             T = _translation(x, y, 0.0, yaw)
             box = _footprint(meshes[name], T)
             inside = (box[0] >= ws[0]).all() and (box[1] <= ws[1]).all()
-            if not inside or not all(_disjoint(box, other, _CLEARANCE) for other in boxes):
+            if not inside or not all(_disjoint(box, other, clearance) for other in boxes):
                 ok = False
                 break
             poses[name], boxes = T, [*boxes, box]
         if ok:
             return poses
-        if seed == 0:
+        if seed == 0 and layout == "nominal":
             raise RuntimeError(f"nominal placements overlap or leave the workspace: {NOMINAL_PLACEMENTS}")
     raise RuntimeError(f"seed {seed}: no non-overlapping placement found in 200 draws")
 
 
-def build_assets(seed: int = 0, board: BoardSpec | None = None, include_ceiling: bool = False) -> list[PlacedAsset]:
-    """All assets of the sample workspace, deterministic for ``seed`` (0 = the shipped sample).
+def build_assets(
+    seed: int = 0, board: BoardSpec | None = None, include_ceiling: bool = False, layout: str = "nominal"
+) -> list[PlacedAsset]:
+    """All assets of the sample workspace, deterministic for ``seed`` (0 = the shipped sample) and ``layout`` (where
+    the objects stand, one of LAYOUTS: "nominal" or "random").
 
     Returns, in this order: floor, wall_front (+x), wall_back, wall_left (+y), wall_right,
     [ceiling], table ("static"); board ("board"); banana, croissant ("object"); button_base,
@@ -868,6 +886,8 @@ def build_assets(seed: int = 0, board: BoardSpec | None = None, include_ceiling:
     """
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if layout not in LAYOUTS:
+        raise ValueError(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
     board = board or BoardSpec()
     assets = [*_room(seed, include_ceiling), _table(seed)]
     table_board = board_asset(board)
@@ -879,7 +899,7 @@ def build_assets(seed: int = 0, board: BoardSpec | None = None, include_ceiling:
 
     banana, croissant = _banana_mesh(_rng(seed, "banana")), _croissant_mesh(_rng(seed, "croissant"))
     base, cap = _button_meshes(seed)
-    poses = _placements(seed, {"banana": banana, "croissant": croissant, "button": base}, board_box)
+    poses = _placements(seed, {"banana": banana, "croissant": croissant, "button": base}, board_box, layout)
     base_h = float(base.extents[2])
     # The cap slides down by `travel` along press_axis (the same in the base's and the cap's frame).
     button = {"travel": BUTTON_TRAVEL, "press_axis": [0.0, 0.0, -1.0]}

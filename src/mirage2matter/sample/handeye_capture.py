@@ -121,22 +121,17 @@ def default_mounts(mount: str, board: BoardSpec) -> tuple[np.ndarray, np.ndarray
 
 # ---- rendering --------------------------------------------------------------------------------------
 class _Rays:
-    """Normalised ray directions [H*2, W*2, 3] (z = 1) of every sub-pixel of the distorted image."""
+    """Normalised ray directions [H*2, W*2, 2] (x/z, y/z) of every sub-pixel of the distorted image."""
 
     def __init__(self, cfg: HandEyeCaptureConfig, supersample: int = 2) -> None:
-        import cv2
+        from ..geometry.camera import Camera
+        from .lens import lens_rays
 
-        s = supersample
-        u = (np.arange(cfg.width * s) + 0.5) / s  # our convention: pixel centres at +0.5
-        v = (np.arange(cfg.height * s) + 0.5) / s
-        uu, vv = np.meshgrid(u, v)
-        pts = np.stack([uu.ravel() - 0.5, vv.ravel() - 0.5], axis=1).reshape(-1, 1, 2)  # OpenCV: centres at integers
-        K_cv = cfg.K().copy()
-        K_cv[:2, 2] -= 0.5
-        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
-        xy = cv2.undistortPointsIter(pts, K_cv, np.asarray(cfg.distortion, float), None, None, criteria)
-        self.xy = xy.reshape(cfg.height * s, cfg.width * s, 2)
-        self.s = s
+        k1, k2, p1, p2, k3 = cfg.distortion
+        camera = Camera(cfg.K(), np.eye(4), cfg.width, cfg.height, distortion={"k1": k1, "k2": k2, "p1": p1,
+                                                                               "p2": p2, "k3": k3})  # fmt: skip
+        self.xy = lens_rays(camera, supersample)
+        self.s = supersample
 
 
 def render_board_view(

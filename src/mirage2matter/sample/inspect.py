@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from ..calib.board import target_from_json
+from ..geometry.camera import Camera
 from ..video import read_video_frames
 
 # Where the repository ships its sample (an editable install keeps src/ beside samples/).
@@ -26,7 +28,8 @@ def inspect_sample(sample: str | Path = BUNDLED_SAMPLE, n_checked: int = 24) -> 
     gt = json.loads(gt_path.read_text())
     board = target_from_json(gt["board"]["spec"])
     T_base_board = np.asarray(gt["board"]["T_base_board"])
-    K = np.asarray(gt["camera"]["K"])
+    cam = gt["camera"]
+    lens = Camera(np.asarray(cam["K"]), np.eye(4), cam["width"], cam["height"], "video", cam.get("distortion") or {})
     n_frames = 0
     checked = detected = 0
     errors: list[float] = []
@@ -40,11 +43,10 @@ def inspect_sample(sample: str | Path = BUNDLED_SAMPLE, n_checked: int = 24) -> 
         if len(ids) < 4:
             continue
         detected += 1
-        T_cam_base = np.linalg.inv(np.asarray(gt["frames"][i]["T_base_cam"]))
         corners_base = board.points_board(ids) @ T_base_board[:3, :3].T + T_base_board[:3, 3]
-        p = corners_base @ T_cam_base[:3, :3].T + T_cam_base[:3, 3]
-        uv = p @ K.T
-        errors.extend(np.linalg.norm(corners.reshape(-1, 2) + 0.5 - uv[:, :2] / uv[:, 2:], axis=1).tolist())
+        posed = replace(lens, T_world_cam=np.asarray(gt["frames"][i]["T_base_cam"], dtype=np.float64))
+        uv, _ = posed.project(corners_base, distort=True)  # through the video camera's lens, if it has one
+        errors.extend(np.linalg.norm(corners.reshape(-1, 2) + 0.5 - uv, axis=1).tolist())
     return {
         "sample": str(sample),
         "video_frames": n_frames,

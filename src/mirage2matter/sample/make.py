@@ -3,7 +3,8 @@
 Writes, into a new directory (built under a temporary name and renamed at the end, so a sample is
 never half-written):
 
-    scene.mp4            hand-held orbit around the table (no robot), H.264
+    scene.mp4            hand-held orbit around the table (no robot), H.264; through a phone-like lens with
+                         ``lens`` (distortion, off-centre principal point), else the renderer's pinhole
     head_view.png        the fixed head camera's view of the same scene (no robot)
     handeye/images/*.png the head camera's view of a ChArUco board held by the robot's gripper
     handeye/joints.json  the joint angles of each hand-eye image
@@ -31,7 +32,9 @@ from ..atomic import atomic_dir
 from ..calib.board import BoardSpec, GridSpec, MarkerSpec
 from ..errors import M2MError
 from ..robots import DEFAULT_ROBOT
+from .assets import LAYOUTS
 from .inspect import BUNDLED_SAMPLE
+from .lens import LENSES, LensConfig
 from .trajectory import OrbitConfig, orbit_poses
 
 GROUND_TRUTH_VERSION = 1
@@ -58,6 +61,13 @@ class SampleConfig:
     # The robot holding the board in the hand-eye images (a registered name or a robot spec file); its base
     # stands at the origin like the default Panda's.
     robot: str = DEFAULT_ROBOT
+    # The video camera's lens (sample.lens.LENSES): None films the video with the renderer's pinhole (fov_deg, the
+    # head camera's); a lens renders a wider pinhole of the same focal length and resamples it through the lens
+    # (ground_truth.json "camera" holds its K and distortion). The head camera stays the pinhole.
+    lens: LensConfig | None = None
+    # Where the objects stand (sample.assets.LAYOUTS): "nominal" (the shipped places, jittered for seeds != 0) or
+    # "random" (drawn anywhere in the workspace for the seed)
+    layout: str = "nominal"
 
     @classmethod
     def short(cls, seed: int = 0) -> SampleConfig:
@@ -72,6 +82,20 @@ MARKERS = {  # the table target of `with_marker`: the sizes labs tape down
     "apriltag": lambda: MarkerSpec(0.18, 0, "DICT_APRILTAG_36h11", "apriltag"),
     "aruco_grid": lambda: GridSpec(4, 5, 0.06, 0.015, "DICT_4X4_50"),
 }
+
+
+def with_lens(config: SampleConfig, lens: str) -> SampleConfig:
+    """``config`` with the video filmed through the lens ``lens`` (a name in sample.lens.LENSES)."""
+    if lens not in LENSES:
+        raise SampleError(f"lens must be one of {', '.join(LENSES)}, got {lens!r}")
+    return replace(config, lens=LENSES[lens])
+
+
+def with_layout(config: SampleConfig, layout: str) -> SampleConfig:
+    """``config`` with the objects placed by ``layout`` (one of sample.assets.LAYOUTS)."""
+    if layout not in LAYOUTS:
+        raise SampleError(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
+    return replace(config, layout=layout)
 
 
 def with_marker(config: SampleConfig, marker: str) -> SampleConfig:
@@ -121,9 +145,11 @@ def _robot_ref(robot: str, renderer: Any) -> str:
     return renderer.robot_file if robot == DEFAULT_ROBOT else robot
 
 
-def _write_settings(path: Path, robot: str) -> None:
-    """The sample's m2m.yaml: the bundled one, with the robot named where the stages take one (align, compose)."""
-    if robot == DEFAULT_ROBOT:
+def _write_settings(path: Path, config: SampleConfig, objects: list[str]) -> None:
+    """The sample's m2m.yaml: the bundled one; with another robot, lens or layout, changed where they matter: the robot
+    named where the stages take one (align, compose), no video intrinsics with a lens (SfM calibrates the camera
+    itself, as on a phone video), the objects named nearest the base first (``objects``: the names in that order)."""
+    if config.robot == DEFAULT_ROBOT and config.lens is None and config.layout == "nominal":
         shutil.copyfile(BUNDLED_SAMPLE / "m2m.yaml", path)
         return
     import yaml
@@ -131,12 +157,41 @@ def _write_settings(path: Path, robot: str) -> None:
     from ..inputs import read_yaml
 
     data = read_yaml(BUNDLED_SAMPLE / "m2m.yaml", "sample settings")
-    data.setdefault("align", {})["robot"] = robot
-    data.setdefault("world", {})["robot"] = robot
+    notes = []
+    if config.robot != DEFAULT_ROBOT:
+        data.setdefault("align", {})["robot"] = config.robot
+        data.setdefault("world", {})["robot"] = config.robot
+        notes.append(f"The sample's robot: {config.robot} (`m2m sample make --robot {config.robot}`).")
+    if config.lens is not None:
+        data.get("sfm", {}).pop("intrinsics", None)
+        if not data.get("sfm", True):
+            del data["sfm"]
+        notes.append(f"The video's lens ({config.lens.name}) is not given: SfM calibrates the camera itself "
+                     "(ground_truth.json holds the true one under \"camera\").")  # fmt: skip
+    if config.layout != "nominal":
+        data.setdefault("objects", {})["names"] = list(objects)
+        notes.append(f"Objects placed by layout {config.layout!r}, named nearest the robot base first.")
     lines = (BUNDLED_SAMPLE / "m2m.yaml").read_text().splitlines()
     head = "".join(line + "\n" for line in lines if line.startswith("#"))
-    path.write_text(f"{head}# The sample's robot: {robot} (`m2m sample make --robot {robot}`).\n"
+    path.write_text(head + "".join(f"# {note}\n" for note in notes)
                     + yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120))  # fmt: skip
+
+
+def _config_json(config: SampleConfig) -> dict:
+    """The config as ground_truth.json records it; a field added since the bundled sample is left out at its default,
+    so a default sample's ground truth stays as it was."""
+    out = asdict(config)
+    for key in ("lens", "layout"):
+        if out[key] == getattr(SampleConfig, key):
+            del out[key]
+    return out
+
+
+def _nearest_first(assets: list) -> list[str]:
+    """The objects' names (the button as "button") in order of distance from the robot base."""
+    objects = {("button" if a.name == "button_base" else a.name): a.T_base_obj for a in assets
+               if a.category == "object" or a.name == "button_base"}  # fmt: skip
+    return sorted(objects, key=lambda name: float(np.hypot(*np.asarray(objects[name])[:2, 3])))
 
 
 def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Callable[[str], None] = print) -> dict:
@@ -146,17 +201,18 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
 
     from ..video import write_video
     from .assets import board_asset, build_assets, export_assets, ground_truth_entries
+    from .lens import lens_rays, pinhole_cover, resample_through_lens
     from .render import RenderConfig, SampleRenderer, default_T_base_headcam, sample_handeye_configurations
 
     t_start = time.perf_counter()
     with atomic_dir(out) as tmp:  # an existing out is empty (checked above)
         (tmp / "handeye" / "images").mkdir(parents=True)
         board = config.board
-        assets = build_assets(seed=config.seed, board=board)
+        assets = build_assets(seed=config.seed, board=board, layout=config.layout)
         board.save(tmp / "board.json")
         config.handeye_board.save(tmp / "handeye" / "board.json")
         # the pipeline settings of the sample layout (inputs by relative path), as `m2m demo --sample` reads them
-        _write_settings(tmp / "m2m.yaml", config.robot)
+        _write_settings(tmp / "m2m.yaml", config, _nearest_first(assets))
         ground_truth_assets = [a for a in assets if a.category in ("board", "object", "button")]
         mesh_paths = export_assets(ground_truth_assets, tmp / "gt")
         log(f"assets: {len(assets)} meshes, ground truth for {', '.join(mesh_paths)}")
@@ -164,14 +220,24 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
         render_cfg = RenderConfig(width=config.width, height=config.height, fov_deg=config.fov_deg)
         times, poses = orbit_poses(config.orbit, seed=config.seed)
         T_base_headcam = default_T_base_headcam()
+        K_head = render_cfg.K  # the head camera: the renderer's pinhole
+        video_cfg, lens_camera, rays, crop = render_cfg, None, None, (0, 0)
+        if config.lens is not None:  # a wider pinhole of the same focal length, resampled through the lens
+            lens_camera = config.lens.camera(config.width, config.height)
+            rays = lens_rays(lens_camera)
+            width, height = pinhole_cover(rays, render_cfg.focal, (config.width, config.height))
+            video_cfg = replace(render_cfg, width=width, height=height, fy=render_cfg.focal)
+            crop = ((width - config.width) // 2, (height - config.height) // 2)  # the head camera's window of it
         tiles: list[np.ndarray] = []
-        with SampleRenderer(assets, render_cfg, workdir=tmp / ".render") as renderer:
-            K = renderer.K
+        with SampleRenderer(assets, video_cfg, workdir=tmp / ".render") as renderer:
+            K = renderer.K if lens_camera is None else lens_camera.K
 
             def frames():
                 pick = set(np.linspace(0, len(poses) - 1, 8).round().astype(int).tolist())
                 for i, T in enumerate(poses):
                     image = renderer.render(T)
+                    if rays is not None:
+                        image = resample_through_lens(image, video_cfg.focal, rays)
                     if i in pick:
                         tiles.append(image)
                     if i % 100 == 0:
@@ -179,9 +245,11 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
                     yield image
 
             n = write_video(tmp / "scene.mp4", frames(), fps=config.orbit.fps, crf=config.crf)
-            log(f"video: {n} frames at {config.width}x{config.height}, {config.orbit.fps:g} fps")
-            head_view = renderer.render(T_base_headcam)
-            _save_png(tmp / "head_view.png", head_view)
+            lens_note = "" if lens_camera is None else f" through the {config.lens.name} lens"
+            log(f"video: {n} frames at {config.width}x{config.height}, {config.orbit.fps:g} fps{lens_note}")
+            (x0, y0) = crop
+            head_view = renderer.render(T_base_headcam)[y0 : y0 + config.height, x0 : x0 + config.width]
+            _save_png(tmp / "head_view.png", np.ascontiguousarray(head_view))
 
         table_board = next(a for a in assets if a.category == "board")
         held_board = board_asset(config.handeye_board)  # same name: it replaces the table board
@@ -225,7 +293,8 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
             "units": "metres, seconds",
             "frame": "robot base: z up, origin at the robot base; the table top is z = 0",
             "camera_convention": "OpenCV (x right, y down, z forward); K pixel centres at +0.5; T_a_b maps b to a",
-            "camera": {"width": config.width, "height": config.height, "K": np.asarray(K).tolist(), "distortion": None},
+            "camera": {"width": config.width, "height": config.height, "K": np.asarray(K).tolist(),
+                       "distortion": None if lens_camera is None else lens_camera.distortion_json()},
             "video": {"file": "scene.mp4", "fps": config.orbit.fps, "n_frames": len(poses), "crf": config.crf},
             "frames": [
                 {"index": i, "timestamp": float(t), "T_base_cam": T.tolist()}
@@ -238,7 +307,7 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
             "objects": ground_truth_entries(ground_truth_assets, mesh_dir="gt"),
             "head_camera": {
                 "T_base_headcam": np.asarray(T_base_headcam).tolist(),
-                "K": np.asarray(K).tolist(),
+                "K": np.asarray(K_head).tolist(),
                 "width": config.width,
                 "height": config.height,
                 "image": "head_view.png",
@@ -252,7 +321,7 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
                 "board": config.handeye_board.to_json(),
             },
             "world_extent": {"min": verts.min(0).tolist(), "max": verts.max(0).tolist()},
-            "config": asdict(config),
+            "config": _config_json(config),
         }
         (tmp / "ground_truth.json").write_text(json.dumps(ground_truth, indent=1))
         _contact_sheet(tmp / "contact_sheet.jpg", tiles)

@@ -29,6 +29,9 @@ def write_sample_transforms(
 
     sample_dir, out_dir = Path(sample_dir), Path(out_dir)
     gt = json.loads((sample_dir / "ground_truth.json").read_text())
+    if gt["camera"].get("distortion"):
+        raise ValueError(f"{sample_dir}: its video was filmed through a lens with distortion; transforms.json here "
+                         "holds pinhole intrinsics only (use a sample made with the default --lens pinhole)")
     K = np.asarray(gt["camera"]["K"], dtype=np.float64) * np.array([[scale], [scale], [1.0]])
     frames, size = [], None
     with atomic_dir(out_dir) as tmp:

@@ -11,7 +11,7 @@ from typing import Any
 
 from ..atomic import atomic_write
 from ..objects import ObjectsError
-from ..objects.reconstruct import ObjectsConfig, find_targets, load_keyframes_rgb, process_object, target_fingerprint
+from ..objects.reconstruct import ObjectsConfig, find_targets, pinhole_keyframes, process_object, target_fingerprint
 from ..workspace import Workspace
 from .base import Input, Log
 
@@ -28,8 +28,9 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
 
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     posed = ws.posed_capture(frame="base")
-    images = load_keyframes_rgb(posed.cameras, posed.image_dir)
-    _, targets = find_targets(cfg, posed.cameras, posed.points)
+    cameras, images = pinhole_keyframes(posed.cameras, posed.image_dir)  # a camera's lens taken out up front
+    lens = posed.cameras if any(c.has_distortion for c in posed.cameras) else None
+    _, targets = find_targets(cfg, cameras, posed.points)
     unknown = set(cfg.mesh) - {t.name for t in targets}
     if unknown:
         names = [t.name for t in targets]
@@ -44,7 +45,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
                 log(f"{target.name}: up to date, skipped")
                 out[target.name] = previous
                 continue
-        out[target.name] = process_object(target, cfg, posed.cameras, images, folder, log, progress=True)
+        out[target.name] = process_object(target, cfg, cameras, images, folder, log, progress=True, lens=lens)
     keep = ("sim3_obj_to_base", "mesh", "gaussians")
     with atomic_write(ws.objects_summary, "w", encoding="utf-8") as f:
         json.dump({k: {kk: v[kk] for kk in keep if kk in v} for k, v in out.items()}, f, indent=1, default=str)

@@ -1,0 +1,124 @@
+"""The second sample end to end (issue 18): made fresh with `m2m sample make` options (another seed and a random object
+layout, the UR5e with the Franka hand, a phone-like lens with distortion), then `m2m init` WITHOUT the video camera's
+intrinsics (SfM calibrates the phone lens itself) and `m2m run`, judged against the sample's ground truth: every
+keyframe registered, the cameras within 0.2 deg / 2 mm of the truth after the board alignment (medians), every object
+within issue 6's bars, the datasets valid with the UR5e's names and robot_type, and the UR5e's scripted success rates
+in the twin of the run's world (`m2m task`, 20 seeds per task).
+
+Slow: the sample (~3 min), the run (~35 min, mostly objects) and the task rates (~10 min) on 2 cores.
+
+Measured on its first full run (2 shared cores; it stopped at the world stage, 26.5 min in): the sample, capture,
+SfM 32/32 keyframes registered (reprojection 0.42 px; the lens found: fx 496.5 / fy 497.0 / cx 324.5 / cy 237.8 px,
+k1 -0.159, k2 0.069 against 497.3 / 497.8 / 324.6 / 236.9, -0.16, 0.07), cameras vs ground truth 0.117 deg / 1.00 mm
+(median), hand-eye 0.05 px leave-one-out; then objects (19.5 min): button passes issue 6 (chamfer 1.80 mm, volume
+1.01, Gaussians to mesh 1.44 mm, masked PSNR 34.2 dB), but the croissant's masks are ~20 % smaller than its true
+silhouette in every view (IoU 0.82 median; volume 0.84, Gaussians to mesh 3.98 mm from 23 opaque Gaussians) and the
+banana's ~40 % larger (IoU 0.81, volume 1.16), so compose refused the world (Gaussians and mesh 4.0 mm apart > 3 mm).
+That points at the mask provider on this layout rather than at the lens: the worst views are far from the image
+border (>= 60 px), the button, seen through the same undistorted keyframes, is at IoU 0.95, and overlays of two views
+show the croissant's mask losing a tip against the brown wood and the banana's taking in its shadow. So this test
+FAILS today, at the objects stage. Continued by hand past it (`m2m compose --max-mm 5`, then `m2m run`): the
+three datasets (1 episode each) valid with the UR5e's names and robot_type, and the UR5e's rates over seeds
+1000-1019: grasp banana, grasp croissant, press button and push croissant 20/20 each (0.14-0.69 s wall per episode).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+
+from fixtures.object_checks import issue6_failures, object_report
+from mirage2matter.cli import main
+from mirage2matter.datagen import task_slug
+from mirage2matter.export import validate
+from mirage2matter.inputs import read_yaml
+from mirage2matter.robots import get_robot
+from mirage2matter.stages import get_stage
+from mirage2matter.stages.pipeline import PipelineConfig
+from mirage2matter.workspace import Workspace
+
+ROBOT = "ur5e"
+SAMPLE_OPTIONS = ["--seed", "8", "--layout", "random", "--lens", "phone", "--robot", ROBOT]
+# the smallest budgets measured to pass: 32 keyframes (SfM self-calibrated: 0.117 deg / 1.0 mm in a probe); the scene
+# only feeds the world's look and the head-view check here, so 3 minutes; the objects at their defaults (issue 6)
+BUDGET = ["--capture.max-keyframes", "32", "--scene.minutes", "3", "--generate.workers", "1"]
+GENERATED = ("grasp banana", "press button", "push croissant --direction 0,1 --distance 0.1")
+RATES = {"grasp banana": 0.90, "grasp croissant": 0.90, "press button": 0.95,
+         "push croissant --direction 0,1 --distance 0.1": 0.90}  # fmt: skip
+EPISODES = 20
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 18: on this layout the croissant's and the banana's masks miss issue 6's "
+                   "bars (IoU 0.82 / 0.81; volume 0.84 / 1.16), so compose refuses the world; strict, so a fix shows")
+def test_second_sample_init_and_run_self_calibrated_with_the_ur5e(tmp_path, capsys):
+    times = {}
+    t0 = time.perf_counter()
+    sample = tmp_path / "sample"
+    assert main(["sample", "make", str(sample), *SAMPLE_OPTIONS]) == 0
+    times["sample"] = time.perf_counter() - t0
+    gt = json.loads((sample / "ground_truth.json").read_text())
+    lens = gt["camera"]
+    assert lens["distortion"]["k1"] < -0.1 and gt["config"]["layout"] == "random" and gt["handeye"]["robot"] == ROBOT
+    names = read_yaml(sample / "m2m.yaml")["objects"]["names"]  # nearest the base first, as init takes them
+    assert sorted(names) == ["banana", "button", "croissant"]
+
+    s, ws = str(sample), Workspace(tmp_path / "ws")
+    assert main(["init", "-w", str(ws.root), "--video", f"{s}/scene.mp4", "--board", f"{s}/board.json",
+                 "--board-pose", f"{s}/ground_truth.json", "--handeye-images", f"{s}/handeye/images",
+                 "--handeye-poses", f"{s}/handeye/joints.json", "--handeye-board", f"{s}/handeye/board.json",
+                 "--handeye-intrinsics", f"{s}/ground_truth.json", "--head-photo", f"{s}/head_view.png",
+                 "--robot", ROBOT, "--objects", *names, "--task", *GENERATED, "--episodes", "1",
+                 *BUDGET]) == 0  # fmt: skip
+    cfg = PipelineConfig.load(ws.config_file)
+    assert cfg.sfm.intrinsics is None and cfg.world.robot == cfg.align.robot == ROBOT  # the lens is not given
+    capsys.readouterr()
+    t = time.perf_counter()
+    assert main(["run", "-w", str(ws.root)]) == 0
+    times["run"] = time.perf_counter() - t
+    out, _ = capsys.readouterr()
+    with capsys.disabled():
+        print("\n" + out)
+    summary = json.loads(ws.run_summary.read_text())["stages"]
+
+    # every keyframe registered; the lens SfM found, against the true one
+    assert summary["sfm"]["registered"] == summary["sfm"]["total"] == 32, summary["sfm"]
+    found = json.loads(ws.sfm_file.read_text())["cameras"][0]
+    print("lens: true", {k: lens[k] for k in ("K", "distortion")})
+    print("      SfM ", {k: found[k] for k in ("K", "distortion")})
+    # the cameras against the ground truth, after the alignment to the base (the demo's comparison)
+    cameras = get_stage("align").compare(ws, cfg.align, gt)
+    print(f"cameras vs ground truth: {cameras['rotation_deg']:.3f} deg / {cameras['translation_mm']:.2f} mm (median)")
+    assert cameras["rotation_deg"] <= 0.2 and cameras["translation_mm"] <= 2.0, cameras
+
+    # issue 6's bars on every object
+    failures = {}
+    for name in names:
+        report = object_report(ws.root, sample, gt, name)
+        print(name, json.dumps({k: round(v, 4) if isinstance(v, float) else v for k, v in report.items()}))
+        failures.update({name: issue6_failures(report)} if issue6_failures(report) else {})
+    assert not failures, failures
+
+    # the datasets: valid, with the UR5e's joints and robot_type
+    spec = get_robot(ROBOT)
+    for text in GENERATED:
+        dataset = ws.dataset_dir(task_slug(text))
+        assert validate(dataset) == [], text
+        info = json.loads((dataset / "meta" / "info.json").read_text())
+        assert info["robot_type"] == spec.robot_type == ROBOT
+        assert info["features"]["observation.state"]["names"] == list(spec.state_names)
+        assert info["features"]["action"]["names"] == [*spec.arm_joints, "gripper"]
+
+    # the UR5e in the twin of the run's world: `m2m task`, 20 held-out seeds per task
+    t = time.perf_counter()
+    assert main(["task", "-w", str(ws.root), *RATES, "--episodes", str(EPISODES), "--seed", "1000"]) == 0
+    times["tasks"] = time.perf_counter() - t
+    results = dict(zip(RATES, json.loads(ws.task_summary.read_text())["tasks"], strict=True))
+    got = {text: r["success_rate"] for text, r in results.items()}
+    print(f"{ROBOT} success over {EPISODES} seeds:", got)
+    times["total"] = time.perf_counter() - t0
+    print("minutes:", {k: round(v / 60, 1) for k, v in times.items()})
+    low = {text: rate for text, rate in got.items() if rate < RATES[text]}
+    assert not low, (low, {text: results[text]["failures"] for text in low})
