@@ -106,7 +106,7 @@ def ssim(
     if a.device.type == "cpu" and not b.requires_grad and a.dtype in (torch.float32, torch.float64):
         from .ssim_cpu import ssim_cpu  # numba forward + closed-form backward; this function is its reference
 
-        return ssim_cpu(a, b, m, window, sigma)
+        return ssim_cpu(a, b, m, gaussian_window(window, sigma, torch.float64))
     return _ssim_torch(a, b, m, window, sigma)
 
 

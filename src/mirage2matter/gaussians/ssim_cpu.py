@@ -124,11 +124,11 @@ class _SsimCpu(torch.autograd.Function):
         return torch.from_numpy(out).to(x.dtype), None, None, None
 
 
-def ssim_cpu(a: torch.Tensor, b: torch.Tensor, m: torch.Tensor | None, window: int, sigma: float) -> torch.Tensor:
+def ssim_cpu(a: torch.Tensor, b: torch.Tensor, m: torch.Tensor | None, taps: torch.Tensor) -> torch.Tensor:
     """SSIM of batches a, b [B,C,H,W] (CPU; only ``a`` is differentiated) with the valid-pixel mask m
-    [B,1,H,W] bool or None: the value and conventions of ``losses.ssim``."""
-    from .losses import gaussian_window
-
+    [B,1,H,W] bool or None and the normalised 1D window ``taps`` [k] (``losses.gaussian_window``): the value
+    and conventions of ``losses.ssim``."""
+    window = int(taps.shape[0])
     B, C, H, W = a.shape
     if m is not None:
         mf = m.to(a.dtype)
@@ -143,7 +143,7 @@ def ssim_cpu(a: torch.Tensor, b: torch.Tensor, m: torch.Tensor | None, window: i
         if n == 0:
             return a.new_tensor(math.nan)
         center = (mc.to(torch.float32) / n).numpy()
-    w = gaussian_window(window, sigma, torch.float64).numpy()
+    w = taps.to(torch.float64).numpy()
     x = a.reshape(B * C, H, W).contiguous()
     y = b.detach().reshape(B * C, H, W).contiguous()
     return _SsimCpu.apply(x, y, np.ascontiguousarray(center), w)

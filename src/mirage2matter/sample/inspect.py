@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 
 from ..calib.board import target_from_json
-from ..geometry.camera import Camera
 from ..video import read_video_frames
 
 # Where the repository ships its sample (an editable install keeps src/ beside samples/).
@@ -20,6 +19,8 @@ def inspect_sample(sample: str | Path = BUNDLED_SAMPLE, n_checked: int = 24) -> 
     """Decode ``scene.mp4``, detect the calibration target in ``n_checked`` evenly spaced frames and compare
     the detected corners with the ground-truth projection. Returns a JSON-ready summary."""
     import cv2
+
+    from ..geometry.camera import Camera  # here: the CLI imports this module for BUNDLED_SAMPLE and stays torch-free
 
     sample = Path(sample)
     gt_path = sample / "ground_truth.json"
