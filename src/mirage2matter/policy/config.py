@@ -102,9 +102,10 @@ class PolicyTrainConfig:
     device: str = "auto"
     augment: AugmentConfig = field(default_factory=AugmentConfig)
     state_noise: float = 0.5
-    # On by default: measured on the sample (300 hybrid grasp demos, 20 unseen episodes per world), the ground-truth
-    # world went from 0/20 without it (2,974 steps) to 8/20 (9,976 steps) and 5/20 (6,786 steps, with blur/sharpen
-    # augmentation), the reconstructed world from 11/20 to 16/20 and 17/20.
+    # On by default: measured on the sample (300 hybrid grasp demos, unseen episodes), the ground-truth world went
+    # from 0/20 without it (2,974 steps) to 17/50 (9,976 steps, seed 0), 5/50 (the same, seed 1), 5/20 (6,786 steps,
+    # with blur/sharpen augmentation) and 3/50 (13,880 steps); the reconstructed world from 11/20 to 16/20 (seed
+    # 0), 17/20 and 13/20. Runs differ a lot from seed to seed.
     aux_horizons: tuple[int, ...] = (10, 20, 30, 40)
     aux_weight: float = 1.0
 
