@@ -147,6 +147,18 @@ def _rotation(qw, qx, qy, qz):
 
 
 @njit(cache=True, inline="always")
+def _screen_covariance(c, fx, fy, rz, uc, vc):
+    """The projection Jacobian's rows times the camera factor c [9] (a = J_x C, b = J_y C, with x/z, y/z clamped to
+    uc, vc) and the 2D covariance (cxx, cxy, cyy) they give, with gsplat's eps2d on the diagonal."""
+    a0, a1, a2 = fx * rz * (c[0] - uc * c[6]), fx * rz * (c[1] - uc * c[7]), fx * rz * (c[2] - uc * c[8])
+    b0, b1, b2 = fy * rz * (c[3] - vc * c[6]), fy * rz * (c[4] - vc * c[7]), fy * rz * (c[5] - vc * c[8])
+    cxx = a0 * a0 + a1 * a1 + a2 * a2 + EPS2D
+    cxy = a0 * b0 + a1 * b1 + a2 * b2
+    cyy = b0 * b0 + b1 * b1 + b2 * b2 + EPS2D
+    return a0, a1, a2, b0, b1, b2, cxx, cxy, cyy
+
+
+@njit(cache=True, inline="always")
 def _view_constants(V, K, width, height):
     """The clamp limits of x/z and y/z (positive and negative sides, gsplat's FOV clamp) and the camera centre in
     the world (-R^T t) of world-to-camera V [4,4] and intrinsics K [3,3]."""
@@ -193,11 +205,7 @@ def project_forward(means, quats, log_scales, logit_opacities, sh, degree, V, K,
         rz = 1.0 / z
         uc = min(lim_xp, max(-lim_xn, x * rz))
         vc = min(lim_yp, max(-lim_yn, y * rz))
-        a0, a1, a2 = fx * rz * (c[0] - uc * c[6]), fx * rz * (c[1] - uc * c[7]), fx * rz * (c[2] - uc * c[8])
-        b0, b1, b2 = fy * rz * (c[3] - vc * c[6]), fy * rz * (c[4] - vc * c[7]), fy * rz * (c[5] - vc * c[8])
-        cxx = a0 * a0 + a1 * a1 + a2 * a2 + EPS2D
-        cxy = a0 * b0 + a1 * b1 + a2 * b2
-        cyy = b0 * b0 + b1 * b1 + b2 * b2 + EPS2D
+        a0, a1, a2, b0, b1, b2, cxx, cxy, cyy = _screen_covariance(c, fx, fy, rz, uc, vc)
         det = cxx * cyy - cxy * cxy
         if det <= 0.0:
             continue
@@ -256,11 +264,7 @@ def project_backward(means, quats, log_scales, logit_opacities, sh, degree, V, K
         xr, yr = x * rz, y * rz
         uc = min(lim_xp, max(-lim_xn, xr))
         vc = min(lim_yp, max(-lim_yn, yr))
-        a0, a1, a2 = fx * rz * (c[0] - uc * c[6]), fx * rz * (c[1] - uc * c[7]), fx * rz * (c[2] - uc * c[8])
-        b0, b1, b2 = fy * rz * (c[3] - vc * c[6]), fy * rz * (c[4] - vc * c[7]), fy * rz * (c[5] - vc * c[8])
-        cxx = a0 * a0 + a1 * a1 + a2 * a2 + EPS2D
-        cxy = a0 * b0 + a1 * b1 + a2 * b2
-        cyy = b0 * b0 + b1 * b1 + b2 * b2 + EPS2D
+        a0, a1, a2, b0, b1, b2, cxx, cxy, cyy = _screen_covariance(c, fx, fy, rz, uc, vc)
         det = cxx * cyy - cxy * cxy
         # conic (cyy, -cxy, cxx) / det -> covariance entries
         gA, gB, gC = v_conic[i, 0], v_conic[i, 1], v_conic[i, 2]
