@@ -1,6 +1,7 @@
 """Importing poses made elsewhere: transforms.json (triangulated with the given poses) and COLMAP models."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -94,3 +95,26 @@ def test_known_intrinsics_are_held_fixed_and_must_match_the_images(tmp_path):
     with pytest.raises(SfMError, match="images are 320x240 but the given intrinsics are for 640x480"):
         run_sfm(tf.parent / "images", tmp_path / "sfm2", wrong)
     assert not (tmp_path / "sfm2").exists()
+
+
+@needs_sample
+def test_mapper_runs_again_with_other_seeds_while_images_are_left_out(tmp_path):
+    from PIL import Image
+
+    from mirage2matter.geometry.camera import Camera
+    from mirage2matter.sfm import run_sfm
+    from mirage2matter.sfm.known_poses import with_fixed_intrinsics
+
+    tf = write_sample_transforms(SAMPLE, tmp_path / "data", every=60, scale=0.5)
+    images = tf.parent / "images"
+    given = load_transforms_json(tf)[0]
+    fixed = with_fixed_intrinsics(SfMConfig(num_threads=1), Camera(given.K, np.eye(4), given.width, given.height))
+    Image.new("RGB", (320, 240), (128, 128, 128)).save(images / "zz_blank.png")  # no features: never registers
+    result = run_sfm(images, tmp_path / "sfm", replace(fixed, mapper_attempts=2, retry_below=1.0))
+    summary, _ = load_sfm_summary(tmp_path / "sfm")
+    assert summary["mapper_attempts"] == 2, "13 images and 12 registered: the mapper must run again"
+    assert result.registered == 12 and result.unregistered == ["zz_blank.png"]
+    run_sfm(images, tmp_path / "sfm_once", replace(fixed, mapper_attempts=2, retry_below=0.9))
+    assert load_sfm_summary(tmp_path / "sfm_once")[0]["mapper_attempts"] == 1, "12 of 13 is enough: one run"
+    with pytest.raises(SfMError, match="mapper_attempts"):
+        run_sfm(images, tmp_path / "sfm_bad", SfMConfig(mapper_attempts=0))
