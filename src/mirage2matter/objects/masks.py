@@ -3,7 +3,8 @@
 Providers:
 - ``GeometricMasks`` (default): the object's cluster in the metric cloud, matted against the table
   in 3D (``matting``), each keyframe's alpha refined to the image edges with GrabCut (alpha > 0.5
-  as probable object, a confident core as sure object, far outside as sure background);
+  as probable object, a confident core as sure object, far outside as sure background); twice: the
+  second matting takes the table the first pass's masks leave bare as seen (``MattingConfig.passes``);
 - ``PromptMasks``: a box or points on one keyframe pick the cluster (prompt -> 3D -> every
   keyframe), then as geometric;
 - ``FolderMasks``: ``<dir>/<name>/<keyframe stem>.png`` (non-zero = object);
@@ -114,7 +115,19 @@ class GeometricMasks:
     def masks(self, target: Target, cameras: Sequence[Camera], images: Sequence[np.ndarray]) -> MaskResult:
         if target.cluster is None or target.plane is None:
             raise ObjectsError(f"object {target.name!r}: geometric masks need its points in the cloud")
-        matte = matte_object(target.cluster, target.plane, cameras, images, self.matting, self.progress)
+        import cv2
+
+        hidden, seconds = None, 0.0
+        for _ in range(self.matting.passes):  # later passes: the table hidden by the last pass's masks only
+            matte = matte_object(target.cluster, target.plane, cameras, images, self.matting, self.progress, hidden)
+            masks = self._refined(matte, cameras, images)
+            seconds += matte.metrics["seconds"]
+            grow = np.ones((2 * self.matting.hidden_margin_px + 1,) * 2, np.uint8)
+            hidden = [None if m is None else cv2.dilate(m.astype(np.uint8), grow) > 0 for m in masks]
+        info = {"provider": "geometric", **matte.metrics, "seconds": seconds, "passes": self.matting.passes}
+        return MaskResult(masks, matte.gaussians, info)
+
+    def _refined(self, matte, cameras: Sequence[Camera], images: Sequence[np.ndarray]) -> list[np.ndarray | None]:
         masks = list(matte.masks)
         if self.grabcut:
             for i, (x0, y0, x1, y1) in matte.rois.items():
@@ -123,7 +136,7 @@ class GeometricMasks:
                 m = np.zeros((cameras[i].height, cameras[i].width), bool)
                 m[y0:y1, x0:x1] = refine_grabcut(crop, alpha)
                 masks[i] = m
-        return MaskResult(masks, matte.gaussians, {"provider": "geometric", **matte.metrics})
+        return masks
 
 
 # ---- prompts ------------------------------------------------------------------------------------

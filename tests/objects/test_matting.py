@@ -1,0 +1,99 @@
+"""3D matting of a concave object: the bare table its arms wrap around is not the object (a banana's inside arc)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from mirage2matter.geometry.camera import Camera, look_at_pose
+from mirage2matter.objects.masks import GeometricMasks, Target
+from mirage2matter.objects.matting import MattingConfig
+from mirage2matter.objects.support import ObjectCluster, Plane
+
+# a U standing on the table (metres): a bar along x and two arms along +y; the table between the arms is bare
+BOXES = [
+    (np.array([-0.05, -0.03, 0.0]), np.array([0.05, -0.015, 0.03])),
+    (np.array([-0.05, -0.015, 0.0]), np.array([-0.035, 0.045, 0.03])),
+    (np.array([0.035, -0.015, 0.0]), np.array([0.05, 0.045, 0.03])),
+]
+INSIDE_LO, INSIDE_HI = np.array([-0.033, -0.013]), np.array([0.033, 0.043])  # the bare table inside the U
+PLANE = Plane(np.array([0.0, 0.0, 1.0]), 0.0, np.zeros(0, bool))
+
+
+def table_colour(xy: np.ndarray) -> np.ndarray:
+    g = 0.5 + 0.2 * np.sin(70 * xy[:, 0] + 8 * np.sin(25 * xy[:, 1])) + 0.08 * np.sin(150 * xy[:, 1])
+    return np.stack([0.9 * g, 0.6 * g, 0.35 * g], -1)
+
+
+def render(cam: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(image [H,W,3], the object's silhouette [H,W], the bare table inside the U [H,W]) seen by ``cam``."""
+    u, v = np.meshgrid(np.arange(cam.width) + 0.5, np.arange(cam.height) + 0.5)
+    rays = np.stack([(u - cam.K[0, 2]) / cam.K[0, 0], (v - cam.K[1, 2]) / cam.K[1, 1], np.ones_like(u)], -1)
+    d = rays.reshape(-1, 3) @ cam.T_world_cam[:3, :3].T
+    o = cam.T_world_cam[:3, 3]
+    xy = o[:2] + (-o[2] / d[:, 2])[:, None] * d[:, :2]
+    hit = np.zeros(len(d), bool)
+    shade = np.zeros(len(d))
+    for lo, hi in BOXES:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t0, t1 = (lo - o) / d, (hi - o) / d
+        near, far = np.minimum(t0, t1), np.maximum(t0, t1)
+        t_near, t_far = near.max(1), far.min(1)
+        h = (t_near <= t_far) & (t_far > 0)
+        face = near.argmax(1)  # the axis of the face the ray enters: a little shading per face
+        shade = np.where(h & ~hit, face, shade)
+        hit |= h
+    obj = np.array([0.95, 0.85, 0.25]) * (1.0 - 0.12 * shade)[:, None]
+    img = np.where(hit[:, None], obj, table_colour(xy)).reshape(cam.height, cam.width, 3).astype(np.float32)
+    inside = np.all((xy >= INSIDE_LO) & (xy <= INSIDE_HI), 1) & ~hit
+    return img, hit.reshape(cam.height, cam.width), inside.reshape(cam.height, cam.width)
+
+
+def surface_points(n: int, seed: int = 0) -> np.ndarray:
+    """SfM-like points [n,3] on the U's top and outer faces, with 1.5 mm of noise."""
+    rng = np.random.default_rng(seed)
+    pts = []
+    for lo, hi in BOXES:
+        p = rng.uniform(lo, hi, (n // len(BOXES), 3))
+        axis = rng.integers(0, 3, len(p))
+        p[np.arange(len(p)), axis] = np.where(rng.random(len(p)) < 0.5, lo[axis], hi[axis])
+        pts.append(p[p[:, 2] > 0.006])
+    return np.concatenate(pts) + rng.normal(0, 0.0015, (sum(len(p) for p in pts), 3))
+
+
+@pytest.fixture(scope="module")
+def scene():
+    K = np.array([[220.0, 0, 80], [0, 220.0, 60], [0, 0, 1]])
+    cams = []
+    for k in range(24):
+        a = 2 * np.pi * k / 24
+        eye = np.array([0.3 * np.cos(a), 0.3 * np.sin(a), 0.22 + 0.04 * np.sin(3 * a)])
+        cams.append(Camera(K, look_at_pose(eye, np.array([0.0, 0.0, 0.01])), 160, 120, f"c{k:02d}"))
+    rendered = [render(c) for c in cams]
+    pts = surface_points(240)
+    cluster = ObjectCluster("u", pts, pts.mean(0), float(pts[:, 2].max()))
+    return cams, rendered, Target("u", cluster, PLANE)
+
+
+def _run(scene, **options):
+    cams, rendered, target = scene
+    provider = GeometricMasks(MattingConfig(iterations=600, init_gaussians=8000, max_gaussians=20000, **options))
+    result = provider.masks(target, cams, [r[0] for r in rendered])
+    ious, claimed, bare = [], 0, 0
+    for m, (_, truth, inside) in zip(result.masks, rendered, strict=True):
+        assert m is not None
+        ious.append((m & truth).sum() / (m | truth).sum())
+        inside = inside & ~(cv2.dilate(truth.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0)  # 2 px off its edge
+        claimed, bare = claimed + (m & inside).sum(), bare + inside.sum()
+    return float(np.median(ious)), claimed / bare
+
+
+def test_the_table_inside_a_concave_object_is_not_the_object(scene):
+    iou, claimed = _run(scene)
+    one_pass_iou, one_pass_claimed = _run(scene, passes=1, floor=0.0)
+    # measured: IoU 0.956 (one pass, no floor: 0.893); the bare table inside the U masked 14 % (21 %): what is left
+    # is the strip along the bar's inner wall, which only the keyframes looking into the U see
+    assert one_pass_iou < 0.92 and one_pass_claimed > 0.18, "the test bed no longer shows the problem"
+    assert iou > 0.94, f"IoU {iou:.3f} with the true silhouettes (median over 24 keyframes)"
+    assert claimed < 0.75 * one_pass_claimed, f"{claimed:.2f} of the bare table inside the U masked as the object"
