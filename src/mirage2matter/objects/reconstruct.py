@@ -59,6 +59,7 @@ class ObjectsConfig:
     depth_margin         metres the 3DGS depth may lie in front of the surface without carving it
     prune_inside         metres: Gaussians deeper inside the reconstruction are dropped
     prune_rounds         drop + short retraining, repeated (the retraining moves some inwards again)
+    recarve              carve the mesh again with the depth of the retrained Gaussians (the ones kept)
     collision_threshold  CoACD concavity threshold of the convex collision parts
     collision_max_parts  at most this many convex parts
     figure_views         keyframes shown in figure.png
@@ -82,6 +83,10 @@ class ObjectsConfig:
     depth_margin: float = 0.0005  # see reconstruct_mesh
     prune_inside: float = 0.002
     prune_rounds: int = 2
+    # the first round's depth (of Gaussians grown from the matting's, which fill the volume) lay behind the
+    # surface where an object is the colour of the table: on the second sample the croissant carved to volume 0.85
+    # of the truth (mesh from the masks alone: 1.03); carved with the retrained Gaussians' depth 0.93
+    recarve: bool = True
     collision_threshold: float = 0.05
     collision_max_parts: int = 16
     figure_views: int = 3
@@ -175,6 +180,16 @@ def _solid_depth(g, camera: Camera, min_alpha: float = 0.9) -> np.ndarray:
     return np.where(alpha > min_alpha, depth, np.nan)
 
 
+def _carved_mesh(target: Target, cameras, masks, g_base, config: ObjectsConfig):
+    """The object's mesh carved from its masks and the depth of the Gaussians ``g_base`` (base frame)."""
+    from .mesh import reconstruct_mesh
+
+    depths = [None if m is None else _solid_depth(g_base, cam) for cam, m in zip(cameras, masks, strict=True)]
+    return reconstruct_mesh(target.cluster, target.plane, cameras, masks, config.voxel,
+                            skip_fraction=config.skip_fraction, name=target.name, depths=depths,
+                            depth_margin=config.depth_margin)  # fmt: skip
+
+
 def _figure_cameras(cameras, masks, images, T_obj_base: np.ndarray, k: int):
     """Up to ``k`` keyframes (spread over the orbit) cropped square around the mask, in the object frame."""
     seen = [i for i, m in enumerate(masks) if m is not None and m.any()]
@@ -255,18 +270,7 @@ def process_object(
     recon = None
     if target.cluster is not None and target.plane is not None:
         log(f"{name}: mesh from {sum(m is not None for m in masks)} masks and the 3DGS depth")
-        depths = [None if m is None else _solid_depth(g_base, cam) for cam, m in zip(cameras, masks, strict=True)]
-        recon = reconstruct_mesh(
-            target.cluster,
-            target.plane,
-            cameras,
-            masks,
-            config.voxel,
-            skip_fraction=config.skip_fraction,
-            name=name,
-            depths=depths,
-            depth_margin=config.depth_margin,
-        )
+        recon = _carved_mesh(target, cameras, masks, g_base, config)
 
     if recon is not None:
         # Gaussians deep inside the object (the matting starts them throughout its volume) sit far
@@ -290,6 +294,9 @@ def process_object(
             pruned += int(inside.sum())
         if pruned:
             splat_metrics = {**splat_metrics, "pruned_inside": pruned, "first_round": first_round}
+        if pruned and config.recarve:
+            log(f"{name}: mesh again from the masks and the retrained 3DGS depth")
+            recon = _carved_mesh(target, cameras, masks, g_base, config)
 
     log(f"{name}: alignment")
     opaque = (torch.sigmoid(g_base.logit_opacities) > 0.5).numpy()
