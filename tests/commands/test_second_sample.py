@@ -19,14 +19,14 @@ border (>= 60 px), the button, seen through the same undistorted keyframes, is a
 show the croissant's mask losing a tip against the brown wood and the banana's taking in its shadow. So this test
 FAILED there, at the objects stage.
 
-Since (the objects stage on that run's workspace, same inputs, 4.8 min for the three objects): the matting drops
+Since (the objects stage on that run's workspace, same inputs, ~5 min for the three objects): the matting drops
 Gaussians lying on the table and runs twice (the banana's masks took in the bare table inside its arc: IoU 0.81 ->
-0.93, volume 1.16 -> 1.04, chamfer 1.20 mm) and the mesh is carved again with the retrained Gaussians' depth
-(croissant volume 0.84 -> 0.93); button and banana pass every bar, the croissant misses one: its 184 opaque Gaussians
-lie 2.29 mm from its mesh (bar 2.0; first run 3.98). The croissant, the colour of the wood, is drawn mostly by faint
-Gaussians (median opacity 0.014). Tried and not kept: random backgrounds behind the object 3DGS (2.01 mm here, but
-the bundled sample's croissant 1.48 -> 2.85 mm), lambda_opacity 0.1 (1.72 mm, but volume 0.89), prune_inside 1.5 mm
-(2.03 mm with random backgrounds). Still xfail, strict.
+0.93, volume 1.16 -> 0.96, chamfer 1.20 mm, Gaussians to mesh 1.15 mm): button and banana pass every bar. The
+croissant, the colour of the wood, does not: volume 0.85, its 184 opaque Gaussians 2.29 mm from its mesh (bar 2.0;
+first run 3.98); it is drawn mostly by faint Gaussians (median opacity 0.014). Tried and not kept: carving the mesh
+again with the retrained Gaussians' depth (``ObjectsConfig.recarve``: volume 0.93, but the bundled sample's croissant
+1.90 -> 2.05 mm), random backgrounds behind the object 3DGS (2.01 mm here, the bundled croissant 2.85 mm),
+lambda_opacity 0.1 (1.72 mm, volume 0.89), prune_inside 1.5 mm (2.03 mm). Still xfail, strict.
 
 On the first run, continued by hand past the objects (`m2m compose --max-mm 5`, then `m2m run`): the
 three datasets (1 episode each) valid with the UR5e's names and robot_type, and the UR5e's rates over seeds
@@ -62,8 +62,8 @@ EPISODES = 20
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="issue 18: on this layout the croissant misses one of issue 6's bars (its "
-                   "Gaussians 2.29 mm from its mesh > 2.0), so the test fails there; strict, so a fix shows")
+@pytest.mark.xfail(strict=True, reason="issue 18: on this layout the croissant misses issue 6's bars (its "
+                   "volume 0.85, Gaussians 2.29 mm from its mesh), so the test fails there; strict, so a fix shows")
 def test_second_sample_init_and_run_self_calibrated_with_the_ur5e(tmp_path, capsys):
     times = {}
     t0 = time.perf_counter()

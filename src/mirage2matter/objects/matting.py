@@ -48,6 +48,7 @@ class MattingConfig:
     passes           1, or 2: the first pass's masks (dilated by ``hidden_margin_px``) replace the proxy's
                      projection as where the object hides the table, and the matting runs again with the
                      backgrounds that gives (see ``GeometricMasks``)
+    hidden_margin_px  pixels the first pass's masks grow by before they mark the hidden table
     seed             initialisation seed
     """
 
