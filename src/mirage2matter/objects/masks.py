@@ -117,13 +117,14 @@ class GeometricMasks:
             raise ObjectsError(f"object {target.name!r}: geometric masks need its points in the cloud")
         import cv2
 
-        hidden, seconds = None, 0.0
-        for _ in range(self.matting.passes):  # later passes: the table hidden by the last pass's masks only
+        hidden, seconds, masks = None, 0.0, []
+        grow = np.ones((2 * self.matting.hidden_margin_px + 1,) * 2, np.uint8)
+        for k in range(self.matting.passes):  # later passes: the table hidden by the last pass's masks only
+            if k > 0:
+                hidden = [None if m is None else cv2.dilate(m.astype(np.uint8), grow) > 0 for m in masks]
             matte = matte_object(target.cluster, target.plane, cameras, images, self.matting, self.progress, hidden)
             masks = self._refined(matte, cameras, images)
             seconds += matte.metrics["seconds"]
-            grow = np.ones((2 * self.matting.hidden_margin_px + 1,) * 2, np.uint8)
-            hidden = [None if m is None else cv2.dilate(m.astype(np.uint8), grow) > 0 for m in masks]
         info = {"provider": "geometric", **matte.metrics, "seconds": seconds, "passes": self.matting.passes}
         return MaskResult(masks, matte.gaussians, info)
 
