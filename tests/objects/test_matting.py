@@ -97,3 +97,12 @@ def test_the_table_inside_a_concave_object_is_not_the_object(scene):
     assert one_pass_iou < 0.92 and one_pass_claimed > 0.18, "the test bed no longer shows the problem"
     assert iou > 0.94, f"IoU {iou:.3f} with the true silhouettes (median over 24 keyframes)"
     assert claimed < 0.75 * one_pass_claimed, f"{claimed:.2f} of the bare table inside the U masked as the object"
+
+
+@pytest.mark.parametrize("options", [{"passes": 0}, {"hidden_margin_px": -1}])
+def test_bad_matting_settings_are_named(scene, options):
+    cams, rendered, target = scene
+    from mirage2matter.objects import ObjectsError
+
+    with pytest.raises(ObjectsError, match="objects.matting: passes must be >= 1"):
+        GeometricMasks(MattingConfig(**options)).masks(target, cams, [r[0] for r in rendered])

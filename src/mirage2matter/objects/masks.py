@@ -117,6 +117,11 @@ class GeometricMasks:
             raise ObjectsError(f"object {target.name!r}: geometric masks need its points in the cloud")
         import cv2
 
+        if self.matting.passes < 1 or self.matting.hidden_margin_px < 0:
+            raise ObjectsError(
+                f"objects.matting: passes must be >= 1 and hidden_margin_px >= 0, got {self.matting.passes} and "
+                f"{self.matting.hidden_margin_px}; fix them in m2m.yaml"
+            )
         hidden, seconds, masks = None, 0.0, []
         grow = np.ones((2 * self.matting.hidden_margin_px + 1,) * 2, np.uint8)
         for k in range(self.matting.passes):  # later passes: the table hidden by the last pass's masks only
