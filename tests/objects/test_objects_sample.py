@@ -129,6 +129,8 @@ def test_bad_inputs_are_clear_errors(small_ws, tmp_path):
     with pytest.raises(ObjectsError, match=r"'banana'.*banana\.glb.*does not parse"):
         run_objects(small_ws, ObjectsConfig(names=["banana"], mesh={"banana": bad}, **SMALL))
     assert main(["objects", "-w", str(small_ws), "--names", "banana", "--mesh", f"banana={bad}"]) == 2
+    with pytest.raises(ObjectsError, match=r"objects.depth_opacity must lie strictly between 0 and 1 \(got 1.0\)"):
+        run_objects(small_ws, ObjectsConfig(names=["banana"], depth_opacity=1.0, **SMALL))
 
     with pytest.raises(ObjectsError, match=r"'banana' is seen in only \d+ keyframe"):
         cfg = dict(SMALL, matting=MattingConfig(iterations=10, min_views=40))
