@@ -44,8 +44,8 @@ is where a ray's opacity first reaches 0.2 (``ObjectsConfig.depth_opacity``, `ga
 matting's faint Gaussians are not carried into the object 3DGS (``splat.min_opacity_init`` 0.3) and Gaussians more
 than 1.5 mm inside are pruned. Stage-only on that run's workspace: croissant volume 0.94, Gaussians to mesh 1.11 mm;
 button 1.08 / 1.10 mm; banana 1.08 / 1.33 mm. On a fresh run (this test): every object passes (croissant volume 0.92,
-chamfer 2.21 mm, Gaussians to mesh 1.52 mm; button 1.08, 1.85 mm, 1.21 mm; banana 1.07, 1.17 mm, 1.45 mm), cameras 0.117 deg / 1.00 mm, the UR5e 20/20 on every task; 12.9 min in all
-(`m2m run` 10.0: objects 5.5, scene 3.1, SfM 0.7).
+chamfer 2.21 mm, Gaussians to mesh 1.52 mm; button 1.08, 1.85 mm, 1.21 mm; banana 1.07, 1.17 mm, 1.45 mm), cameras
+0.117 deg / 1.00 mm, the UR5e 20/20 on every task; 12.9 min in all (`m2m run` 10.0: objects 5.5, scene 3.1, SfM 0.7).
 
 On the first run, continued by hand past the objects (`m2m compose --max-mm 5`, then `m2m run`): the
 three datasets (1 episode each) valid with the UR5e's names and robot_type, and the UR5e's rates over seeds
