@@ -35,6 +35,13 @@ def test_opacity_in_front_is_the_alpha_of_the_gaussians_in_front(backend):
     assert (np.diff(A, axis=0) >= -1e-6).all() and A[1].max() > 0.1  # it accumulates, and something is in front
 
 
+def test_opacity_in_front_needs_a_level():
+    g = random_gaussians(10, sh_degree=0, seed=1, extent=0.5)
+    V, K = look_at((0.2, -2.5, 0.8), (0, 0, 0)), intrinsics(W, H, 50.0)
+    with pytest.raises(ValueError, match="at least one depth"):
+        opacity_in_front(g, V, K, W, H, np.zeros(0))
+
+
 def _layer(z: float, opacity: float, spacing: float = 0.02, half: float = 0.3) -> Gaussians:
     """A square grid of round Gaussians at camera depth ``z`` (the camera looks along +z from the origin)."""
     xs = np.arange(-half, half + 1e-9, spacing)

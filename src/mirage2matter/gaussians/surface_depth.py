@@ -25,23 +25,26 @@ def opacity_in_front(
     g: Gaussians, viewmat: np.ndarray, K: np.ndarray, width: int, height: int, levels: np.ndarray, backend: str = "auto"
 ) -> tuple[np.ndarray, np.ndarray]:
     """(A [L,H,W], alpha [H,W]): the opacity each pixel accumulates from the Gaussians of ``g`` (world frame)
-    whose centres lie in front of camera depth ``levels`` [L] (metres), and from all of them."""
+    whose centres lie in front of camera depth ``levels`` [L >= 1] (metres), and from all of them."""
+    levels = np.asarray(levels, np.float64).reshape(-1)
+    if levels.size == 0:
+        raise ValueError("levels must hold at least one depth")
     V = np.asarray(viewmat, np.float64)
     with torch.no_grad():
         z = torch.as_tensor(g.means.detach().double().cpu().numpy() @ V[2, :3] + V[2, 3])
         plain = Gaussians(g.means.detach(), g.quats.detach(), g.log_scales.detach(), g.logit_opacities.detach(),
                           g.sh.detach()[:, :1])  # fmt: skip
         vm, KK = torch.as_tensor(V, dtype=torch.float32), torch.as_tensor(K, dtype=torch.float32)
-        acc, alpha = [], np.zeros((height, width))
-        for k in range(0, max(len(levels), 1), 3):
-            chunk = [float(x) for x in levels[k : k + 3]] or [float("inf")]
-            ind = torch.stack([z < chunk[min(c, len(chunk) - 1)] for c in range(3)], -1)
+        acc, alpha = [], None
+        for k in range(0, len(levels), 3):
+            chunk = [float(x) for x in levels[k : k + 3]]
+            ind = torch.stack([z < chunk[min(c, len(chunk) - 1)] for c in range(3)], -1)  # last level repeated
             plain.sh = rgb_to_sh_dc(ind.to(g.sh.dtype)).to(g.sh.device)[:, None, :]
             out = render(plain, vm, KK, width, height, torch.zeros(3), backend=backend)
             rgb = out.rgb.cpu().numpy().astype(np.float64)
-            acc += [rgb[..., c] for c in range(len(levels[k : k + 3]))]
+            acc += [rgb[..., c] for c in range(len(chunk))]
             alpha = out.alpha.cpu().numpy().astype(np.float64)
-    return (np.stack(acc) if acc else np.zeros((0, height, width))), alpha
+    return np.stack(acc), alpha
 
 
 def surface_depth(
