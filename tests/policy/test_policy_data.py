@@ -122,3 +122,40 @@ def test_augment_softens_or_sharpens_focus():
     spread = lambda t: t[:, :, 4:12, 4:12].std(dim=(1, 2, 3))  # noqa: E731
     assert (spread(soft) < spread(x)).all() and (spread(sharp) > spread(x)).all()
     assert torch.allclose(soft.mean(), x.mean(), atol=1e-3) and torch.allclose(sharp.mean(), x.mean(), atol=1e-3)
+
+
+def test_randconv_remaps_textures_but_keeps_each_channels_level():
+    # a vertical edge: a random 3x3 filter changes the texture, the rescaling keeps each channel's mean and spread
+    x = torch.zeros(16, 3, 24, 24)
+    x[..., 12:] = 0.8
+    x[:, 1] *= 0.5
+    only = dict(shift=0, scale=0, rotate_deg=0, brightness=0, contrast=0, saturation=0, hue=0, gain=0, noise=0)
+    a = augment(x, AugmentConfig(**only, randconv=1.0), torch.Generator().manual_seed(0))
+    b = augment(x, AugmentConfig(**only, randconv=1.0), torch.Generator().manual_seed(0))
+    assert torch.equal(a, b), "the generator alone decides the draw (resumed runs draw the same)"
+    changed = (a - x).abs().amax(dim=(1, 2, 3)) > 0.05
+    assert changed.float().mean() > 0.5
+    # the mean of each channel before clamping is the input's; clamping moves it little for mid-range images
+    torch.testing.assert_close(a.mean(dim=(2, 3)), x.mean(dim=(2, 3)), atol=0.08, rtol=0)
+    none = augment(x, AugmentConfig(**only, randconv=0.0), torch.Generator().manual_seed(0))
+    torch.testing.assert_close(none, x)
+    grey = augment(x, AugmentConfig(**only, grayscale=1.0), torch.Generator().manual_seed(0))
+    assert torch.equal(grey[:, 0], grey[:, 1]) and torch.equal(grey[:, 1], grey[:, 2])
+    torch.testing.assert_close(grey[:, 0], 0.299 * x[:, 0] + 0.587 * x[:, 1] + 0.114 * x[:, 2])
+
+
+def test_input_blur_hides_detail_finer_than_it_and_keeps_the_weights_layout():
+    from mirage2matter.policy.model import Encoder, ModelSpec, VisuomotorPolicy
+
+    torch.manual_seed(0)
+    sharp, soft = Encoder((8, 16), 4), Encoder((8, 16), 4, input_blur=2.0)
+    soft.load_state_dict(sharp.state_dict())  # same weights: only the fixed low-pass differs
+    # a smooth scene, and the same scene with a 1-px checker on it (detail no reconstruction renders)
+    smooth = 0.3 + 0.4 * torch.nn.functional.interpolate(torch.rand(1, 3, 6, 6), size=(48, 48), mode="bicubic",
+                                                         align_corners=False).clamp(0, 1)  # fmt: skip
+    checker = smooth + 0.2 * ((torch.arange(48)[:, None] + torch.arange(48)[None]) % 2).float() - 0.1
+    moved = lambda enc: (enc(checker) - enc(smooth)).abs().max().item()  # noqa: E731
+    assert moved(soft) < 0.1 * moved(sharp)
+    a = VisuomotorPolicy(ModelSpec(("head",), 32, 9, 8, 4))
+    b = VisuomotorPolicy(ModelSpec(("head",), 32, 9, 8, 4, input_blur=1.5))
+    assert a.state_dict().keys() == b.state_dict().keys(), "a checkpoint's weights do not depend on the blur"

@@ -36,6 +36,29 @@ def _gaussian5(device: torch.device) -> torch.Tensor:
     return (k / k.sum()).view(1, 1, 5, 5)
 
 
+def _randconv(x: torch.Tensor, p: float, g: torch.Generator) -> torch.Tensor:
+    """float [B, 3, S, S] -> the same with each image's textures remapped, with probability ``p``, by its own random
+    3x3 filter over the colours (He-scaled normal weights), rescaled to the image's per-channel mean and std and
+    blended back with a weight drawn in [0, 1]."""
+    b, dev = x.shape[0], x.device
+    on = torch.rand(b, generator=g) < p
+    w = (torch.randn(b, 3, 3, 3, 3, generator=g) * math.sqrt(2.0 / 27.0)).to(dev)  # [B, out, in, 3, 3]
+    keep = torch.rand(b, generator=g).to(dev).view(b, 1, 1, 1)
+    idx = torch.nonzero(on).view(-1).to(dev)  # only the chosen images are filtered
+    n = len(idx)
+    if not n:
+        return x
+    xs = x[idx]
+    padded = F.pad(xs, (1, 1, 1, 1), mode="replicate")  # [n, 3, S+2, S+2]
+    y = F.conv2d(padded.reshape(1, n * 3, *padded.shape[2:]), w[idx].reshape(n * 3, 3, 3, 3), groups=n).view_as(xs)
+    mx, sx = xs.mean(dim=(2, 3), keepdim=True), xs.std(dim=(2, 3), keepdim=True)
+    my, sy = y.mean(dim=(2, 3), keepdim=True), y.std(dim=(2, 3), keepdim=True).clamp_min(1e-6)
+    y = (y - my) / sy * sx + mx
+    out = x.clone()
+    out[idx] = keep[idx] * xs + (1.0 - keep[idx]) * y
+    return out
+
+
 def augment(images: torch.Tensor, cfg: AugmentConfig, g: torch.Generator) -> torch.Tensor:
     """uint8 or float [B, 3, S, S] -> float [B, 3, S, S] in [0, 1], each image changed at random."""
     x = images.float() / 255.0 if images.dtype == torch.uint8 else images.float()
@@ -69,6 +92,12 @@ def augment(images: torch.Tensor, cfg: AugmentConfig, g: torch.Generator) -> tor
     x = torch.einsum("bij,bjp->bip", gain * mat, x.flatten(2)).view_as(x)
     mean = x.mean(dim=(1, 2, 3), keepdim=True)
     x = (x - mean) * (1.0 + _u(b, cfg.contrast, g, dev).view(b, 1, 1, 1)) + mean
+    if cfg.randconv > 0:
+        x = _randconv(x, cfg.randconv, g)
+    if cfg.grayscale > 0:
+        grey = (torch.rand(b, generator=g) < cfg.grayscale).to(dev).view(b, 1, 1, 1)
+        luma = torch.einsum("c,bchw->bhw", _RGB2YIQ[0].to(dev), x)[:, None].expand_as(x)
+        x = torch.where(grey, luma, x)
     if cfg.noise > 0:
         sigma = (torch.rand(b, generator=g) * cfg.noise).to(dev).view(b, 1, 1, 1)
         x = x + sigma * torch.randn(x.shape, generator=g).to(dev)

@@ -29,6 +29,11 @@ class AugmentConfig:
     blur        softening drawn in [0, blur] of the image's way to its 1-px-sigma Gaussian blur (1: all the way)
     sharpen     unsharp-mask amount drawn in [0, sharpen] (the blur and the sharpening are one draw in
                 [-blur, sharpen]: a deployed camera may be sharper or softer than the renders)
+    randconv    probability that an image's textures are remapped by a random 3x3 convolution (RandConv, Xu et
+                al. 2021: a random linear filter over the colours of each pixel's neighbourhood, rescaled to the
+                image's own per-channel mean and spread, then blended with the image by a uniform weight), so
+                shapes and places must carry the decision rather than the reconstruction's exact colours
+    grayscale   probability that an image is turned to grey (luma in every channel)
     """
 
     # Strong on purpose: the pictures a policy is deployed on are not the reconstruction's. Measured on the sample
@@ -46,6 +51,8 @@ class AugmentConfig:
     noise: float = 0.04
     blur: float = 0.0
     sharpen: float = 0.0
+    randconv: float = 0.0
+    grayscale: float = 0.0
 
 
 @dataclass
@@ -79,6 +86,8 @@ class PolicyTrainConfig:
     aux_horizons      steps ahead at which the cameras alone must predict where the tool centre will be (an
                       auxiliary loss in training only, see mirage2matter.policy.targets; empty: none)
     aux_weight        weight of that loss beside the action loss (0: none)
+    input_blur        sigma (px of the input image) of a fixed Gaussian low-pass in front of the encoders, part of
+                      the deployed network (0: none)
     """
 
     image_size: int = 96
@@ -108,6 +117,7 @@ class PolicyTrainConfig:
     # 0), 17/20 and 13/20. Runs differ a lot from seed to seed.
     aux_horizons: tuple[int, ...] = (10, 20, 30, 40)
     aux_weight: float = 1.0
+    input_blur: float = 0.0
 
     def problems(self) -> list[str]:
         """Every invalid value, worded for the user (empty: valid)."""
@@ -133,6 +143,8 @@ class PolicyTrainConfig:
             p.append(f"val_fraction must be in [0, 1), got {self.val_fraction!r}")
         if not self.widths or any(isinstance(w, bool) or not isinstance(w, int) or w < 1 for w in self.widths):
             p.append(f"widths must be positive integers, got {self.widths!r}")
+        if not 0 <= self.input_blur <= 8:
+            p.append(f"input_blur must be a sigma in [0, 8] px, got {self.input_blur!r}")
         if not self.aux_weight >= 0:
             p.append(f"aux_weight must be >= 0, got {self.aux_weight!r}")
         if any(isinstance(h, bool) or not isinstance(h, int) or not 1 <= h <= 1000 for h in self.aux_horizons):

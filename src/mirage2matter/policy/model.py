@@ -21,6 +21,7 @@ Why this shape (measured on this 2-core CPU; see ``policy/__init__.py`` for the 
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import torch
@@ -43,6 +44,9 @@ class ModelSpec:
     keypoints    spatial-softmax keypoints per camera
     hidden       width of the state MLP and the head
     aux_dim      outputs of the auxiliary head (training only, from the cameras alone; 0: none)
+    input_blur   sigma (px of the input) of a fixed Gaussian low-pass every image passes first, in training and
+                 deployment alike: detail finer than the reconstruction renders (sharp spots on a real banana,
+                 wood grain) is gone before the network sees it (0: none)
     """
 
     cameras: tuple[str, ...]
@@ -54,6 +58,7 @@ class ModelSpec:
     keypoints: int = 32
     hidden: int = 256
     aux_dim: int = 0
+    input_blur: float = 0.0
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -108,6 +113,13 @@ class SpatialSoftmax(nn.Module):
         return torch.cat([kx, ky], -1)
 
 
+def gaussian_taps(sigma: float) -> torch.Tensor:
+    """[k] normalised 1-D Gaussian taps, k = 2 ceil(3 sigma) + 1 (the 2-D blur is separable: rows, then columns)."""
+    r = max(1, math.ceil(3 * sigma))
+    t = torch.exp(-0.5 * (torch.arange(-r, r + 1, dtype=torch.float32) / sigma) ** 2)
+    return t / t.sum()
+
+
 class Encoder(nn.Module):
     """uint8-derived float image [B, 3, S, S] in [0, 1] -> [B, 2 * keypoints].
 
@@ -115,8 +127,10 @@ class Encoder(nn.Module):
     image ends at 6 x 6 x 64 with widths (16, 32, 64); the softmax-weighted mean position of each keypoint is
     finer than a cell."""
 
-    def __init__(self, widths: tuple[int, ...], keypoints: int) -> None:
+    def __init__(self, widths: tuple[int, ...], keypoints: int, input_blur: float = 0.0) -> None:
         super().__init__()
+        # fixed, not learned; not in the state dict (rebuilt from the spec), so older checkpoints load unchanged
+        self.register_buffer("blur", gaussian_taps(input_blur) if input_blur > 0 else None, persistent=False)
         c0 = widths[0]
         layers: list[nn.Module] = [
             nn.Conv2d(3, c0, 3, 2, 1, bias=False), _norm(c0), nn.ReLU(inplace=True),
@@ -130,6 +144,12 @@ class Encoder(nn.Module):
         self.pool = SpatialSoftmax(cin, keypoints)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if self.blur is not None:
+            k = self.blur.to(x.dtype)
+            r = k.shape[0] // 2
+            x = F.pad(x, (r, r, r, r), mode="replicate")
+            x = F.conv2d(x, k.view(1, 1, 1, -1).expand(3, 1, 1, -1), groups=3)  # rows
+            x = F.conv2d(x, k.view(1, 1, -1, 1).expand(3, 1, -1, 1), groups=3)  # columns
         return self.pool(self.trunk(x * 2.0 - 1.0))
 
 
@@ -140,7 +160,7 @@ class VisuomotorPolicy(nn.Module):
     def __init__(self, spec: ModelSpec) -> None:
         super().__init__()
         self.spec = spec
-        self.encoders = nn.ModuleDict({c: Encoder(spec.widths, spec.keypoints) for c in spec.cameras})
+        self.encoders = nn.ModuleDict({c: Encoder(spec.widths, spec.keypoints, spec.input_blur) for c in spec.cameras})
         self.state_mlp = nn.Sequential(nn.Linear(spec.state_dim, spec.hidden // 4), nn.ReLU(inplace=True))
         feat = len(spec.cameras) * 2 * spec.keypoints + spec.hidden // 4
         self.head = nn.Sequential(

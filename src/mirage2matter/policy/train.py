@@ -226,7 +226,7 @@ def train_policy(
     batches = _Batches(demos, stats, cfg.chunk, device, aux)
     spec = ModelSpec(demos.meta.cameras, cfg.image_size, len(demos.meta.state_names), len(demos.meta.action_names),
                      cfg.chunk, tuple(cfg.widths), cfg.keypoints, cfg.hidden,
-                     0 if aux is None else int(aux.shape[1]))  # fmt: skip
+                     0 if aux is None else int(aux.shape[1]), cfg.input_blur)  # fmt: skip
 
     torch.manual_seed(cfg.seed)
     model = VisuomotorPolicy(spec).to(device).to(memory_format=torch.channels_last)
