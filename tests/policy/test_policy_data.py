@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -97,6 +98,11 @@ def test_normalization_stats():
     assert all(v.dtype == np.float32 for v in st.values())
 
 
+def _only(**on: float) -> AugmentConfig:
+    """Every random change off but those named."""
+    return AugmentConfig(**{f.name: on.get(f.name, 0) for f in dataclasses.fields(AugmentConfig)})
+
+
 def test_resize_area_and_augment_shapes():
     im = np.zeros((48, 64, 3), np.uint8)
     im[:, 32:] = 200
@@ -108,7 +114,7 @@ def test_resize_area_and_augment_shapes():
     a1 = augment(x, AugmentConfig(), torch.Generator().manual_seed(3))
     a2 = augment(x, AugmentConfig(), torch.Generator().manual_seed(3))
     assert a1.shape == (5, 3, 16, 16) and torch.equal(a1, a2) and 0 <= a1.min() and a1.max() <= 1
-    off = AugmentConfig(0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+    off = _only()
     torch.testing.assert_close(augment(x, off, torch.Generator()), x.float() / 255, atol=1e-5, rtol=0)
 
 
@@ -116,9 +122,8 @@ def test_augment_softens_or_sharpens_focus():
     # a fine checker of mid greys (no clipping): a blur lowers its contrast, an unsharp mask raises it
     checker = (np.indices((16, 16)).sum(0) % 2).astype(np.float32)
     x = torch.from_numpy(0.4 + 0.2 * checker).expand(8, 3, 16, 16).clone()
-    only = dict(shift=0, scale=0, rotate_deg=0, brightness=0, contrast=0, saturation=0, hue=0, gain=0, noise=0)
-    soft = augment(x, AugmentConfig(**only, blur=1.0, sharpen=0.0), torch.Generator().manual_seed(0))
-    sharp = augment(x, AugmentConfig(**only, blur=0.0, sharpen=1.0), torch.Generator().manual_seed(0))
+    soft = augment(x, _only(blur=1.0, sharpen=0.0), torch.Generator().manual_seed(0))
+    sharp = augment(x, _only(blur=0.0, sharpen=1.0), torch.Generator().manual_seed(0))
     spread = lambda t: t[:, :, 4:12, 4:12].std(dim=(1, 2, 3))  # noqa: E731
     assert (spread(soft) < spread(x)).all() and (spread(sharp) > spread(x)).all()
     assert torch.allclose(soft.mean(), x.mean(), atol=1e-3) and torch.allclose(sharp.mean(), x.mean(), atol=1e-3)
@@ -129,17 +134,16 @@ def test_randconv_remaps_textures_but_keeps_each_channels_level():
     x = torch.zeros(16, 3, 24, 24)
     x[..., 12:] = 0.8
     x[:, 1] *= 0.5
-    only = dict(shift=0, scale=0, rotate_deg=0, brightness=0, contrast=0, saturation=0, hue=0, gain=0, noise=0)
-    a = augment(x, AugmentConfig(**only, randconv=1.0), torch.Generator().manual_seed(0))
-    b = augment(x, AugmentConfig(**only, randconv=1.0), torch.Generator().manual_seed(0))
+    a = augment(x, _only(randconv=1.0), torch.Generator().manual_seed(0))
+    b = augment(x, _only(randconv=1.0), torch.Generator().manual_seed(0))
     assert torch.equal(a, b), "the generator alone decides the draw (resumed runs draw the same)"
     changed = (a - x).abs().amax(dim=(1, 2, 3)) > 0.05
     assert changed.float().mean() > 0.5
     # the mean of each channel before clamping is the input's; clamping moves it little for mid-range images
     torch.testing.assert_close(a.mean(dim=(2, 3)), x.mean(dim=(2, 3)), atol=0.08, rtol=0)
-    none = augment(x, AugmentConfig(**only, randconv=0.0), torch.Generator().manual_seed(0))
+    none = augment(x, _only(randconv=0.0), torch.Generator().manual_seed(0))
     torch.testing.assert_close(none, x)
-    grey = augment(x, AugmentConfig(**only, grayscale=1.0), torch.Generator().manual_seed(0))
+    grey = augment(x, _only(grayscale=1.0), torch.Generator().manual_seed(0))
     assert torch.equal(grey[:, 0], grey[:, 1]) and torch.equal(grey[:, 1], grey[:, 2])
     torch.testing.assert_close(grey[:, 0], 0.299 * x[:, 0] + 0.587 * x[:, 1] + 0.114 * x[:, 2])
 
