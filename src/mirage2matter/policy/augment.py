@@ -15,6 +15,7 @@ import math
 import torch
 import torch.nn.functional as F
 
+from ..gaussians.losses import gaussian_window
 from .config import AugmentConfig
 
 __all__ = ["AugmentConfig", "augment"]
@@ -31,9 +32,8 @@ _RGB2YIQ = torch.tensor([[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211,
 
 def _gaussian5(device: torch.device) -> torch.Tensor:
     """[1, 1, 5, 5] Gaussian kernel, sigma 1 px, sums to 1."""
-    t = torch.exp(-0.5 * torch.arange(-2.0, 3.0, device=device) ** 2)
-    k = torch.outer(t, t)
-    return (k / k.sum()).view(1, 1, 5, 5)
+    t = gaussian_window(5, 1.0, device=device)
+    return torch.outer(t, t).view(1, 1, 5, 5)
 
 
 def _randconv(x: torch.Tensor, p: float, g: torch.Generator) -> torch.Tensor:

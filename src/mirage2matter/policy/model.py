@@ -28,6 +28,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..gaussians.losses import gaussian_window
+
 __all__ = ["ModelSpec", "VisuomotorPolicy"]
 
 
@@ -113,13 +115,6 @@ class SpatialSoftmax(nn.Module):
         return torch.cat([kx, ky], -1)
 
 
-def gaussian_taps(sigma: float) -> torch.Tensor:
-    """[k] normalised 1-D Gaussian taps, k = 2 ceil(3 sigma) + 1 (the 2-D blur is separable: rows, then columns)."""
-    r = max(1, math.ceil(3 * sigma))
-    t = torch.exp(-0.5 * (torch.arange(-r, r + 1, dtype=torch.float32) / sigma) ** 2)
-    return t / t.sum()
-
-
 class Encoder(nn.Module):
     """uint8-derived float image [B, 3, S, S] in [0, 1] -> [B, 2 * keypoints].
 
@@ -129,8 +124,10 @@ class Encoder(nn.Module):
 
     def __init__(self, widths: tuple[int, ...], keypoints: int, input_blur: float = 0.0) -> None:
         super().__init__()
-        # fixed, not learned; not in the state dict (rebuilt from the spec), so older checkpoints load unchanged
-        self.register_buffer("blur", gaussian_taps(input_blur) if input_blur > 0 else None, persistent=False)
+        # fixed 1-D taps out to 3 sigma (the 2-D blur is separable: rows, then columns); not learned and not in the
+        # state dict (rebuilt from the spec), so older checkpoints load unchanged
+        taps = gaussian_window(2 * max(1, math.ceil(3 * input_blur)) + 1, input_blur) if input_blur > 0 else None
+        self.register_buffer("blur", taps, persistent=False)
         c0 = widths[0]
         layers: list[nn.Module] = [
             nn.Conv2d(3, c0, 3, 2, 1, bias=False), _norm(c0), nn.ReLU(inplace=True),
