@@ -227,6 +227,10 @@ def test_bench_render_function() -> None:
     assert r["backend"] == "cpu" and r["gaussians"] == 2000 and r["width"] == r["height"] == 64
     assert r["sh_degree"] == 3 and r["runs"] == 2
     assert 0 < r["ms_min"] <= r["ms_median"] <= r["ms_max"] < 60_000
+    assert r["cameras_per_call"] == 1 and r["ms_per_camera"] == pytest.approx(r["ms_median"], abs=0.01)
+    two = bench_render(gaussians=2000, size=64, backend="cpu", views=2, repeats=1, warmup=0, cameras_per_call=2,
+                       log=None)  # fmt: skip
+    assert two["cameras_per_call"] == 2 and two["ms_per_camera"] == pytest.approx(two["ms_median"] / 2, abs=0.01)
     with pytest.raises(ValueError, match="repeats"):
         bench_render(gaussians=10, size=8, repeats=0, log=None)
     with pytest.raises(TypeError, match="gausians"):
@@ -315,5 +319,6 @@ def test_entry_points_and_light_import() -> None:
 def test_bench_train_on_fox_prints_json_last(fox_dir: Path, capsys: pytest.CaptureFixture) -> None:
     assert main(["bench", "train", "--data", str(fox_dir), "--minutes", "1", "--downscale", "8"]) == 0
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert set(result) == {"psnr_heldout", "ssim_heldout", "iterations", "gaussians", "minutes", "backend"}
+    keys = {"psnr_heldout", "ssim_heldout", "iterations", "gaussians", "minutes", "budget_used", "backend"}
+    assert set(result) == keys and 0.9 <= result["budget_used"] <= 1.0
     assert result["psnr_heldout"] > 18.0 and result["iterations"] > 50

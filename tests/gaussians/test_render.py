@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from fixtures.gaussians import random_gaussians
 from mirage2matter.gaussians.model import Gaussians
-from mirage2matter.gaussians.render import BackendError, render
+from mirage2matter.gaussians.render import BackendError, render, render_cameras
 from mirage2matter.gaussians.synthetic import orbit_cameras, tabletop_scene
 
 BG = torch.tensor([0.2, 0.5, 0.8])
@@ -530,3 +530,22 @@ def test_non_positive_image_size_raises(backend, width, height):
     g, V, K = _tiny()
     with pytest.raises(ValueError, match="size"):
         render(g, V, K, width, height, backend=backend)
+
+
+@pytest.mark.parametrize("backend", ["cpu", "reference"])
+def test_render_cameras_equals_one_render_per_camera(backend):
+    """The batched entry point (one gsplat call on a GPU) gives, on every backend, the per-camera images."""
+    g = random_gaussians(200, 2, seed=3)
+    cams = orbit_cameras(3, 40, 32, seed=2)
+    V, K = torch.stack([torch.as_tensor(v) for v, _ in cams]), torch.stack([torch.as_tensor(k) for _, k in cams])
+    out = render_cameras(g, V, K, 40, 32, background=BG, backend=backend)
+    assert out.rgb.shape == (3, 32, 40, 3) and out.alpha.shape == out.depth.shape == (3, 32, 40)
+    for i, (v, k) in enumerate(cams):
+        one = render(g, v, k, 40, 32, background=BG, backend=backend)
+        for name in ("rgb", "alpha", "depth"):
+            torch.testing.assert_close(getattr(out, name)[i], getattr(one, name), atol=0, rtol=0)
+    assert out.alpha.amax(dim=(1, 2)).min() > 0.1  # every camera sees the scene
+    empty = render_cameras(empty_gaussians(degree=2), V, K, 40, 32, background=BG, backend=backend)
+    assert not empty.alpha.any() and torch.equal(empty.rgb, BG.expand(3, 32, 40, 3))
+    with pytest.raises(ValueError, match=r"viewmats \[C,4,4\] and Ks \[C,3,3\]"):
+        render_cameras(g, V, K[:2], 40, 32, backend=backend)

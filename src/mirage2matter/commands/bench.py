@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
         "render", help="time the renderer on a synthetic tabletop scene",
         description="Time render() on tabletop_scene(N) from V orbit cameras: W untimed warm-up renders, then R "
         "rounds of all V views. Progress goes to stderr; the last stdout line is JSON with backend, gaussians, "
-        "width, height, sh_degree, ms_median, ms_min, ms_max, runs.",
+        "width, height, sh_degree, cameras_per_call, ms_median (one call), ms_min, ms_max, ms_per_camera, runs.",
     )  # fmt: skip
     add_flags(b, RenderBenchConfig)
     b.set_defaults(func=_render)
@@ -101,7 +101,7 @@ def _train(args: argparse.Namespace) -> int:
         args.data, minutes=args.minutes, downscale=args.downscale, poses=args.poses, work_dir=args.work_dir,
         max_gaussians=args.max_gaussians, progress=True,
     )  # fmt: skip
-    keys = ("psnr_heldout", "ssim_heldout", "iterations", "gaussians", "minutes", "backend")
+    keys = ("psnr_heldout", "ssim_heldout", "iterations", "gaussians", "minutes", "budget_used", "backend")
     info(json.dumps(result.get("curve", []), separators=(",", ":")))
     print(json.dumps({k: result[k] for k in keys}))
     return 0

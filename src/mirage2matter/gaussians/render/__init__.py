@@ -21,7 +21,7 @@ import torch
 
 from ...errors import M2MError
 from ..model import Gaussians
-from .gsplat_cuda import cuda_available, cuda_unavailable_reason, render_gsplat
+from .gsplat_cuda import cuda_available, cuda_unavailable_reason, render_gsplat, render_gsplat_cameras
 from .numba_cpu import render_numba
 from .reference import render_reference
 from .types import RenderOutput
@@ -94,6 +94,41 @@ def render(
     return render_reference(gaussians, viewmat, K, width, height, background)
 
 
+def render_cameras(
+    gaussians: Gaussians,
+    viewmats: torch.Tensor,
+    Ks: torch.Tensor,
+    width: int,
+    height: int,
+    background: torch.Tensor | None = None,
+    backend: str = "auto",
+) -> RenderOutput:
+    """``render`` from C cameras at once (viewmats [C,4,4] world-to-camera, Ks [C,3,3], one image size):
+    rgb [C,H,W,3], alpha and depth [C,H,W]. The cuda backend makes one gsplat call for all of them (what a
+    GPU needs at small sizes); the others render camera by camera, so every backend gives the same images."""
+    if width <= 0 or height <= 0:
+        raise ValueError(f"image size must be positive, got {width}x{height}")
+    viewmats, Ks = torch.as_tensor(viewmats), torch.as_tensor(Ks)
+    if viewmats.ndim != 3 or viewmats.shape[1:] != (4, 4) or Ks.shape != (len(viewmats), 3, 3):
+        raise ValueError(f"render_cameras needs viewmats [C,4,4] and Ks [C,3,3], got {tuple(viewmats.shape)} "
+                         f"and {tuple(Ks.shape)}")  # fmt: skip
+    backend = resolve_backend(backend)
+    if backend == "cuda" and len(gaussians) > 0 and len(viewmats) > 0:
+        try:
+            return render_gsplat_cameras(gaussians, viewmats, Ks, width, height, background)
+        except torch.cuda.OutOfMemoryError as e:
+            lower = "the number of Gaussians, the image size or the cameras per call"
+            raise gpu_out_of_memory(f"rendering {len(viewmats)} cameras of", len(gaussians), width, height,
+                                    lower) from e  # fmt: skip
+    outs = [render(gaussians, vm, K, width, height, background, backend) for vm, K in zip(viewmats, Ks, strict=True)]
+    if not outs:
+        dev, dtype = gaussians.means.device, gaussians.means.dtype
+        return RenderOutput(torch.zeros(0, height, width, 3, dtype=dtype, device=dev),
+                            torch.zeros(0, height, width, dtype=dtype, device=dev),
+                            torch.zeros(0, height, width, dtype=dtype, device=dev))  # fmt: skip
+    return RenderOutput(*(torch.stack([getattr(o, k) for o in outs]) for k in ("rgb", "alpha", "depth")))
+
+
 def _render_nothing(
     g: Gaussians, width: int, height: int, background: torch.Tensor | None, info: dict | None
 ) -> RenderOutput:
@@ -116,7 +151,9 @@ __all__ = [
     "GpuOutOfMemory",
     "RenderOutput",
     "render",
+    "render_cameras",
     "render_gsplat",
+    "render_gsplat_cameras",
     "render_numba",
     "render_reference",
     "resolve_backend",

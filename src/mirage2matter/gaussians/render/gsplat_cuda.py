@@ -41,27 +41,18 @@ def cuda_available() -> bool:
     return cuda_unavailable_reason() is None
 
 
-def render_gsplat(
-    g: Gaussians,
-    viewmat: torch.Tensor,
-    K: torch.Tensor,
-    width: int,
-    height: int,
-    background: torch.Tensor | None = None,
-    info: dict | None = None,
-) -> RenderOutput:
-    """Render with gsplat on the GPU; the Gaussians are moved to CUDA if they are not there."""
-    if not torch.cuda.is_available():
-        raise RuntimeError("backend 'cuda' needs a CUDA GPU and torch with CUDA; use backend='cpu'")
+def _rasterize(g: Gaussians, viewmats: torch.Tensor, Ks: torch.Tensor, width: int, height: int, background):
+    """gsplat's rasterization of ``g`` from C cameras (viewmats [C,4,4], Ks [C,3,3]) in one call:
+    -> (renders [C,H,W,4] RGB + expected depth, alphas [C,H,W,1], meta), on the GPU."""
     from gsplat import rasterization
 
     dev = g.means.device if g.means.is_cuda else torch.device("cuda")
-    dtype = g.means.dtype
     gc = g.to(dev, torch.float32)
-    viewmats = torch.as_tensor(viewmat, dtype=torch.float32).to(dev)[None]
-    Ks = torch.as_tensor(K, dtype=torch.float32).to(dev)[None]
-    bg = None if background is None else torch.as_tensor(background, dtype=torch.float32).to(dev)[None]
-    renders, alphas, meta = rasterization(
+    viewmats = torch.as_tensor(viewmats, dtype=torch.float32).to(dev)
+    Ks = torch.as_tensor(Ks, dtype=torch.float32).to(dev)
+    C = viewmats.shape[0]
+    bg = None if background is None else torch.as_tensor(background, dtype=torch.float32).to(dev).expand(C, 3)
+    return rasterization(
         gc.means,
         gc.quats,
         torch.exp(gc.log_scales),
@@ -80,6 +71,43 @@ def render_gsplat(
         backgrounds=bg,
         rasterize_mode="classic",
     )
+
+
+def render_gsplat_cameras(
+    g: Gaussians,
+    viewmats: torch.Tensor,
+    Ks: torch.Tensor,
+    width: int,
+    height: int,
+    background: torch.Tensor | None = None,
+) -> RenderOutput:
+    """C cameras (viewmats [C,4,4], Ks [C,3,3]) in one gsplat call: rgb [C,H,W,3], alpha and depth [C,H,W].
+    One call amortises the per-call set-up that dominates small images (at 224x224 a camera alone leaves
+    most of the GPU idle), e.g. the head and wrist views of a frame, or many episodes' frames."""
+    if not torch.cuda.is_available():
+        raise RuntimeError("backend 'cuda' needs a CUDA GPU and torch with CUDA; use backend='cpu'")
+    renders, alphas, _ = _rasterize(g, viewmats, Ks, width, height, background)
+    out_dev, dtype = g.means.device, g.means.dtype
+    return RenderOutput(
+        renders[..., :3].to(out_dev, dtype), alphas[..., 0].to(out_dev, dtype), renders[..., 3].to(out_dev, dtype)
+    )
+
+
+def render_gsplat(
+    g: Gaussians,
+    viewmat: torch.Tensor,
+    K: torch.Tensor,
+    width: int,
+    height: int,
+    background: torch.Tensor | None = None,
+    info: dict | None = None,
+) -> RenderOutput:
+    """Render with gsplat on the GPU; the Gaussians are moved to CUDA if they are not there."""
+    if not torch.cuda.is_available():
+        raise RuntimeError("backend 'cuda' needs a CUDA GPU and torch with CUDA; use backend='cpu'")
+    renders, alphas, meta = _rasterize(g, torch.as_tensor(viewmat)[None], torch.as_tensor(K)[None], width, height,
+                                       None if background is None else torch.as_tensor(background)[None])  # fmt: skip
+    dtype = g.means.dtype
     if info is not None:
         # Same contract as the cpu backend: screen-space means with their gradient retained (here
         # gsplat's [1,N,2] layout; the rendering read that tensor, so only it receives .grad).
