@@ -37,3 +37,42 @@ def test_evaluation_counts_terminations_as_successes():
     assert summary["successes"] == 3 and summary["episodes"] == 6
     assert [r["success"] for r in summary["runs"]] == [False, True] * 3
     assert summary["wilson95"] == list(wilson_interval(3, 6)) and len(frames) == 2
+
+
+class _SlowFromStep:
+    """A _Line whose steps take 0.2 s of a fake clock, then 30 s from step 3 on (a renderer gone slow in one
+    pose); ``timings`` as TwinEnv keeps them."""
+
+    def __init__(self, clock: list[float]):
+        self.line, self.clock, self.timings = _Line(), clock, {}
+
+    def reset(self, seed=None):
+        self.timings = {"physics": 0.0}
+        return self.line.reset(seed)
+
+    def step(self, action):
+        dt = 0.2 if self.line.t < 3 else 30.0
+        self.clock[0] += dt
+        self.timings["physics"] += dt
+        return self.line.step(action)
+
+
+def test_an_episode_past_the_wall_clock_limit_is_cut_and_counted_a_failure():
+    now = [0.0]
+    env = _SlowFromStep(now)
+
+    def run(speed: float, limit: float | None) -> dict:
+        return evaluate_policy(env, lambda obs: np.array([speed]), episodes=1, seed=0, progress=False, keep_frames=0,
+                               log=lambda s: None, max_episode_seconds=limit, clock=lambda: now[0])[0]  # fmt: skip
+
+    # 0.3 per step: x reaches 1.2 at step 4, which ends at 0.6 + 30 s: a success (a finished step counts)
+    ok = run(0.3, 20.0)
+    assert ok["successes"] == 1 and ok["cut"] == 0 and ok["runs"][0]["max_step_seconds"] == pytest.approx(30.0)
+    # 0.1 per step: still running after step 4 (30.6 s > 20 s): cut there, a failure, with the env's timings
+    cut = run(0.1, 20.0)
+    (row,) = cut["runs"]
+    assert cut["successes"] == 0 and cut["cut"] == 1 and row["cut"] and row["steps"] == 4
+    assert "wall-clock limit" in row["reason"] and row["timings"] == {"physics": pytest.approx(30.6)}
+    # no limit: the same episode runs to its horizon (truncated after 5 steps), not cut
+    full = run(0.1, None)
+    assert full["cut"] == 0 and full["runs"][0]["steps"] == 5 and "cut" not in full["runs"][0]

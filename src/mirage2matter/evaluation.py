@@ -49,13 +49,18 @@ def evaluate_policy(
     camera: str | None = None,
     done: list[dict] | None = None,
     on_episode: Callable[[dict], None] | None = None,
+    max_episode_seconds: float | None = None,
+    clock: Callable[[], float] = time.perf_counter,
 ) -> tuple[dict[str, Any], list[list[np.ndarray]]]:
     """Run ``policy`` for ``episodes`` episodes (reset seeds ``seed .. seed + episodes - 1``); returns (summary,
     the pictures (:func:`frame_of` ``camera``) of the first ``keep_frames`` episodes run here). ``policy.reset()``
     is called before each episode when it has one. The summary holds the success rate, its Wilson interval and
     one record per episode (seed, success, steps, seconds, the env's last ``reason``). ``done``: records of
     episodes already run (a resumed evaluation: their seeds are not run again); ``on_episode(record)`` after
-    each episode (to save it)."""
+    each episode (to save it). Each record also holds the slowest step's seconds (``max_step_seconds``) and the
+    env's per-part ``timings`` when it reports them. ``max_episode_seconds``: an episode still running after that
+    much wall-clock time ends there as a failure with ``reason`` saying so and ``cut: true`` (the summary counts
+    them in ``cut``): a world that renders pathologically slowly in one pose cannot hold an evaluation for hours."""
     from tqdm import tqdm
 
     rows = list(done or [])
@@ -64,24 +69,40 @@ def evaluate_policy(
     todo = [seed + i for i in range(episodes) if seed + i not in seen]
     bar = tqdm(todo, desc="evaluation", unit="ep", disable=not progress, leave=False)
     for s in bar:
-        t0 = time.perf_counter()
+        t0 = clock()
         obs, _ = env.reset(seed=s)
         if hasattr(policy, "reset"):
             policy.reset()
         frames = [frame_of(obs, camera)] if len(kept) < keep_frames else None
-        steps, success, info = 0, False, {}
+        steps, success, info, slowest, cut = 0, False, {}, 0.0, False
         while True:
+            t_step = clock()
             obs, _, terminated, truncated, info = env.step(np.asarray(policy(obs), dtype=np.float32))
+            now = clock()
+            slowest = max(slowest, now - t_step)
             steps += 1
             if frames is not None:
                 frames.append(frame_of(obs, camera))
             if terminated or truncated:
                 success = bool(terminated)
                 break
+            if max_episode_seconds is not None and now - t0 > max_episode_seconds:
+                cut = True
+                break
         if frames is not None:
             kept.append(frames)
-        row = {"seed": s, "success": success, "steps": steps, "seconds": round(time.perf_counter() - t0, 2)}
-        if isinstance(info, dict) and info.get("reason"):
+        row = {"seed": s, "success": success, "steps": steps, "seconds": round(clock() - t0, 2),
+               "max_step_seconds": round(slowest, 3)}  # fmt: skip
+        timings = info.get("timings") if isinstance(info, dict) else None
+        if timings is None:  # an episode cut short: the env's running totals
+            timings = getattr(getattr(env, "unwrapped", env), "timings", None)
+        if isinstance(timings, dict) and timings:
+            row["timings"] = {k: round(float(v), 2) for k, v in timings.items()}
+        if cut:
+            row["cut"] = True
+            row["reason"] = (f"wall-clock limit: still running after {max_episode_seconds:g} s at step {steps} "
+                             f"(slowest step {slowest:.1f} s); counted as a failure")  # fmt: skip
+        elif isinstance(info, dict) and info.get("reason"):
             row["reason"] = str(info["reason"])
         rows.append(row)
         if on_episode is not None:
@@ -97,10 +118,12 @@ def evaluate_policy(
         "wilson95": [lo, hi],
         "mean_steps": float(np.mean([r["steps"] for r in rows])) if rows else 0.0,
         "mean_seconds": float(np.mean([r["seconds"] for r in rows])) if rows else 0.0,
+        "cut": sum(bool(r.get("cut")) for r in rows),
         "runs": rows,
     }
+    cut = f"; {summary['cut']} cut at the wall-clock limit (failures)" if summary["cut"] else ""
     log(f"evaluation: {n_ok}/{len(rows)} successes = {100 * summary['success_rate']:.1f}% "
-        f"(95% Wilson interval {100 * lo:.1f}-{100 * hi:.1f}%)")  # fmt: skip
+        f"(95% Wilson interval {100 * lo:.1f}-{100 * hi:.1f}%){cut}")  # fmt: skip
     return summary, kept
 
 

@@ -41,6 +41,10 @@ class Config:
     episodes        episodes to run
     seed            seed of the first episode (then seed + 1, ...)
     horizon         steps before an episode is truncated (a failure)
+    max_episode_minutes  wall-clock limit of one episode (0: none); an episode past it ends as a failure marked
+                    ``cut``. Normal episodes take 0.5-2 min on 2 cores; llvmpipe (the CPU OpenGL of the
+                    ground_truth renderer) takes 1-45 s instead of 0.04 s per frame for some close views of
+                    the sample's button (measured: its thin bottom wall band seen from the wrist camera)
     size            frame side in pixels (0: the frame size of the datasets the policy was trained on)
     name            the report's folder: <workspace>/evals/<name> (default: <policy>-<renderer>-<task>)
     video_episodes  episodes shown in rollout.mp4 and contact_sheet.png
@@ -54,6 +58,7 @@ class Config:
     episodes: int = 50
     seed: int = 1_000_000
     horizon: int = 150
+    max_episode_minutes: float = 10.0
     size: int = 0
     name: str | None = None
     video_episodes: int = 4
@@ -65,6 +70,8 @@ class Config:
             bad.append(f"episodes must be >= 1, got {self.episodes}")
         if self.horizon < 1:
             bad.append(f"horizon must be >= 1, got {self.horizon}")
+        if not self.max_episode_minutes >= 0:
+            bad.append(f"max_episode_minutes must be >= 0 (0: no limit), got {self.max_episode_minutes}")
         if self.size != 0 and self.size < 16:
             bad.append(f"size must be 0 (the datasets') or >= 16, got {self.size}")
         if self.video_episodes < 0:
@@ -232,7 +239,8 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
             f"{cfg.seed}..{cfg.seed + cfg.episodes - 1}, horizon {cfg.horizon}")  # fmt: skip
         t1 = time.perf_counter()
         summary, kept = evaluate_policy(env, policy, cfg.episodes, seed=cfg.seed, log=log,
-                                        keep_frames=cfg.video_episodes, done=done, on_episode=save)  # fmt: skip
+                                        keep_frames=cfg.video_episodes, done=done, on_episode=save,
+                                        max_episode_seconds=60.0 * cfg.max_episode_minutes or None)  # fmt: skip
         eval_s = time.perf_counter() - t1
     finally:
         env.close()
