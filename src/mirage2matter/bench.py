@@ -108,13 +108,10 @@ def bench_render(
     )
 
     C = cfg.cameras_per_call
-    # One call's cameras: C consecutive orbit views (wrapping), stacked where the renderer works.
+    # One call's cameras (C > 1): C consecutive orbit views (wrapping), stacked where the renderer works.
     batches = [
-        (
-            torch.stack([cams[(i + j) % len(cams)][0] for j in range(C)]),
-            torch.stack([cams[(i + j) % len(cams)][1] for j in range(C)]),
-        )
-        for i in range(len(cams))
+        tuple(torch.stack([cams[(i + j) % len(cams)][k] for j in range(C)]) for k in (0, 1))
+        for i in range(len(cams) if C > 1 else 0)
     ]
 
     def call(i: int) -> None:

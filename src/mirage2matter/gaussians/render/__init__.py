@@ -121,11 +121,9 @@ def render_cameras(
             raise gpu_out_of_memory(f"rendering {len(viewmats)} cameras of", len(gaussians), width, height,
                                     lower) from e  # fmt: skip
     outs = [render(gaussians, vm, K, width, height, background, backend) for vm, K in zip(viewmats, Ks, strict=True)]
-    if not outs:
-        dev, dtype = gaussians.means.device, gaussians.means.dtype
-        return RenderOutput(torch.zeros(0, height, width, 3, dtype=dtype, device=dev),
-                            torch.zeros(0, height, width, dtype=dtype, device=dev),
-                            torch.zeros(0, height, width, dtype=dtype, device=dev))  # fmt: skip
+    if not outs:  # no cameras: empty stacks of the right shapes
+        none = gaussians.means.new_zeros(0, height, width)
+        return RenderOutput(none[..., None].expand(0, height, width, 3), none, none.clone())
     return RenderOutput(*(torch.stack([getattr(o, k) for o in outs]) for k in ("rgb", "alpha", "depth")))
 
 

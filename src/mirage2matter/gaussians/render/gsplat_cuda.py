@@ -44,6 +44,8 @@ def cuda_available() -> bool:
 def _rasterize(g: Gaussians, viewmats: torch.Tensor, Ks: torch.Tensor, width: int, height: int, background):
     """gsplat's rasterization of ``g`` from C cameras (viewmats [C,4,4], Ks [C,3,3]) in one call:
     -> (renders [C,H,W,4] RGB + expected depth, alphas [C,H,W,1], meta), on the GPU."""
+    if not torch.cuda.is_available():
+        raise RuntimeError("backend 'cuda' needs a CUDA GPU and torch with CUDA; use backend='cpu'")
     from gsplat import rasterization
 
     dev = g.means.device if g.means.is_cuda else torch.device("cuda")
@@ -73,6 +75,12 @@ def _rasterize(g: Gaussians, viewmats: torch.Tensor, Ks: torch.Tensor, width: in
     )
 
 
+def _output(g: Gaussians, renders: torch.Tensor, alphas: torch.Tensor) -> RenderOutput:
+    """gsplat's [..., H, W, 4] renders and [..., H, W, 1] alphas as a RenderOutput on ``g``'s device and dtype."""
+    to = lambda t: t.to(g.means.device, g.means.dtype)
+    return RenderOutput(to(renders[..., :3]), to(alphas[..., 0]), to(renders[..., 3]))
+
+
 def render_gsplat_cameras(
     g: Gaussians,
     viewmats: torch.Tensor,
@@ -84,13 +92,8 @@ def render_gsplat_cameras(
     """C cameras (viewmats [C,4,4], Ks [C,3,3]) in one gsplat call: rgb [C,H,W,3], alpha and depth [C,H,W].
     One call amortises the per-call set-up that dominates small images (at 224x224 a camera alone leaves
     most of the GPU idle), e.g. the head and wrist views of a frame, or many episodes' frames."""
-    if not torch.cuda.is_available():
-        raise RuntimeError("backend 'cuda' needs a CUDA GPU and torch with CUDA; use backend='cpu'")
     renders, alphas, _ = _rasterize(g, viewmats, Ks, width, height, background)
-    out_dev, dtype = g.means.device, g.means.dtype
-    return RenderOutput(
-        renders[..., :3].to(out_dev, dtype), alphas[..., 0].to(out_dev, dtype), renders[..., 3].to(out_dev, dtype)
-    )
+    return _output(g, renders, alphas)
 
 
 def render_gsplat(
@@ -103,11 +106,8 @@ def render_gsplat(
     info: dict | None = None,
 ) -> RenderOutput:
     """Render with gsplat on the GPU; the Gaussians are moved to CUDA if they are not there."""
-    if not torch.cuda.is_available():
-        raise RuntimeError("backend 'cuda' needs a CUDA GPU and torch with CUDA; use backend='cpu'")
     renders, alphas, meta = _rasterize(g, torch.as_tensor(viewmat)[None], torch.as_tensor(K)[None], width, height,
                                        None if background is None else torch.as_tensor(background)[None])  # fmt: skip
-    dtype = g.means.dtype
     if info is not None:
         # Same contract as the cpu backend: screen-space means with their gradient retained (here
         # gsplat's [1,N,2] layout; the rendering read that tensor, so only it receives .grad).
@@ -115,9 +115,4 @@ def render_gsplat(
         if mean2d.requires_grad:
             mean2d.retain_grad()
         info.update(mean2d=mean2d, radius=meta["radii"][0], meta=meta)
-    out_dev = g.means.device
-    return RenderOutput(
-        renders[0, ..., :3].to(out_dev, dtype),
-        alphas[0, ..., 0].to(out_dev, dtype),
-        renders[0, ..., 3].to(out_dev, dtype),
-    )
+    return _output(g, renders[0], alphas[0])
