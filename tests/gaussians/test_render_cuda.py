@@ -59,6 +59,16 @@ def test_gsplat_matches_reference_on_small_random_scene():
     assert ref.alpha.mean() > 0.1
 
 
+def test_gsplat_antialiased_matches_reference():
+    g = random_gaussians(500, 3, seed=1)
+    V, K = look_at([3.0, -2.0, 1.5], [0, 0, 0]), intrinsics(64, 48)
+    ref = render(g.to(torch.float64), V, K, 64, 48, background=BG.double(), backend="reference", antialias=True)
+    gpu = render(g, V, K, 64, 48, background=BG, backend="cuda", antialias=True)
+    assert psnr(gpu.rgb, ref.rgb) >= 35.0 and psnr(gpu.alpha, ref.alpha) >= 35.0
+    classic = render(g.to(torch.float64), V, K, 64, 48, background=BG.double(), backend="reference")
+    assert psnr(classic.rgb, ref.rgb) < 45.0  # the mode really changes the picture
+
+
 def test_gsplat_empty_scene_renders_background():
     g = random_gaussians(1, 3, seed=0).select(slice(0, 0)).to("cuda")
     V, K = look_at([3.0, 0.0, 0.0], [0, 0, 0]), intrinsics(40, 24)

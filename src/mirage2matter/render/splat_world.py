@@ -40,6 +40,8 @@ class SplatRenderOptions:
     backend      gaussians.render backend ("auto": CUDA if available, else the numba CPU rasterizer)
     pose_tolerance  a part's Gaussians are re-posed only when its pose moved more than this (max abs entry
                  of T_base_obj: metres / rotation entries ~ radians; 1e-5 is 0.01 mm, far below a pixel)
+    antialias    gsplat's antialiased mode (``gaussians.render.render``): objects seen smaller than they were
+                 reconstructed (a far head camera at 128 px) keep their thin shapes instead of swelling
     """
 
     sh_degree: int = 3
@@ -47,6 +49,7 @@ class SplatRenderOptions:
     backend: str = "auto"
     cull: bool = True  # drop Gaussians that cannot reach the image before rendering (same pixels, less work)
     pose_tolerance: float = 1e-5
+    antialias: bool = False
 
 
 class SplatWorld:
@@ -218,6 +221,7 @@ class SplatWorld:
             int(height),
             background=torch.as_tensor(background, dtype=torch.float32),
             backend=self.options.backend,
+            antialias=self.options.antialias,
         )
         as_np = lambda t: t.detach().to("cpu", torch.float32).numpy()
         return np.clip(as_np(out.rgb), 0.0, 1.0), as_np(out.alpha), as_np(out.depth)

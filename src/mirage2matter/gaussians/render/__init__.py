@@ -75,23 +75,29 @@ def render(
     background: torch.Tensor | None = None,
     backend: str = "auto",
     info: dict | None = None,
+    antialias: bool = False,
 ) -> RenderOutput:
     """Render ``gaussians`` (world frame) from the camera with world-to-camera ``viewmat`` and
-    intrinsics ``K`` (pixel centres at +0.5). ``background`` [3] is composited behind."""
+    intrinsics ``K`` (pixel centres at +0.5). ``background`` [3] is composited behind.
+
+    ``antialias``: gsplat's "antialiased" mode (Mip-Splatting's 2D filter): each Gaussian's opacity is scaled by
+    sqrt(det(cov2d) / det(cov2d + EPS2D I)), so the low-pass that widens a sub-pixel Gaussian keeps its energy
+    instead of its peak. For rendering a scene smaller (farther, at a lower resolution) than it was trained:
+    classic mode draws thin things fat there. No gradient on the cpu backend."""
     if width <= 0 or height <= 0:
         raise ValueError(f"image size must be positive, got {width}x{height}")
     backend = resolve_backend(backend)
     if len(gaussians) == 0:
         return _render_nothing(gaussians, width, height, background, info)
     if backend == "cpu":
-        return render_numba(gaussians, viewmat, K, width, height, background, info)
+        return render_numba(gaussians, viewmat, K, width, height, background, info, antialias)
     if backend == "cuda":
         try:
-            return render_gsplat(gaussians, viewmat, K, width, height, background, info)
+            return render_gsplat(gaussians, viewmat, K, width, height, background, info, antialias)
         except torch.cuda.OutOfMemoryError as e:
             lower = "the number of Gaussians (--max-gaussians) or the image size (--downscale / --size)"
             raise gpu_out_of_memory("rendering", len(gaussians), width, height, lower) from e
-    return render_reference(gaussians, viewmat, K, width, height, background)
+    return render_reference(gaussians, viewmat, K, width, height, background, antialias=antialias)
 
 
 def render_cameras(
@@ -102,6 +108,7 @@ def render_cameras(
     height: int,
     background: torch.Tensor | None = None,
     backend: str = "auto",
+    antialias: bool = False,
 ) -> RenderOutput:
     """``render`` from C cameras at once (viewmats [C,4,4] world-to-camera, Ks [C,3,3], one image size):
     rgb [C,H,W,3], alpha and depth [C,H,W]. The cuda backend makes one gsplat call for all of them (what a
@@ -115,12 +122,13 @@ def render_cameras(
     backend = resolve_backend(backend)
     if backend == "cuda" and len(gaussians) > 0 and len(viewmats) > 0:
         try:
-            return render_gsplat_cameras(gaussians, viewmats, Ks, width, height, background)
+            return render_gsplat_cameras(gaussians, viewmats, Ks, width, height, background, antialias)
         except torch.cuda.OutOfMemoryError as e:
             lower = "the number of Gaussians, the image size or the cameras per call"
             raise gpu_out_of_memory(f"rendering {len(viewmats)} cameras of", len(gaussians), width, height,
                                     lower) from e  # fmt: skip
-    outs = [render(gaussians, vm, K, width, height, background, backend) for vm, K in zip(viewmats, Ks, strict=True)]
+    outs = [render(gaussians, vm, K, width, height, background, backend, antialias=antialias)
+            for vm, K in zip(viewmats, Ks, strict=True)]
     if not outs:  # no cameras: empty stacks of the right shapes
         none = gaussians.means.new_zeros(0, height, width)
         return RenderOutput(none[..., None].expand(0, height, width, 3), none, none.clone())

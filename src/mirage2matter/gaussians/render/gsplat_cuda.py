@@ -1,4 +1,5 @@
-"""CUDA backend: gsplat 1.5.3's rasterization (classic 3DGS mode, packed=False, expected depth)."""
+"""CUDA backend: gsplat 1.5.3's rasterization (classic 3DGS mode, or its antialiased mode on request; packed=False,
+expected depth)."""
 
 from __future__ import annotations
 
@@ -41,7 +42,8 @@ def cuda_available() -> bool:
     return cuda_unavailable_reason() is None
 
 
-def _rasterize(g: Gaussians, viewmats: torch.Tensor, Ks: torch.Tensor, width: int, height: int, background):
+def _rasterize(g: Gaussians, viewmats: torch.Tensor, Ks: torch.Tensor, width: int, height: int, background,
+               antialias: bool = False):
     """gsplat's rasterization of ``g`` from C cameras (viewmats [C,4,4], Ks [C,3,3]) in one call:
     -> (renders [C,H,W,4] RGB + expected depth, alphas [C,H,W,1], meta), on the GPU."""
     if not torch.cuda.is_available():
@@ -71,7 +73,7 @@ def _rasterize(g: Gaussians, viewmats: torch.Tensor, Ks: torch.Tensor, width: in
         packed=False,
         render_mode="RGB+ED",
         backgrounds=bg,
-        rasterize_mode="classic",
+        rasterize_mode="antialiased" if antialias else "classic",
     )
 
 
@@ -88,11 +90,12 @@ def render_gsplat_cameras(
     width: int,
     height: int,
     background: torch.Tensor | None = None,
+    antialias: bool = False,
 ) -> RenderOutput:
     """C cameras (viewmats [C,4,4], Ks [C,3,3]) in one gsplat call: rgb [C,H,W,3], alpha and depth [C,H,W].
     One call amortises the per-call set-up that dominates small images (at 224x224 a camera alone leaves
     most of the GPU idle), e.g. the head and wrist views of a frame, or many episodes' frames."""
-    renders, alphas, _ = _rasterize(g, viewmats, Ks, width, height, background)
+    renders, alphas, _ = _rasterize(g, viewmats, Ks, width, height, background, antialias)
     return _output(g, renders, alphas)
 
 
@@ -104,10 +107,12 @@ def render_gsplat(
     height: int,
     background: torch.Tensor | None = None,
     info: dict | None = None,
+    antialias: bool = False,
 ) -> RenderOutput:
     """Render with gsplat on the GPU; the Gaussians are moved to CUDA if they are not there."""
     renders, alphas, meta = _rasterize(g, torch.as_tensor(viewmat)[None], torch.as_tensor(K)[None], width, height,
-                                       None if background is None else torch.as_tensor(background)[None])  # fmt: skip
+                                       None if background is None else torch.as_tensor(background)[None],
+                                       antialias)  # fmt: skip
     if info is not None:
         # Same contract as the cpu backend: screen-space means with their gradient retained (here
         # gsplat's [1,N,2] layout; the rendering read that tensor, so only it receives .grad).

@@ -103,15 +103,22 @@ def render_numba(
     height: int,
     background: torch.Tensor | None = None,
     info: dict | None = None,
+    antialias: bool = False,
 ) -> RenderOutput:
     """Render on the CPU. Differentiable when any Gaussian tensor requires grad. When ``info`` is a
     dict it receives ``mean2d`` (the screen-space means, gradient retained), ``radius`` [N,2], and
-    after backward ``mean2d_absgrad``: what 3DGS densification strategies read."""
+    after backward ``mean2d_absgrad``: what 3DGS densification strategies read. ``antialias``: gsplat's
+    "antialiased" mode (see ``render``), without gradients only."""
     dtype = g.means.dtype
     viewmat64 = np.asarray(torch.as_tensor(viewmat).detach().cpu(), np.float64)
     K64 = np.asarray(torch.as_tensor(K).detach().cpu(), np.float64)
     needs_grad = torch.is_grad_enabled() and any(t.requires_grad for t in g.tensors().values())
     if needs_grad:
+        if antialias:
+            raise NotImplementedError(
+                "antialiased rendering has no gradient on the CPU backend; train with antialias=False (the "
+                "classic mode 3DGS is trained in) and antialias only the renders"
+            )
         mean2d, conic, depth, opacity, color, radius = project(g, viewmat64, K64, width, height)
         if info is not None:
             mean2d.retain_grad()
@@ -122,7 +129,7 @@ def render_numba(
     rec = np.empty((len(g), nk.REC_SIZE), np.float32)
     nk.project_fused(
         _np32(g.means), _np32(g.quats), _np32(g.log_scales), _np32(g.logit_opacities), _np32(g.sh),
-        g.sh_degree, viewmat64, K64, width, height, rec,
+        g.sh_degree, viewmat64, K64, width, height, rec, antialias,
     )  # fmt: skip
     rgb, dsum, T, _ = _rasterize(rec, width, height)
     if info is not None:

@@ -113,10 +113,12 @@ def _write_record(rec, i, u, v, ca, cb, cc, op, sigma_cut, z, rx, ry):
 
 
 @njit(parallel=True, cache=True)
-def project_fused(means, quats, log_scales, logit_opacities, sh, sh_degree, viewmat, K, width, height, rec):
+def project_fused(means, quats, log_scales, logit_opacities, sh, sh_degree, viewmat, K, width, height, rec,
+                  antialias=False):
     """Project N Gaussians and evaluate their colour into records rec [N, REC_SIZE] float32.
     Inputs means [N,3], quats [N,4] wxyz, log_scales [N,3], logit_opacities [N], sh [N,K,3];
-    viewmat [4,4] world-to-camera, K [3,3] (float64)."""
+    viewmat [4,4] world-to-camera, K [3,3] (float64). ``antialias``: each opacity times
+    sqrt(det(cov2d) / det(cov2d + EPS2D I)) (gsplat's "antialiased" mode)."""
     n = means.shape[0]
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     lim_x_pos = (width - cx) / fx + FOV_CLAMP * 0.5 * width / fx
@@ -183,6 +185,11 @@ def project_fused(means, quats, log_scales, logit_opacities, sh, sh_degree, view
         det = cov_xx * cov_yy - cov_xy * cov_xy
         if det <= 0.0:
             continue
+        if antialias:  # the low-pass spreads a sub-pixel Gaussian; keep its footprint's energy, not its peak
+            det0 = (cov_xx - EPS2D) * (cov_yy - EPS2D) - cov_xy * cov_xy
+            op = op * math.sqrt(max(det0, 0.0) / det)
+            if op < ALPHA_MIN:
+                continue
         sigma_cut = math.log(op) - _LOG_ALPHA_MIN
         rx, ry = box_radius(cov_xx, cov_yy, sigma_cut)
         u = fx * x * rz + cx

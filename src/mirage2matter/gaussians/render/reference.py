@@ -35,8 +35,10 @@ def render_reference(
     height: int,
     background: torch.Tensor | None = None,
     max_elements: int = 1 << 24,
+    antialias: bool = False,
 ) -> RenderOutput:
-    """Render ``g`` (world frame) from a camera with world-to-camera ``viewmat`` [4,4] and ``K`` [3,3]."""
+    """Render ``g`` (world frame) from a camera with world-to-camera ``viewmat`` [4,4] and ``K`` [3,3];
+    ``antialias``: gsplat's "antialiased" mode (opacities times sqrt(det(cov2d) / det(cov2d + EPS2D I)))."""
     dtype, dev = g.means.dtype, g.means.device
     viewmat = torch.as_tensor(viewmat, dtype=dtype, device=dev)
     K = torch.as_tensor(K, dtype=dtype, device=dev)
@@ -58,7 +60,8 @@ def render_reference(
     ty = z * torch.minimum(lim_y_pos, torch.maximum(-lim_y_neg, y / z))
     zero = torch.zeros_like(z)
     J = torch.stack([fx / z, zero, -fx * tx / z**2, zero, fy / z, -fy * ty / z**2], -1).reshape(-1, 2, 3)
-    cov2d = J @ cov_c @ J.transpose(1, 2) + EPS2D * torch.eye(2, dtype=dtype, device=dev)
+    cov2d_raw = J @ cov_c @ J.transpose(1, 2)
+    cov2d = cov2d_raw + EPS2D * torch.eye(2, dtype=dtype, device=dev)
     det = cov2d[:, 0, 0] * cov2d[:, 1, 1] - cov2d[:, 0, 1] * cov2d[:, 1, 0]
     keep = (z > NEAR_PLANE) & (z < FAR_PLANE) & (det > 0)
     idx = keep.nonzero().flatten()
@@ -68,6 +71,10 @@ def render_reference(
     cov2d, det, depth = cov2d[idx], det[idx], z[idx]
     conic_a, conic_b, conic_c = cov2d[:, 1, 1] / det, -cov2d[:, 0, 1] / det, cov2d[:, 0, 0] / det
     opacity = torch.sigmoid(g.logit_opacities[idx])
+    if antialias:
+        raw = cov2d_raw[idx]
+        det_raw = raw[:, 0, 0] * raw[:, 1, 1] - raw[:, 0, 1] * raw[:, 1, 0]
+        opacity = opacity * torch.sqrt(det_raw.clamp_min(0.0) / det)
     campos = -R_cw.T @ t_cw
     color = sh_to_rgb(g.sh[idx], g.means[idx] - campos)
 
