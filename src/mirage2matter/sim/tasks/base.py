@@ -63,10 +63,10 @@ class SuccessMonitor:
         raise NotImplementedError
 
 
-def option(default: Any, help: str, range: tuple[float, float] | None = None) -> Any:
+def option(default: Any, help: str, range: tuple[float, float] | None = None, unit: str = "metres") -> Any:
     """A task option: a dataclass field with its ``--name`` help (what a value must be) and, for numbers, the
-    half-open ``range`` (lo, hi] it must lie in."""
-    return field(default=default, metadata={"help": help, "range": range})
+    half-open ``range`` (lo, hi] it must lie in, in ``unit`` ("" for a plain number)."""
+    return field(default=default, metadata={"help": help, "range": range, "unit": unit})
 
 
 @dataclass(frozen=True)
@@ -89,7 +89,8 @@ class Task:
                 except (TypeError, ValueError):
                     raise TaskError(f"--{f.name} must be {f.metadata['help']}") from None
                 if not (lim[0] < v <= lim[1]):
-                    raise TaskError(f"--{f.name} {v} must be in ({lim[0]:g}, {lim[1]:g}] metres")
+                    unit = f.metadata.get("unit", "metres")
+                    raise TaskError(f"--{f.name} {v} must be in ({lim[0]:g}, {lim[1]:g}]{' ' + unit if unit else ''}")
                 object.__setattr__(self, f.name, v)
 
     # ---- what a task defines ------------------------------------------------------------------------------

@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from ..planning import PlanningError, cartesian_path, collision_free, ik, time_parameterize
+from ..planning import PlanningError, cartesian_path, collision_free, ik, plan, time_parameterize
 from ..twin import Twin
-from .base import SuccessMonitor, Task, register_task
+from .base import SuccessMonitor, Task, option, register_task
 from .motion import Executor, move_to, placed, topdown
 
 __all__ = ["GraspTask", "LiftMonitor", "grasp_candidates", "yaw_choices"]
@@ -52,13 +52,17 @@ class GraspTask(Task):
     (:func:`grasp_candidates`), pre-grasp 10 cm above, straight approach, close with the robot's grasp force,
     lift 10 cm, hold 1 s.
 
-    **Randomizations:** none of its own; the start poses are the twin's reset (``twin.reset(seed)``).
+    **Randomizations:** the start poses are the twin's reset (``twin.reset(seed)``). With ``--detour P``, a fraction
+    P of the demonstrations first go to a pre-grasp 4-10 cm off the chosen one (random direction), pause 0.3 s
+    there and then go on to the right one: recovery data, so a policy that reaches beside the object has seen
+    how to correct from there (its cameras show the object off-centre), not only perfect approaches.
 
     **Success** (:class:`LiftMonitor`, at every control tick): the object has stayed >= 5 cm above its start
     height for 1 s.
     """
 
     verb = "grasp"
+    detour: float | None = option(None, "a fraction of the demonstrations", range=(0.0, 1.0), unit="")
 
     @property
     def instruction(self) -> str:
@@ -104,13 +108,29 @@ class GraspTask(Task):
             return f"no reachable top-down grasp of {name} ({tried} tried)", {}
         tcp, w, q_pre, down, up = chosen
         opened, closed = spec.gripper_open, spec.gripper_closed
+        info: dict[str, Any] = {}
+        # drawn in every episode (the same number of draws), so a seed's episode does not depend on the option
+        u, angle, radius = ex.rng.random(), ex.rng.uniform(0.0, 2.0 * math.pi), ex.rng.uniform(0.04, 0.10)
+        if self.detour is not None and u < self.detour:
+            T_off = topdown(tcp, np.array([math.cos(w), math.sin(w)]), spec.T_ee_tcp)
+            T_off[:2, 3] += radius * np.array([math.cos(angle), math.sin(angle)])
+            T_off[2, 3] += 0.10
+            try:
+                q_off = ik(twin, T_off, q_now)
+                path = plan(twin, ex.q_now(), q_off, timeout=3.0)
+            except PlanningError:
+                path = None  # an unreachable detour: the plain approach
+            if path is not None:
+                ex.follow(time_parameterize(path, twin.dt, 0.6, robot=spec), opened)
+                ex.hold(0.3, opened)
+                info["detour_m"] = [round(radius * math.cos(angle), 4), round(radius * math.sin(angle), 4)]
         move_to(ex, q_pre, opened, speed=0.6)
         ex.follow(time_parameterize(down, twin.dt, through=True, duration=0.8, robot=spec), opened)
         ex.hold(0.15, opened)  # let the arm's tracking error settle: a grasp off the widest height squeezes out
         ex.close()
         ex.follow(time_parameterize(up, twin.dt, through=True, duration=0.7, robot=spec), closed)  # squeezing
         ex.hold(1.0, closed)
-        return "", {"grasp_tcp": tcp.tolist(), "grasp_yaw_deg": math.degrees(w)}
+        return "", {"grasp_tcp": tcp.tolist(), "grasp_yaw_deg": math.degrees(w), **info}
 
 
 def grasp_candidates(

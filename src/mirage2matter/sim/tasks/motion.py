@@ -67,7 +67,8 @@ def tick_ends(n_steps: int, substeps: int) -> np.ndarray:
 class Executor:
     """Runs a scripted task tick by tick: each action is recorded, then executed by ``act`` (default
     ``twin.act(action, substeps)``; generation passes the environment's ``step``, which ends in the same call),
-    then the task's success monitor is updated."""
+    then the task's success monitor is updated. ``rng`` draws the task's own random choices (the episode's
+    task seed in generation)."""
 
     def __init__(
         self,
@@ -76,8 +77,10 @@ class Executor:
         control_hz: float,
         monitor: TickMonitor | None = None,
         act: Callable[[np.ndarray], object] | None = None,
+        rng: np.random.Generator | None = None,
     ) -> None:
         self.twin = twin
+        self.rng = rng if rng is not None else np.random.default_rng(0)  # the task's own random choices
         self.spec = twin.spec
         self.on_step = on_step
         self.spc = steps_per_tick(twin, control_hz)  # physics steps per tick

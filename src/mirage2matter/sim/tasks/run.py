@@ -37,11 +37,11 @@ def run_task(
     """Run ``task``'s scripted policy from the twin's current state (call ``twin.reset`` first), one control tick
     at ``control_hz`` at a time: ``on_step`` gets each tick's record before the tick runs (the twin is then in
     the record's state, so a caller can render), ``act`` executes the action (default ``twin.act``; it must end
-    in that call). Success is the task's monitor (:meth:`Task.monitor`) at any tick. ``rng`` is reserved for
-    randomised task choices (the scripted policies are deterministic). Raises TaskError when the twin's world
-    has no target for the task; planning failures end the script with the planner's message."""
+    in that call). Success is the task's monitor (:meth:`Task.monitor`) at any tick. ``rng`` draws the task's own
+    random choices (e.g. a grasp's detour; None: a fixed seed, so a run is deterministic). Raises TaskError when
+    the twin's world has no target for the task; planning failures end the script with the planner's message."""
     task.check(twin.cfg)
-    ex = Executor(twin, on_step, control_hz, act=act)
+    ex = Executor(twin, on_step, control_hz, act=act, rng=rng)
     ex.monitor = monitor = task.monitor(twin, ex.tick_s)
     t0 = time.perf_counter()
     try:
