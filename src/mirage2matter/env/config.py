@@ -53,12 +53,13 @@ class Randomization:
 def _fast_splats() -> SplatRenderOptions:
     # Measured on a wrist-camera episode of the reconstructed sample world at 224 px: SH band 1 instead of 3 is
     # 43.5 dB from the full render and poses a part 2.4x faster; dropping Gaussians below opacity 0.02 (most
-    # of an object reconstruction's are fainter) is 40 dB from it and renders ~12% faster. Antialiased: the
-    # sample's ground-truth world at 128 px is 23.1 dB (head) / 24.1 dB (wrist) from these renders against 22.1 /
-    # 23.2 dB in classic mode (4 episodes' first frames; the banana and the button no longer swell), same cost.
+    # of an object reconstruction's are fainter) is 40 dB from it and renders ~12% faster. Classic, not antialiased,
+    # mode: antialiased renders are closer to the sample's ground-truth world at 128 px (23.1 / 24.1 dB head / wrist
+    # against 22.1 / 23.2, four episodes' first frames; the banana and the button no longer swell), but a grasp
+    # policy trained on 300 such demos did worse there, not better (see README, issue 16).
     from ..render.splat_world import SplatRenderOptions
 
-    return SplatRenderOptions(sh_degree=1, min_opacity=0.02, antialias=True)
+    return SplatRenderOptions(sh_degree=1, min_opacity=0.02)
 
 
 @dataclass(frozen=True)
