@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from ..planning import PlanningError, cartesian_path, collision_free, ik, plan, time_parameterize
+from ..planning import PlanningError, cartesian_path, collision_free, ik, time_parameterize
 from ..twin import Twin
 from .base import SuccessMonitor, Task, option, register_task
 from .motion import Executor, move_to, placed, topdown
@@ -100,30 +100,26 @@ class GraspTask(Task):
                 with twin.restoring():  # the open fingers may touch the target, nothing else
                     if not collision_free(twin, np.concatenate([down[-1], q_now[n_arm:]]), allow=(name,)):
                         continue
-                chosen = (tcp, w, q_pre, down, up)
+                chosen = (tcp, w, T_pre, q_pre, down, up)
                 break
             if chosen:
                 break
         if chosen is None:
             return f"no reachable top-down grasp of {name} ({tried} tried)", {}
-        tcp, w, q_pre, down, up = chosen
+        tcp, w, T_pre, q_pre, down, up = chosen
         opened, closed = spec.gripper_open, spec.gripper_closed
         info: dict[str, Any] = {}
         # drawn in every episode (the same number of draws), so a seed's episode does not depend on the option
         u, angle, radius = ex.rng.random(), ex.rng.uniform(0.0, 2.0 * math.pi), ex.rng.uniform(0.04, 0.10)
         if self.detour is not None and u < self.detour:
-            T_off = topdown(tcp, np.array([math.cos(w), math.sin(w)]), spec.T_ee_tcp)
+            T_off = T_pre.copy()
             T_off[:2, 3] += radius * np.array([math.cos(angle), math.sin(angle)])
-            T_off[2, 3] += 0.10
-            try:
-                q_off = ik(twin, T_off, q_now)
-                path = plan(twin, ex.q_now(), q_off, timeout=3.0)
-            except PlanningError:
-                path = None  # an unreachable detour: the plain approach
-            if path is not None:
-                ex.follow(time_parameterize(path, twin.dt, 0.6, robot=spec), opened)
+            try:  # the plan fails before any tick; an unreachable detour leaves the plain approach
+                move_to(ex, ik(twin, T_off, q_now), opened, speed=0.6)
                 ex.hold(0.3, opened)
                 info["detour_m"] = [round(radius * math.cos(angle), 4), round(radius * math.sin(angle), 4)]
+            except PlanningError:
+                pass
         move_to(ex, q_pre, opened, speed=0.6)
         ex.follow(time_parameterize(down, twin.dt, through=True, duration=0.8, robot=spec), opened)
         ex.hold(0.15, opened)  # let the arm's tracking error settle: a grasp off the widest height squeezes out
