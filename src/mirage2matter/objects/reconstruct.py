@@ -282,7 +282,9 @@ def process_object(
         init = _init_from_mesh(hull, cameras, images)
 
     log(f"{name}: object 3DGS")
-    g_base, splat_metrics = train_object_gaussians(init, cameras, images, masks, config.splat, name, progress)
+    g_base, splat_metrics = train_object_gaussians(
+        init, cameras, images, masks, config.splat, name, progress, plane=target.plane
+    )
 
     recon = None
     if target.cluster is not None and target.plane is not None:
@@ -306,7 +308,7 @@ def process_object(
             )
             heal = replace(config.splat, iterations=max(1, config.splat.iterations // 4), min_opacity_init=0.0)
             g_base, splat_metrics = train_object_gaussians(
-                g_base.select(torch.from_numpy(~inside)), cameras, images, masks, heal, name, progress
+                g_base.select(torch.from_numpy(~inside)), cameras, images, masks, heal, name, progress, target.plane
             )
             pruned += int(inside.sum())
         if pruned:
