@@ -68,6 +68,37 @@ def test_eval_in_the_ground_truth_world(ws: Path, sample_dir: Path) -> None:
     assert s["renderer"] == "ground_truth" and s["episodes"] == 1 and s["runs"][0]["steps"] <= 3
 
 
+@pytest.mark.slow
+def test_bench_policy_gap_records_the_expert_once_and_scores_both_renderers(
+    ws: Path, sample_dir: Path, capsys, monkeypatch
+) -> None:
+    argv = ["bench", "policy-gap", "-w", str(ws), "--policy", "tiny", "--episodes", "1", "--size", "48",
+            "--ground-truth", str(sample_dir)]  # fmt: skip
+    assert main(argv) == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result["episodes"] == 1 and result["expert_successes"] == 1  # the scripted grasp works here
+    err = result["policies"]["tiny"]
+    assert 0 < err["hybrid"] < 10 and 0 < err["ground_truth"] < 10
+    assert err["gap"] == pytest.approx(err["ground_truth"] - err["hybrid"], abs=2e-5)
+    pair = np.load(ws / "evals" / "expert_pairs" / "grasp_banana-48px" / "pair_2000000.npz")
+    n = len(pair["action"])
+    for key in ("hybrid.head", "hybrid.wrist", "ground_truth.head", "ground_truth.wrist"):
+        assert pair[key].shape == (n + 1, 48, 48, 3) and pair[key].dtype == np.uint8, key
+    assert pair["state"].shape == (n + 1, 9) and bool(pair["success"])
+    # the two renderers show the same scene, not the same pixels
+    h, g = pair["hybrid.head"][0].astype(float), pair["ground_truth.head"][0].astype(float)
+    assert 12.0 < 10 * np.log10(255**2 / np.mean((h - g) ** 2)) < 40.0
+
+    import mirage2matter.env.expert_pairs as expert_pairs
+
+    def no_recording(*a, **k):
+        raise AssertionError("recorded again")
+
+    monkeypatch.setattr(expert_pairs, "record_expert_pairs", no_recording)  # cached: the second run only scores
+    assert main(argv) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["policies"] == result["policies"]
+
+
 def _error(capsys, *argv: str) -> str:
     assert main(list(argv)) == 2
     return capsys.readouterr().err

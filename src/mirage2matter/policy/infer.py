@@ -67,6 +67,11 @@ class Policy:
         return self.spec.action_dim
 
     @property
+    def action_std(self) -> np.ndarray:
+        """float32 [A]: the training data's per-entry action spread (the unit of the training loss)."""
+        return self._a_std
+
+    @property
     def observation_keys(self) -> tuple[str, ...]:
         return (*[IMAGE_PREFIX + c for c in self.meta.cameras], STATE_KEY)
 
