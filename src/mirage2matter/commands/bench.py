@@ -169,6 +169,8 @@ def _sim2real(args: argparse.Namespace) -> int:
 
 
 def _policy_gap(args: argparse.Namespace) -> int:
+    import hashlib
+
     from ..datagen import task_slug
     from ..env.expert_pairs import load_or_record_pairs, open_loop_error
     from ..env.twin_env import make_config
@@ -193,7 +195,9 @@ def _policy_gap(args: argparse.Namespace) -> int:
                              fps=10)  # fmt: skip
         policies[ref] = policy
     seeds = list(range(args.seed, args.seed + args.episodes))
-    folder = ws.evals_dir / "expert_pairs" / f"{task_slug(args.task)}-{args.size}px"
+    # keyed on the world's description too: a world composed again (other objects, other placements) records anew
+    world_id = hashlib.sha256(ws.committed.world_yaml.read_bytes()).hexdigest()[:8]
+    folder = ws.evals_dir / "expert_pairs" / f"{task_slug(args.task)}-{args.size}px-{world_id}"
     episodes = load_or_record_pairs(folder, ws.committed.world_dir, args.task, gt, seeds, args.size, log=info)
     ok = sum(bool(e["success"]) for e in episodes)
     info(f"expert: {ok}/{len(episodes)} episodes succeeded (only those are compared)")
