@@ -201,6 +201,10 @@ def _policy_gap(args: argparse.Namespace) -> int:
     episodes = load_or_record_pairs(folder, ws.committed.world_dir, args.task, gt, seeds, args.size, log=info)
     ok = sum(bool(e["success"]) for e in episodes)
     info(f"expert: {ok}/{len(episodes)} episodes succeeded (only those are compared)")
+    if not ok:
+        raise eval_policy.PolicyError(f"bench policy-gap: the scripted expert failed all {len(episodes)} episodes of "
+                                      f"{args.task!r} in this world ({folder}); check it with `m2m task -w "
+                                      f"{ws.root} {args.task!r}`")  # fmt: skip
     rows = {}
     for ref, policy in policies.items():
         err = open_loop_error(policy, episodes, stride=args.stride)
