@@ -4,8 +4,8 @@ A closed-loop success rate in the ground-truth world takes ~25 minutes per 50 ep
 trainings that differ only in their seed land 20 points apart. The open-loop error is a cheaper screen of the
 visual sim-to-real gap: along the expert's own episodes (the states a good policy visits), how far the actions a
 policy predicts from the ground-truth world's frames are from the expert's, against the same on the hybrid
-frames it was trained on. On the sample, over eight grasp policies, the ground-truth error ranked them as their
-ground-truth success rates did (Spearman -0.84), the hybrid error did not (-0.33); see ``bench policy-gap``.
+frames it was trained on. On the sample, over nine grasp policies, the ground-truth error ranked them much as
+their ground-truth success rates did (Spearman -0.72), the hybrid error did not (-0.38); see ``bench policy-gap``.
 
 An episode record (``record_expert_pairs``) is a dict: ``hybrid.<camera>`` and ``ground_truth.<camera>``
 uint8 [T+1, S, S, 3] (the observation before each step, and the last), ``state`` float32 [T+1, state_dim],
