@@ -174,7 +174,6 @@ def _policy_gap(args: argparse.Namespace) -> int:
     from ..datagen import task_slug
     from ..env.expert_pairs import load_or_record_pairs, open_loop_error
     from ..env.twin_env import make_config
-    from ..policy import load_policy
     from ..stages import eval_policy
     from ..workspace import Workspace
 
@@ -183,17 +182,12 @@ def _policy_gap(args: argparse.Namespace) -> int:
     cfg = eval_policy.Config(task=args.task, renderer="ground_truth", ground_truth=args.ground_truth)
     gt = eval_policy.ground_truth_dir(ws, cfg)
     world = make_config(ws.committed.world_dir, args.task, size=args.size).world  # the task and world, checked
-    spec = world.robot.spec
     policies = {}
     for ref in args.policy:  # every policy opened and checked against the robot before the long recording
-        path = eval_policy.policy_path(ws, replace(cfg, policy=ref))
-        if path is None:
+        if eval_policy.policy_path(ws, replace(cfg, policy=ref)) is None:
             raise eval_policy.PolicyError(f"bench policy-gap: {ref!r} is a callable; it needs a trained policy (the "
                                           "error is in its action-std units)")  # fmt: skip
-        policy = load_policy(path, device="cpu")
-        policy.check_matches(robot_type=spec.robot_type, state_names=spec.state_names, action_names=spec.action_names,
-                             fps=10)  # fmt: skip
-        policies[ref] = policy
+        policies[ref] = eval_policy.open_policy(ws, replace(cfg, policy=ref), world)
     seeds = list(range(args.seed, args.seed + args.episodes))
     # keyed on the world's description too: a world composed again (other objects, other placements) records anew
     world_id = hashlib.sha256(ws.committed.world_yaml.read_bytes()).hexdigest()[:8]

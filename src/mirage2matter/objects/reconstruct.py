@@ -308,7 +308,8 @@ def process_object(
             )
             heal = replace(config.splat, iterations=max(1, config.splat.iterations // 4), min_opacity_init=0.0)
             g_base, splat_metrics = train_object_gaussians(
-                g_base.select(torch.from_numpy(~inside)), cameras, images, masks, heal, name, progress, target.plane
+                g_base.select(torch.from_numpy(~inside)), cameras, images, masks, heal, name, progress,
+                plane=target.plane,
             )
             pruned += int(inside.sum())
         if pruned:

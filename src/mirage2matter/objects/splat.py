@@ -15,7 +15,7 @@ alpha outside the grown mask, within the crop.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -230,7 +230,11 @@ def train_object_gaussians(
     )
     g, train_metrics = train(views_train, views_held, init, cfg, progress=progress)
     # the figures are the object alone (over black, inside its own mask), whatever it was trained against
-    held = object_metrics(g, heldout_views(cameras, images, masks, config), config.dilate_px)
+    alone = []
+    for k in held_idx:
+        i, view, (x0, y0, x1, y1) = items[k]
+        alone.append(replace(view, mask=torch.from_numpy(masks[i][y0:y1, x0:x1].copy()), background=None))  # type: ignore[index]
+    held = object_metrics(g, alone, config.dilate_px)
     metrics = {
         "heldout": held,
         "train_views": len(views_train),

@@ -188,7 +188,7 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
     return files
 
 
-def _open_policy(ws: Workspace, cfg: Config, world: Any):
+def open_policy(ws: Workspace, cfg: Config, world: Any):
     """The policy, checked against the world's robot before anything is built (a policy of another robot, rate
     or cameras is an error naming its file)."""
     from ..env.config import CAMERAS
@@ -218,7 +218,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     # every check (the task, the renderer's ground truth, the policy against the robot) before the twin's build
     env_cfg = make_config(ws.committed.world_dir, task, renderer=cfg.renderer, size=size, horizon=cfg.horizon,
                           ground_truth=gt)  # fmt: skip
-    policy = _open_policy(ws, cfg, env_cfg.world)
+    policy = open_policy(ws, cfg, env_cfg.world)
     out = ws.eval_dir(report_name(ws, cfg))
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
