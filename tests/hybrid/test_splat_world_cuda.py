@@ -61,3 +61,24 @@ def test_a_part_out_of_view_renders_without_reaching_gsplat_empty():
     empty.set_poses({"a": poses["a"]})
     rgb, alpha, depth = empty.render(head, K, W, H, background=(0.2, 0.4, 0.6))
     assert not alpha.any() and not depth.any() and np.allclose(rgb, (0.2, 0.4, 0.6))
+
+
+def test_a_batch_of_worlds_in_one_gsplat_call_matches_the_cpu_worlds():
+    """SplatWorldBatch on the GPU (one gsplat call for B copies x C cameras) against each copy's CPU frames."""
+    from test_splat_batch import _poses
+    from test_splat_batch import _world as _batch_world
+
+    from mirage2matter.render import SplatWorldBatch
+
+    batch = SplatWorldBatch(_batch_world(backend="cuda"), 3)
+    assert batch.worlds[0].device.type == "cuda"
+    batch.set_poses([_poses(k) for k in range(3)])
+    views = np.stack([np.stack([_camera((0.0, 0.0, 0.5)), _camera((0.4, 0.1, 0.3), target=(0.5, 0.0, 0.0))])] * 3)
+    rgb, alpha, depth = batch.render(views, np.broadcast_to(K, (3, 2, 3, 3)), W, H, background=(0.1, 0.2, 0.3))
+    for k in range(3):
+        alone = _batch_world(backend="cpu")
+        alone.set_poses(_poses(k))
+        for c in range(2):
+            r, a, _ = alone.render(views[k, c], K, W, H, background=(0.1, 0.2, 0.3))
+            assert _psnr(rgb[k, c], r) >= 35.0 and _psnr(alpha[k, c], a) >= 35.0
+    assert np.abs(rgb[0, 0] - rgb[1, 0]).mean() > 1e-3

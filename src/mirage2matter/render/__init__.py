@@ -2,6 +2,15 @@
 simulator's robot render, depth-aware. Takes arrays and Gaussians, never a simulator."""
 
 from .composite import ColorJitter, composite, robot_visible, to_uint8
-from .splat_world import MovablePart, SplatRenderOptions, SplatWorld
+from .splat_world import MovablePart, SplatRenderOptions, SplatWorld, SplatWorldBatch
 
-__all__ = ["ColorJitter", "MovablePart", "SplatRenderOptions", "SplatWorld", "composite", "robot_visible", "to_uint8"]
+__all__ = [
+    "ColorJitter",
+    "MovablePart",
+    "SplatRenderOptions",
+    "SplatWorld",
+    "SplatWorldBatch",
+    "composite",
+    "robot_visible",
+    "to_uint8",
+]

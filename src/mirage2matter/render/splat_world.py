@@ -4,12 +4,15 @@ Each movable part (an object, a button cap) holds its Gaussians in its own objec
 physics pose ``T_base_obj`` (rigid) they are ``apply_sim3(local, Sim3(scale, R, t))``, the object's
 placement scale with the pose's rotation and translation, SH bands rotated too (world/config.py).
 
-The world's tensors are concatenated once; moving a part overwrites its rows in place, so a frame
-costs the parts' transforms and the render, not a copy of the whole scene.
+The world's tensors are concatenated once, on the device its backend renders on (a GPU for "cuda"); moving a
+part overwrites its rows in place, so a frame costs the parts' transforms and the render, not a copy of the whole
+scene. :class:`SplatWorldBatch` holds B copies of one world (B episodes in lockstep) in one ``[B, N, ...]`` stack
+and renders all of them, from all their cameras, in one call on a GPU.
 """
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,7 +83,12 @@ class SplatWorld:
             chunks.append(p.local)
         if not chunks:
             raise ValueError("the splat world is empty: no scene Gaussians and no parts")
-        self.gaussians = Gaussians.concat(chunks).map(lambda t: t.to(torch.float32).contiguous().clone())
+        from ..gaussians.render import resolve_backend
+
+        # the rows live where the renderer reads them: a GPU world is not copied to the GPU at every frame
+        self.device = torch.device("cuda" if resolve_backend(self.options.backend) == "cuda" else "cpu")
+        self.parts = [MovablePart(p.name, p.local.to(self.device, torch.float32), p.scale) for p in self.parts]
+        self.gaussians = Gaussians.concat(chunks).map(lambda t: t.to(self.device, torch.float32).contiguous().clone())
         self._radius = self._cull_radius(self.gaussians)  # [N], kept current by set_poses
         self.poses: dict[str, np.ndarray] = {}
         self.version = 0  # bumped whenever a part is re-posed (what cached frames depend on)
@@ -155,7 +163,7 @@ class SplatWorld:
                tuple(background), frozenset(self._moving))  # fmt: skip
         entry = self._cache.get(name)
         if entry is None or entry["key"] != key:
-            keep = torch.ones(len(self.gaussians), dtype=torch.bool)
+            keep = torch.ones(len(self.gaussians), dtype=torch.bool, device=self.device)
             for n in self._moving:
                 keep[self._slices[n]] = False
             entry = {
@@ -191,8 +199,8 @@ class SplatWorld:
         :meth:`_cull_radius` of ``g`` when the caller has it."""
         from ..gaussians.render.conventions import NEAR_PLANE
 
-        V = torch.as_tensor(viewmat, dtype=g.means.dtype)
-        Kt = torch.as_tensor(K, dtype=g.means.dtype)
+        V = torch.as_tensor(viewmat, dtype=g.means.dtype, device=g.means.device)
+        Kt = torch.as_tensor(K, dtype=g.means.dtype, device=g.means.device)
         pc = g.means @ V[:3, :3].T + V[:3, 3]
         z = pc[:, 2]
         zc = z.clamp_min(NEAR_PLANE)
@@ -225,3 +233,109 @@ class SplatWorld:
         )
         as_np = lambda t: t.detach().to("cpu", torch.float32).numpy()
         return np.clip(as_np(out.rgb), 0.0, 1.0), as_np(out.alpha), as_np(out.depth)
+
+
+class SplatWorldBatch:
+    """B copies of one :class:`SplatWorld` (B episodes stepped in lockstep), each posed on its own, rendered
+    together: on a GPU one gsplat call draws every copy from its C cameras (at 224x224 one camera alone leaves most
+    of the GPU idle); elsewhere copy by copy, camera by camera, the same images.
+
+    The copies are the rows of one ``[B, N, ...]`` stack. :meth:`set_poses` takes every copy's part poses at once
+    and re-poses each part for all the copies it moved in in one batched transform (not one small GPU job per
+    copy); :meth:`forget` starts a copy afresh (a new episode). Every camera renders the whole world each frame (no
+    static-camera background cache: a batched GPU call costs less than its bookkeeping).
+    """
+
+    def __init__(self, world: SplatWorld, batch: int):
+        if batch < 1:
+            raise ValueError(f"a splat world batch needs at least one copy, got {batch}")
+        self.options, self.parts, self._slices = world.options, world.parts, world._slices
+        self.sh_degree = world.gaussians.sh_degree
+        self.stack = {k: t.unsqueeze(0).repeat(batch, *[1] * t.ndim) for k, t in world.gaussians.tensors().items()}
+        self._poses: list[dict[str, np.ndarray]] = [{} for _ in range(batch)]
+        # Copy b as a SplatWorld on row b (views: posing the stack moves it), for the CPU path's renders. A part's
+        # cull radius depends on its scales alone, which a rigid pose keeps: the world's radii hold for every copy.
+        self.worlds: list[SplatWorld] = []
+        for b in range(batch):
+            w = copy.copy(world)
+            w.gaussians = Gaussians(**{k: t[b] for k, t in self.stack.items()})
+            w.poses, w.version = {}, 0
+            w.reset_cache()
+            self.worlds.append(w)
+
+    def __len__(self) -> int:
+        return len(self.worlds)
+
+    def forget(self, b: int) -> None:
+        """Copy ``b`` starts a new episode: its next poses are applied exactly, not skipped as unchanged."""
+        self._poses[b] = {}
+
+    def set_poses(self, poses: list[dict[str, np.ndarray] | None]) -> None:
+        """Copy b's parts to ``poses[b]`` ({name: T_base_obj [4,4]}; None or a missing name: unchanged)."""
+        if len(poses) != len(self):
+            raise ValueError(f"set_poses needs one pose dict per copy ({len(self)}), got {len(poses)}")
+        tol = self.options.pose_tolerance
+        for p in self.parts:
+            idx, Ts = [], []
+            for b, d in enumerate(poses):
+                T = None if d is None else d.get(p.name)
+                if T is None:
+                    continue
+                T = np.asarray(T, np.float64)
+                last = self._poses[b].get(p.name)
+                if last is not None and np.abs(last - T).max() <= tol:
+                    continue
+                idx.append(b)
+                Ts.append(T)
+                self._poses[b][p.name] = T.copy()
+            if idx:
+                self._pose_part(p, idx, np.stack(Ts))
+
+    def _pose_part(self, p: MovablePart, idx: list[int], T: np.ndarray) -> None:
+        """Part ``p`` in copies ``idx`` at poses T [B',4,4]: apply_sim3's transform for all of them at once (the
+        small rotation-dependent matrices made on the CPU and sent in one go)."""
+        from ..gaussians.sh_rotation import sh_rotation_matrix
+        from ..geometry.rotation import matrix_to_quat, quat_multiply, quat_normalize
+
+        g, dev = p.local, p.local.means.device
+        R, t = T[:, :3, :3], T[:, :3, 3]
+        D = sh_rotation_matrix(R, g.sh_degree)  # [B',K,K] float64, CPU
+        q = matrix_to_quat(R)  # [B',4]
+        small = torch.as_tensor(np.concatenate([(p.scale * R).reshape(-1, 9), t, q, D.reshape(len(idx), -1).numpy()],
+                                               axis=1), dtype=torch.float32).to(dev)  # fmt: skip
+        sR, tt, qq = small[:, :9].reshape(-1, 3, 3), small[:, 9:12], small[:, 12:16]
+        Dk = small[:, 16:].reshape(len(idx), *D.shape[1:])
+        sl, rows = self._slices[p.name], torch.as_tensor(idx, device=dev)
+        with torch.no_grad():
+            self.stack["means"][rows, sl] = g.means @ sR.transpose(1, 2) + tt[:, None]
+            self.stack["quats"][rows, sl] = quat_normalize(quat_multiply(qq[:, None].expand(-1, len(g), 4),
+                                                                         g.quats.expand(len(idx), -1, -1)))  # fmt: skip
+            self.stack["log_scales"][rows, sl] = (g.log_scales + float(np.log(p.scale))).expand(len(idx), -1, -1)
+            K = g.sh.shape[1]
+            self.stack["sh"][rows, sl, :K] = torch.einsum("bij,njc->bnic", Dk, g.sh)
+
+    def render(self, viewmats, Ks, width: int, height: int, background=(0.0, 0.0, 0.0)):
+        """Every copy b from its cameras (viewmats [B,C,4,4] world-to-camera, Ks [B,C,3,3]) -> (rgb [B,C,H,W,3] in
+        [0,1], alpha [B,C,H,W], depth [B,C,H,W] camera-z m), float32 numpy."""
+        from ..gaussians.render import gpu_out_of_memory, render_gsplat_batch
+
+        viewmats, Ks = np.asarray(viewmats, np.float64), np.asarray(Ks, np.float64)
+        B = len(self.worlds)
+        if viewmats.ndim != 4 or viewmats.shape[0] != B or viewmats.shape[2:] != (4, 4) or \
+                Ks.shape != (*viewmats.shape[:2], 3, 3):  # fmt: skip
+            raise ValueError(f"a batch of {B} worlds renders viewmats [{B},C,4,4] and Ks [{B},C,3,3], got "
+                             f"{viewmats.shape} and {Ks.shape}")  # fmt: skip
+        if self.worlds[0].device.type != "cuda" or self.stack["means"].shape[1] == 0:  # gsplat dies on N = 0
+            outs = [[w.render(v, k, width, height, background) for v, k in zip(vs, ks, strict=True)]
+                    for w, vs, ks in zip(self.worlds, viewmats, Ks, strict=True)]  # fmt: skip
+            return tuple(np.stack([np.stack([o[i] for o in row]) for row in outs]) for i in range(3))
+        try:
+            f32 = lambda a: torch.tensor(np.asarray(a, np.float32))  # a copy: the inputs may be read-only views
+            out = render_gsplat_batch(self.stack, self.sh_degree, f32(viewmats), f32(Ks), int(width), int(height),
+                                      f32(background), self.options.antialias)  # fmt: skip
+        except torch.cuda.OutOfMemoryError as e:
+            lower = "the episodes per batch, the image size or the Gaussians (min_opacity)"
+            raise gpu_out_of_memory(f"rendering {B}x{viewmats.shape[1]} cameras of", self.stack["means"].shape[1],
+                                    width, height, lower) from e  # fmt: skip
+        as_np = lambda t: t.to("cpu").numpy()
+        return as_np(out.rgb.clamp(0.0, 1.0)), as_np(out.alpha), as_np(out.depth)

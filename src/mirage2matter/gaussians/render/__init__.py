@@ -21,7 +21,13 @@ import torch
 
 from ...errors import M2MError
 from ..model import Gaussians
-from .gsplat_cuda import cuda_available, cuda_unavailable_reason, render_gsplat, render_gsplat_cameras
+from .gsplat_cuda import (
+    cuda_available,
+    cuda_unavailable_reason,
+    render_gsplat,
+    render_gsplat_batch,
+    render_gsplat_cameras,
+)
 from .numba_cpu import render_numba
 from .reference import render_reference
 from .types import RenderOutput
@@ -159,6 +165,7 @@ __all__ = [
     "render",
     "render_cameras",
     "render_gsplat",
+    "render_gsplat_batch",
     "render_gsplat_cameras",
     "render_numba",
     "render_reference",

@@ -46,22 +46,31 @@ def _rasterize(g: Gaussians, viewmats: torch.Tensor, Ks: torch.Tensor, width: in
                antialias: bool = False):
     """gsplat's rasterization of ``g`` from C cameras (viewmats [C,4,4], Ks [C,3,3]) in one call:
     -> (renders [C,H,W,4] RGB + expected depth, alphas [C,H,W,1], meta), on the GPU."""
+    return _rasterize_tensors(g.tensors(), g.sh_degree, viewmats, Ks, width, height, background, antialias)
+
+
+def _rasterize_tensors(t: dict[str, torch.Tensor], sh_degree: int, viewmats: torch.Tensor, Ks: torch.Tensor,
+                       width: int, height: int, background, antialias: bool = False):
+    """:func:`_rasterize` of Gaussians given as their tensors (``Gaussians.tensors()`` names), each with the same
+    leading batch dims ``[..., N, ...]`` (``[...]`` empty for one set) and cameras ``[..., C, 4, 4]``."""
     if not torch.cuda.is_available():
         raise RuntimeError("backend 'cuda' needs a CUDA GPU and torch with CUDA; use backend='cpu'")
     from gsplat import rasterization
 
-    dev = g.means.device if g.means.is_cuda else torch.device("cuda")
-    gc = g.to(dev, torch.float32)
+    means = t["means"]
+    dev = means.device if means.is_cuda else torch.device("cuda")
+    gc = {k: v.to(dev, torch.float32) for k, v in t.items()}
     viewmats = torch.as_tensor(viewmats, dtype=torch.float32).to(dev)
     Ks = torch.as_tensor(Ks, dtype=torch.float32).to(dev)
-    C = viewmats.shape[0]
-    bg = None if background is None else torch.as_tensor(background, dtype=torch.float32).to(dev).expand(C, 3)
+    bg = None
+    if background is not None:
+        bg = torch.as_tensor(background, dtype=torch.float32).to(dev).expand(*viewmats.shape[:-2], 3)
     return rasterization(
-        gc.means,
-        gc.quats,
-        torch.exp(gc.log_scales),
-        torch.sigmoid(gc.logit_opacities),
-        gc.sh,
+        gc["means"],
+        gc["quats"],
+        torch.exp(gc["log_scales"]),
+        torch.sigmoid(gc["logit_opacities"]),
+        gc["sh"],
         viewmats,
         Ks,
         width,
@@ -69,7 +78,7 @@ def _rasterize(g: Gaussians, viewmats: torch.Tensor, Ks: torch.Tensor, width: in
         near_plane=NEAR_PLANE,
         far_plane=FAR_PLANE,
         eps2d=EPS2D,
-        sh_degree=g.sh_degree,
+        sh_degree=sh_degree,
         packed=False,
         render_mode="RGB+ED",
         backgrounds=bg,
@@ -97,6 +106,23 @@ def render_gsplat_cameras(
     most of the GPU idle), e.g. the head and wrist views of a frame, or many episodes' frames."""
     renders, alphas, _ = _rasterize(g, viewmats, Ks, width, height, background, antialias)
     return _output(g, renders, alphas)
+
+
+def render_gsplat_batch(
+    tensors: dict[str, torch.Tensor],
+    sh_degree: int,
+    viewmats: torch.Tensor,
+    Ks: torch.Tensor,
+    width: int,
+    height: int,
+    background: torch.Tensor | None = None,
+    antialias: bool = False,
+) -> RenderOutput:
+    """B Gaussian sets of equal size N (``Gaussians.tensors()`` names, each ``[B, N, ...]``: e.g. one world posed
+    for B episodes) from C cameras each (viewmats [B,C,4,4], Ks [B,C,3,3]) in one gsplat call: rgb [B,C,H,W,3],
+    alpha and depth [B,C,H,W], float32 on the GPU."""
+    renders, alphas, _ = _rasterize_tensors(tensors, sh_degree, viewmats, Ks, width, height, background, antialias)
+    return RenderOutput(renders[..., :3].float(), alphas[..., 0].float(), renders[..., 3].float())
 
 
 def render_gsplat(
