@@ -1,5 +1,5 @@
-"""``m2m bench render | train | datagen | sim2real | policy-gap``: benchmarks, each printing one JSON line last on
-stdout."""
+"""``m2m bench render | train | datagen | splats | sim2real | policy-gap``: benchmarks, each printing one JSON line
+last on stdout."""
 
 from __future__ import annotations
 
@@ -7,6 +7,8 @@ import argparse
 import json
 from dataclasses import dataclass, replace
 from pathlib import Path
+
+import numpy as np
 
 from .. import configure_threads
 from ..bench import RenderBenchConfig
@@ -65,6 +67,29 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     if full:
         add_flags(d, datagen_config())
     d.set_defaults(func=_datagen)
+
+    p = bench_sub.add_parser(
+        "splats", help="generation's splat layer alone on a GPU or CPU, frame by frame vs batched episodes; JSON "
+        "line last",
+        description="Record the scripted expert's episodes of a task once (the parts' poses and the cameras' views "
+        "at every frame; needs the simulator; cached in <workspace>/evals/splat_streams), then render the world's "
+        "Gaussians along them again without the simulator: --batch 1 is generation's own path (one world, frame by "
+        "frame, the head camera's background cached), B > 1 steps B episodes in lockstep with every camera of every "
+        "episode in one render call. The last stdout line is JSON with demos per minute of the splat layer alone "
+        "for each B (medians of --runs).",
+    )  # fmt: skip
+    p.add_argument("-w", "--workspace", required=True, type=Path, help="workspace with a composed world")
+    p.add_argument("--task", default="grasp banana", help="the expert's task (default: grasp banana)")
+    p.add_argument("--episodes", type=int_at_least(1), default=8, metavar="N", help="recorded episodes (default 8)")
+    p.add_argument("--demos", type=int_at_least(1), default=64, metavar="D",
+                   help="episodes replayed per run, the recorded ones in turn (default 64)")  # fmt: skip
+    p.add_argument("--seed", type=int, default=3_000_000, help="episode seed of the first (default 3000000)")
+    p.add_argument("--size", type=int_at_least(16), default=224, metavar="PX", help="frame side (default 224)")
+    p.add_argument("--batch", type=int_at_least(1), nargs="+", default=[1, 16], metavar="B",
+                   help="episodes per render call; 1 = generation's path (default: 1 16)")  # fmt: skip
+    p.add_argument("--backend", default="auto", help="render backend: auto, cpu, cuda (default auto)")
+    p.add_argument("--runs", type=int_at_least(1), default=3, metavar="R", help="repetitions (default 3)")
+    p.set_defaults(func=_splats)
 
     from .sim2real import Sim2RealConfig
 
@@ -207,4 +232,55 @@ def _policy_gap(args: argparse.Namespace) -> int:
     result = {"task": args.task, "episodes": len(episodes), "expert_successes": ok, "size": args.size,
               "stride": args.stride, "seeds": [seeds[0], seeds[-1]], "policies": rows}  # fmt: skip
     print(json.dumps(result), flush=True)
+    return 0
+
+
+def _splats(args: argparse.Namespace) -> int:
+    import hashlib
+    import statistics
+
+    import torch
+
+    from ..datagen import task_slug
+    from ..env.config import HybridOptions
+    from ..env.hybrid import splat_world
+    from ..env.splat_replay import load_or_record_streams, replay_batched, replay_generation
+    from ..render import SplatWorldBatch
+    from ..workspace import Workspace
+
+    threads = configure_threads()
+    ws = Workspace(args.workspace)
+    world_yaml = ws.committed.world_yaml
+    seeds = list(range(args.seed, args.seed + args.episodes))
+    world_id = hashlib.sha256(world_yaml.read_bytes()).hexdigest()[:8]  # a world composed again records anew
+    folder = ws.evals_dir / "splat_streams" / f"{task_slug(args.task)}-{args.size}px-{world_id}"
+    streams, parts = load_or_record_streams(folder, ws.committed.world_dir, args.task, seeds, args.size, log=info)
+    options = replace(HybridOptions().splat, backend=backend(args.backend))  # generation's splat settings
+    world = splat_world(parts, options)  # the Gaussians alone: neither the simulator nor the robot's model needed
+    dev = world.device
+    name = torch.cuda.get_device_name(dev) if dev.type == "cuda" else f"cpu ({threads} threads)"
+    frames_per_demo = float(np.mean([len(s["poses"]) for s in streams]))
+    info(f"bench splats: {len(world):,} Gaussians on {name}, {len(streams)} recorded episodes of {frames_per_demo:.1f}"
+         f" frames, {args.demos} replayed per run, {args.size} px")  # fmt: skip
+    replay_generation(world, streams[:1], 1, args.size)  # warm-up: kernels compiled / loaded, caches allocated
+    results = []
+    for b in args.batch:
+        batch = None if b == 1 else SplatWorldBatch(world, b)
+        if batch is not None:
+            replay_batched(batch, streams[:1], 1, args.size)
+        runs = []
+        for _ in range(args.runs):
+            r = replay_generation(world, streams, args.demos, args.size) if batch is None else \
+                replay_batched(batch, streams, args.demos, args.size)  # fmt: skip
+            runs.append(r)
+            info(f"batch {b}: {r['demos'] / r['seconds'] * 60:.1f} demos/min ({r['seconds']:.1f} s)")
+        secs = statistics.median(r["seconds"] for r in runs)
+        results.append({"batch": b, "demos_per_min": round(args.demos / secs * 60, 1),
+                        "ms_per_frame": round(1000 * secs / runs[0]["frames"], 3),
+                        "seconds": [round(r["seconds"], 2) for r in runs]})  # fmt: skip
+        del batch
+    cams = sorted(k[len("view.") :] for k in streams[0] if k.startswith("view."))
+    print(json.dumps({"backend": dev.type, "device": name, "gaussians": len(world), "size": args.size,
+                      "cameras": cams, "frames_per_demo": round(frames_per_demo, 1), "demos": args.demos,
+                      "runs": args.runs, "results": results}), flush=True)  # fmt: skip
     return 0

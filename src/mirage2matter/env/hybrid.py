@@ -9,7 +9,7 @@ The twin it renders is built for it (:func:`build_hybrid`): cameras at the frame
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -17,10 +17,12 @@ from .config import EnvConfig, HybridOptions
 from .robot_proxy import render_robot_file
 
 if TYPE_CHECKING:
+    from ..render.splat_world import SplatRenderOptions, SplatWorld
     from ..sim.twin import Twin
+    from ..world.config import WorldConfig
     from .episode import EpisodeDraw
 
-__all__ = ["TIMING_KEYS", "HybridRenderer", "build_hybrid", "render_K"]
+__all__ = ["TIMING_KEYS", "HybridRenderer", "build_hybrid", "render_K", "splat_parts", "splat_world"]
 
 TIMING_KEYS = ("pose_splats", "splat_render", "robot_render", "composite")
 
@@ -40,22 +42,14 @@ class HybridRenderer:
     """
 
     def __init__(self, twin: Twin, cameras: tuple[str, ...], size: tuple[int, int], options: HybridOptions) -> None:
-        from ..gaussians.ply import read_ply
         from ..render.composite import ColorJitter
-        from ..render.splat_world import MovablePart, SplatWorld
 
         world = twin.cfg
         self.twin, self.cameras, self.size, self.options = twin, tuple(cameras), tuple(size), options
         self.static_cameras = {c for c in cameras if world.cameras[c].mount == "base"}
         self.hand_cameras = {c for c in cameras if world.cameras[c].mount == world.robot.ee_link}
-        parts = []
-        if options.objects == "gaussians":  # else Genesis draws them, in the robot layer (``build_hybrid``)
-            parts = [MovablePart(o.name, read_ply(o.part.gaussians), o.placement.scale) for o in world.objects]
-            for a in world.articulated:
-                parts.append(MovablePart(a.name, read_ply(a.base.gaussians), a.placement.scale))
-                parts.append(MovablePart(f"{a.name}/cap", read_ply(a.cap.gaussians), a.placement.scale))
-        static = read_ply(world.scene_gaussians) if world.scene_gaussians is not None else None
-        self.splat = SplatWorld(static, parts, options.splat)
+        # with mesh objects Genesis draws them, in the robot layer (``build_hybrid``)
+        self.splat = splat_world(splat_parts(world, objects=options.objects == "gaussians"), options.splat)
         self.jitter = ColorJitter()
         self._robot_cache: dict[str, tuple] = {}
         self.timings = dict.fromkeys(TIMING_KEYS, 0.0)
@@ -82,21 +76,32 @@ class HybridRenderer:
             self._robot_cache[camera] = hit
         return hit[1]
 
+    def splat_views(self) -> tuple[dict[str, np.ndarray], dict[str, tuple[np.ndarray, np.ndarray]]]:
+        """What the splat layer of the twin's current state is drawn from: the parts' physics poses {name: T_base_obj
+        [4,4]} and each camera's (viewmat [4,4] base-to-camera, K [3,3] at the frame size)."""
+        from ..geometry.sim3 import invert_rigid
+
+        w, h = self.size
+        views = {}
+        for c in self.cameras:
+            T_base_cam, K, cw, ch = self.twin.camera(c)
+            views[c] = (invert_rigid(T_base_cam), render_K(K, cw, ch, w, h))
+        return self.twin.object_poses(), views
+
     def render(self) -> dict[str, np.ndarray]:
         """{camera: uint8 [H,W,3]} hybrid frames of the twin's current state."""
-        from ..geometry.sim3 import invert_rigid
         from ..render.composite import composite, to_uint8
 
         twin, opt, (w, h) = self.twin, self.options, self.size
         t0 = time.perf_counter()
-        self.splat.set_poses(twin.object_poses())
+        poses, views = self.splat_views()
+        self.splat.set_poses(poses)
         self.timings["pose_splats"] += time.perf_counter() - t0
         state = twin.robot_state()
         frames = {}
         for c in self.cameras:
-            T_base_cam, K, cw, ch = twin.camera(c)
             t1 = time.perf_counter()
-            view, Kr = invert_rigid(T_base_cam), render_K(K, cw, ch, w, h)
+            view, Kr = views[c]
             if c in self.static_cameras:  # fixed in the base: the scene is drawn once per episode
                 rgb, alpha, depth = self.splat.render_static_camera(c, view, Kr, w, h, opt.background)
             else:
@@ -119,6 +124,31 @@ class HybridRenderer:
 
     def close(self) -> None:
         """Nothing of its own to free (the twin is the environment's)."""
+
+
+def splat_parts(world: WorldConfig, objects: bool = True) -> dict[str, Any]:
+    """The Gaussian files of ``world``'s splat layer: {"scene": path or None, "parts": [[name, path, scale], ...]},
+    each object's and articulated asset's (base and cap) a movable part named as its physics pose is
+    (``objects=False``: the scene alone, the objects being drawn elsewhere)."""
+    parts = []
+    if objects:
+        parts = [[o.name, str(o.part.gaussians), float(o.placement.scale)] for o in world.objects]
+        for a in world.articulated:
+            parts.append([a.name, str(a.base.gaussians), float(a.placement.scale)])
+            parts.append([f"{a.name}/cap", str(a.cap.gaussians), float(a.placement.scale)])
+    scene = str(world.scene_gaussians) if world.scene_gaussians is not None else None
+    return {"scene": scene, "parts": parts}
+
+
+def splat_world(parts: dict[str, Any], options: SplatRenderOptions) -> SplatWorld:
+    """The :class:`SplatWorld` of :func:`splat_parts`' description: the scene's Gaussians static, each part's
+    movable."""
+    from ..gaussians.ply import read_ply
+    from ..render.splat_world import MovablePart, SplatWorld
+
+    movable = [MovablePart(name, read_ply(path), scale) for name, path, scale in parts["parts"]]
+    static = read_ply(parts["scene"]) if parts["scene"] is not None else None
+    return SplatWorld(static, movable, options)
 
 
 def build_hybrid(cfg: EnvConfig) -> tuple[Twin, HybridRenderer]:

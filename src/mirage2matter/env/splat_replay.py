@@ -1,0 +1,176 @@
+"""Generation's splat layer alone: the Gaussian world's part poses and camera views along scripted-expert episodes,
+recorded once through the simulator, then rendered again without it.
+
+The splat layer is where generation spends most of its time on a CPU (10 of 26 s per demo at 224 px on the
+2-core development machine) and what a GPU takes over. Replaying recorded episodes measures it on any machine,
+a GPU one without the simulator included, by the two paths ``bench splats`` compares: the one generation runs
+(one :class:`SplatWorld`, frame by frame, camera by camera, the head camera's background cached), and
+:class:`SplatWorldBatch` (B episodes in lockstep, every camera of every episode in one call).
+
+A stream (``record_splat_streams``) is a dict: ``parts`` [P] names, ``poses`` float64 [T,P,4,4] (``T_base_obj`` of
+each part at each frame), ``view.<camera>`` [T,4,4] base-to-camera, ``K.<camera>`` [T,3,3] at the frame size,
+``static`` [S] the cameras fixed in the base, ``seed`` and ``success``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["load_or_record_streams", "record_splat_streams", "replay_batched", "replay_generation"]
+
+Log = Callable[[str], None]
+
+
+def record_splat_streams(world: str | Path, task: str, seeds: Sequence[int], size: int = 224) -> list[dict[str, Any]]:
+    """The scripted expert of ``task`` in the twin of ``world`` for each episode seed, with the splat layer's
+    inputs at every recorded frame (the first observation and one per control tick, as generation records)."""
+    from .twin_env import TwinEnv
+
+    env = TwinEnv(world, task, size=size)
+    try:
+        return [_record_one(env, int(seed)) for seed in seeds]
+    finally:
+        env.close()
+
+
+def _record_one(env: Any, seed: int) -> dict[str, Any]:
+    from ..sim.tasks import run_task
+
+    cams = env.config.cameras
+    poses: list[dict[str, np.ndarray]] = []
+    views: dict[str, list[np.ndarray]] = {c: [] for c in cams}
+    Ks: dict[str, list[np.ndarray]] = {c: [] for c in cams}
+
+    def see() -> None:
+        p, v = env.renderer.splat_views()
+        poses.append({k: np.asarray(T, np.float64) for k, T in p.items()})
+        for c in cams:
+            views[c].append(v[c][0])
+            Ks[c].append(v[c][1])
+
+    def act(a: np.ndarray) -> None:
+        env.step(a)
+        see()
+
+    env.reset(seed=seed)
+    see()
+    res = run_task(env.twin, env.task, np.random.default_rng(env.draw.task_seed), control_hz=env.config.fps, act=act)
+    names = sorted(poses[0])
+    stream: dict[str, Any] = {"parts": np.array(names), "static": np.array(sorted(env.renderer.static_cameras)),
+                              "poses": np.stack([np.stack([p[n] for n in names]) for p in poses]),
+                              "seed": seed, "success": bool(res.success)}  # fmt: skip
+    for c in cams:
+        stream[f"view.{c}"], stream[f"K.{c}"] = np.stack(views[c]), np.stack(Ks[c])
+    return stream
+
+
+def load_or_record_streams(
+    folder: Path, world_dir: Path, task: str, seeds: Sequence[int], size: int, log: Log
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """:func:`record_splat_streams`, each episode cached as ``folder/stream_<seed>.npz`` (written atomically), and
+    the world's splat layer (``hybrid.splat_parts``) as ``folder/splat_parts.json``, its Gaussian files relative to
+    ``world_dir``: a second call, or one on a machine with neither the simulator nor the robot's model (a GPU box
+    given the world's Gaussians and this folder), reads them back. -> (streams, splat parts with absolute paths)."""
+    import json
+    import os
+
+    from ..atomic import atomic_write
+
+    folder.mkdir(parents=True, exist_ok=True)
+    world_dir = Path(world_dir).resolve()
+    missing = [s for s in seeds if not (folder / f"stream_{s}.npz").is_file()]
+    if missing:
+        log(f"recording {len(missing)} expert episode(s) of {task!r} (poses and camera views) -> {folder}")
+        for st in record_splat_streams(world_dir, task, missing, size):
+            with atomic_write(folder / f"stream_{st['seed']}.npz") as f:
+                np.savez_compressed(f, **st)
+    parts_file = folder / "splat_parts.json"
+    if not parts_file.is_file():
+        from .hybrid import splat_parts
+        from .twin_env import resolve_world
+
+        desc = splat_parts(resolve_world(world_dir))
+        rel = lambda p: None if p is None else os.path.relpath(p, world_dir)
+        desc = {"scene": rel(desc["scene"]), "parts": [[n, rel(p), s] for n, p, s in desc["parts"]]}
+        with atomic_write(parts_file, "w", encoding="utf-8") as f:
+            json.dump(desc, f, indent=1)
+    desc = json.loads(parts_file.read_text(encoding="utf-8"))
+    at = lambda p: None if p is None else str(world_dir / p)
+    parts = {"scene": at(desc["scene"]), "parts": [[n, at(p), s] for n, p, s in desc["parts"]]}
+    out = []
+    for s in seeds:
+        with np.load(folder / f"stream_{s}.npz") as z:
+            out.append({k: (z[k].item() if z[k].ndim == 0 else z[k]) for k in z.files})
+    return out, parts
+
+
+def _cameras(stream: dict[str, Any]) -> list[str]:
+    return sorted(k[len("view.") :] for k in stream if k.startswith("view."))
+
+
+def _frames(streams: Sequence[dict[str, Any]], demos: int) -> list[dict[str, Any]]:
+    """``demos`` episodes to replay: the streams in turn, as often as needed."""
+    if not streams:
+        raise ValueError("no recorded episodes to replay")
+    return [streams[i % len(streams)] for i in range(demos)]
+
+
+def replay_generation(splat: Any, streams: Sequence[dict[str, Any]], demos: int, size: int,
+                      background=(0.0, 0.0, 0.0)) -> dict[str, float]:  # fmt: skip
+    """Generation's splat layer (``HybridRenderer.render``'s splat calls) on ``demos`` recorded episodes: per
+    episode the caches forgotten, per frame the parts posed and each camera rendered, static cameras through the
+    cached background. -> {"seconds", "frames" (time steps, all cameras), "demos"}."""
+    t0 = time.perf_counter()
+    frames = 0
+    for ep in _frames(streams, demos):
+        splat.reset_cache()
+        splat.poses.clear()
+        static, cams, names = set(ep["static"].tolist()), _cameras(ep), ep["parts"].tolist()
+        for t in range(len(ep["poses"])):
+            splat.set_poses(dict(zip(names, ep["poses"][t], strict=True)))
+            for c in cams:
+                draw = splat.render_static_camera if c in static else splat.render_camera
+                draw(c, ep[f"view.{c}"][t], ep[f"K.{c}"][t], size, size, background)
+            frames += 1
+    return {"seconds": time.perf_counter() - t0, "frames": frames, "demos": demos}
+
+
+def replay_batched(batch: Any, streams: Sequence[dict[str, Any]], demos: int, size: int,
+                   background=(0.0, 0.0, 0.0)) -> dict[str, float]:  # fmt: skip
+    """The same episodes through a :class:`SplatWorldBatch` of B copies: B episodes in lockstep, a copy taking the
+    next episode when its own ends, every camera of every copy in one render call per time step (a copy with no
+    episode left is drawn but not counted). -> {"seconds", "frames", "demos"}."""
+    queue = _frames(streams, demos)
+    cams = _cameras(queue[0])
+    B = len(batch)
+    slots: list[tuple[dict[str, Any], int] | None] = [None] * B
+    views = np.tile(np.eye(4), (B, len(cams), 1, 1))
+    Ks = np.tile(np.eye(3), (B, len(cams), 1, 1))
+    t0 = time.perf_counter()
+    frames = 0
+    while True:
+        for b in range(B):
+            if (slots[b] is None or slots[b][1] >= len(slots[b][0]["poses"])) and queue:
+                slots[b] = (queue.pop(0), 0)
+                batch.forget(b)
+            elif slots[b] is not None and slots[b][1] >= len(slots[b][0]["poses"]):
+                slots[b] = None
+        live = [b for b in range(B) if slots[b] is not None]
+        if not live:
+            break
+        poses: list[dict | None] = [None] * B
+        for b in live:
+            ep, t = slots[b]
+            poses[b] = dict(zip(ep["parts"].tolist(), ep["poses"][t], strict=True))
+            for i, c in enumerate(cams):
+                views[b, i], Ks[b, i] = ep[f"view.{c}"][t], ep[f"K.{c}"][t]
+            slots[b] = (ep, t + 1)
+        batch.set_poses(poses)
+        batch.render(views, Ks, size, size, background)
+        frames += len(live)
+    return {"seconds": time.perf_counter() - t0, "frames": frames, "demos": demos}
