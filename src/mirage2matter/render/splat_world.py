@@ -292,27 +292,15 @@ class SplatWorldBatch:
                 self._pose_part(p, idx, np.stack(Ts))
 
     def _pose_part(self, p: MovablePart, idx: list[int], T: np.ndarray) -> None:
-        """Part ``p`` in copies ``idx`` at poses T [B',4,4]: apply_sim3's transform for all of them at once (the
-        small rotation-dependent matrices made on the CPU and sent in one go)."""
-        from ..gaussians.sh_rotation import sh_rotation_matrix
-        from ..geometry.rotation import matrix_to_quat, quat_multiply, quat_normalize
+        """Part ``p`` in copies ``idx`` at poses T [B',4,4], all in one batched transform."""
+        from ..gaussians.transform import apply_rigid_batch
 
-        g, dev = p.local, p.local.means.device
-        R, t = T[:, :3, :3], T[:, :3, 3]
-        D = sh_rotation_matrix(R, g.sh_degree)  # [B',K,K] float64, CPU
-        q = matrix_to_quat(R)  # [B',4]
-        small = torch.as_tensor(np.concatenate([(p.scale * R).reshape(-1, 9), t, q, D.reshape(len(idx), -1).numpy()],
-                                               axis=1), dtype=torch.float32).to(dev)  # fmt: skip
-        sR, tt, qq = small[:, :9].reshape(-1, 3, 3), small[:, 9:12], small[:, 12:16]
-        Dk = small[:, 16:].reshape(len(idx), *D.shape[1:])
-        sl, rows = self._slices[p.name], torch.as_tensor(idx, device=dev)
+        moved = apply_rigid_batch(p.local, p.scale, T[:, :3, :3], T[:, :3, 3])
+        sl, rows = self._slices[p.name], torch.as_tensor(idx, device=p.local.means.device)
         with torch.no_grad():
-            self.stack["means"][rows, sl] = g.means @ sR.transpose(1, 2) + tt[:, None]
-            self.stack["quats"][rows, sl] = quat_normalize(quat_multiply(qq[:, None].expand(-1, len(g), 4),
-                                                                         g.quats.expand(len(idx), -1, -1)))  # fmt: skip
-            self.stack["log_scales"][rows, sl] = (g.log_scales + float(np.log(p.scale))).expand(len(idx), -1, -1)
-            K = g.sh.shape[1]
-            self.stack["sh"][rows, sl, :K] = torch.einsum("bij,njc->bnic", Dk, g.sh)
+            for k in ("means", "quats", "log_scales"):
+                self.stack[k][rows, sl] = moved[k]
+            self.stack["sh"][rows, sl, : moved["sh"].shape[2]] = moved["sh"]
 
     def render(self, viewmats, Ks, width: int, height: int, background=(0.0, 0.0, 0.0)):
         """Every copy b from its cameras (viewmats [B,C,4,4] world-to-camera, Ks [B,C,3,3]) -> (rgb [B,C,H,W,3] in
