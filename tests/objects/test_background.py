@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fixtures.box_scene import render_boxes
 from mirage2matter.geometry.camera import Camera, look_at_pose
 from mirage2matter.objects.background import table_background
 from mirage2matter.objects.support import Plane
@@ -21,19 +22,8 @@ def table_colour(xy: np.ndarray) -> np.ndarray:
 
 def render(cam: Camera) -> tuple[np.ndarray, np.ndarray]:
     """(image [H,W,3] of the table and a uniformly coloured box, the table point [H,W,2] behind each pixel)."""
-    u, v = np.meshgrid(np.arange(cam.width) + 0.5, np.arange(cam.height) + 0.5)
-    rays = np.stack([(u - cam.K[0, 2]) / cam.K[0, 0], (v - cam.K[1, 2]) / cam.K[1, 1], np.ones_like(u)], -1)
-    d = rays.reshape(-1, 3) @ cam.T_world_cam[:3, :3].T
-    o = cam.T_world_cam[:3, 3]
-    t_table = -o[2] / d[:, 2]
-    xy = o[:2] + t_table[:, None] * d[:, :2]
-    with np.errstate(divide="ignore", invalid="ignore"):  # slab test against the box
-        t0, t1 = (BOX_LO - o) / d, (BOX_HI - o) / d
-    t_near = np.minimum(t0, t1).max(1)
-    t_far = np.maximum(t0, t1).min(1)
-    hits_box = (t_near <= t_far) & (t_far > 0)
-    img = np.where(hits_box[:, None], [0.2, 0.3, 0.9], table_colour(xy))
-    return img.reshape(cam.height, cam.width, 3).astype(np.float32), xy.reshape(cam.height, cam.width, 2)
+    img, _, xy = render_boxes(cam, [(BOX_LO, BOX_HI)], (0.2, 0.3, 0.9), table=table_colour)
+    return img, xy.reshape(cam.height, cam.width, 2)
 
 
 def test_keyframes_that_look_through_the_object_do_not_vote():

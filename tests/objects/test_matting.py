@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+from fixtures.box_scene import render_boxes
 from mirage2matter.geometry.camera import Camera, look_at_pose
 from mirage2matter.objects.masks import GeometricMasks, Target
 from mirage2matter.objects.matting import MattingConfig
@@ -21,33 +22,11 @@ INSIDE_LO, INSIDE_HI = np.array([-0.033, -0.013]), np.array([0.033, 0.043])  # t
 PLANE = Plane(np.array([0.0, 0.0, 1.0]), 0.0, np.zeros(0, bool))
 
 
-def table_colour(xy: np.ndarray) -> np.ndarray:
-    g = 0.5 + 0.2 * np.sin(70 * xy[:, 0] + 8 * np.sin(25 * xy[:, 1])) + 0.08 * np.sin(150 * xy[:, 1])
-    return np.stack([0.9 * g, 0.6 * g, 0.35 * g], -1)
-
-
 def render(cam: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(image [H,W,3], the object's silhouette [H,W], the bare table inside the U [H,W]) seen by ``cam``."""
-    u, v = np.meshgrid(np.arange(cam.width) + 0.5, np.arange(cam.height) + 0.5)
-    rays = np.stack([(u - cam.K[0, 2]) / cam.K[0, 0], (v - cam.K[1, 2]) / cam.K[1, 1], np.ones_like(u)], -1)
-    d = rays.reshape(-1, 3) @ cam.T_world_cam[:3, :3].T
-    o = cam.T_world_cam[:3, 3]
-    xy = o[:2] + (-o[2] / d[:, 2])[:, None] * d[:, :2]
-    hit = np.zeros(len(d), bool)
-    shade = np.zeros(len(d))
-    for lo, hi in BOXES:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t0, t1 = (lo - o) / d, (hi - o) / d
-        near, far = np.minimum(t0, t1), np.maximum(t0, t1)
-        t_near, t_far = near.max(1), far.min(1)
-        h = (t_near <= t_far) & (t_far > 0)
-        face = near.argmax(1)  # the axis of the face the ray enters: a little shading per face
-        shade = np.where(h & ~hit, face, shade)
-        hit |= h
-    obj = np.array([0.95, 0.85, 0.25]) * (1.0 - 0.12 * shade)[:, None]
-    img = np.where(hit[:, None], obj, table_colour(xy)).reshape(cam.height, cam.width, 3).astype(np.float32)
-    inside = np.all((xy >= INSIDE_LO) & (xy <= INSIDE_HI), 1) & ~hit
-    return img, hit.reshape(cam.height, cam.width), inside.reshape(cam.height, cam.width)
+    img, hit, xy = render_boxes(cam, BOXES, (0.95, 0.85, 0.25), shading=0.12)
+    inside = np.all((xy >= INSIDE_LO) & (xy <= INSIDE_HI), 1).reshape(hit.shape) & ~hit
+    return img, hit, inside
 
 
 def surface_points(n: int, seed: int = 0) -> np.ndarray:

@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
+from fixtures.box_scene import render_boxes
 from mirage2matter.gaussians.train import init_gaussians_from_points
 from mirage2matter.geometry.camera import Camera, look_at_pose
 from mirage2matter.objects.matting import render_alpha
@@ -24,20 +25,8 @@ PLANE = Plane(np.array([0.0, 0.0, 1.0]), 0.0, np.zeros(0, bool))
 
 def _render(cam: Camera) -> tuple[np.ndarray, np.ndarray]:
     """(image [H,W,3] float32, the bar's silhouette [H,W] bool) seen by ``cam``."""
-    u, v = np.meshgrid(np.arange(cam.width) + 0.5, np.arange(cam.height) + 0.5)
-    rays = np.stack([(u - cam.K[0, 2]) / cam.K[0, 0], (v - cam.K[1, 2]) / cam.K[1, 1], np.ones_like(u)], -1)
-    d = rays.reshape(-1, 3) @ cam.T_world_cam[:3, :3].T
-    o = cam.T_world_cam[:3, 3]
-    xy = o[:2] + (-o[2] / d[:, 2])[:, None] * d[:, :2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t0, t1 = (LO - o) / d, (HI - o) / d
-    near, far = np.minimum(t0, t1), np.maximum(t0, t1)
-    hit = (near.max(1) <= far.min(1)) & (far.min(1) > 0)
-    shade = 1.0 - 0.1 * near.argmax(1)  # a little shading per face
-    g = 0.5 + 0.2 * np.sin(70 * xy[:, 0] + 8 * np.sin(25 * xy[:, 1])) + 0.08 * np.sin(150 * xy[:, 1])
-    table = np.stack([0.9 * g, 0.6 * g, 0.35 * g], -1)
-    img = np.where(hit[:, None], YELLOW * shade[:, None], table)
-    return img.reshape(cam.height, cam.width, 3).astype(np.float32), hit.reshape(cam.height, cam.width)
+    img, hit, _ = render_boxes(cam, [(LO, HI)], YELLOW, shading=0.1)
+    return img, hit
 
 
 @pytest.fixture(scope="module")
