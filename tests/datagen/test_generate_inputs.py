@@ -54,3 +54,18 @@ def test_the_source_travels_to_workers_as_objects(tmp_path):
     assert back.task == task and back.task.direction == (0.0, 1.0)
     assert back.world.to_dict() == world.to_dict() and back.world.root == world.root
     assert back.to_json()["task"] == task.to_json()
+
+
+def test_object_shrink_enters_the_fingerprint_only_when_used(tmp_path):
+    """Datasets made before the option keep their fingerprint (no resume starts over); one made with it differs."""
+    from mirage2matter.datagen.sim_source import SimSourceConfig
+    from mirage2matter.env.config import Randomization
+    from mirage2matter.stages.generate import Config
+
+    world, task = _world(tmp_path), GraspTask("banana")
+    plain = SimSourceConfig(world=world, task=task).to_json()["randomization"]
+    shrunk = SimSourceConfig(world=world, task=task, randomization=Randomization(object_shrink=0.3)).to_json()
+    assert "object_shrink" not in plain and shrunk["randomization"]["object_shrink"] == 0.3
+    assert Config(task=("grasp banana",), object_shrink=0.3).generation().randomization.object_shrink == 0.3
+    with pytest.raises(GenerateError, match="object_shrink must be in"):
+        Config(task=("grasp banana",), object_shrink=1.0).validate()

@@ -119,3 +119,31 @@ def test_bad_input_is_refused_before_genesis_starts(world, ws, tmp_path):
         TwinEnv(tmp_path, "grasp banana")
     with pytest.raises(EnvError, match="render_mode"):
         TwinEnv(world, "grasp banana", render_mode="human")
+
+
+def test_object_shrink_draws_smaller_objects_with_the_same_episode(ws):
+    """Randomization.object_shrink: the episode's other choices unchanged, the objects' Gaussians scaled about their
+    base (the banana's footprint in the head camera smaller), the physics untouched."""
+    from mirage2matter.env import TwinEnv
+    from mirage2matter.env.config import Randomization
+
+    plain = TwinEnv(ws, "grasp banana", size=(96, 72), horizon=2)
+    shrunk = TwinEnv(ws, "grasp banana", size=(96, 72), horizon=2, randomization=Randomization(object_shrink=0.5))
+    try:
+        o1, _ = plain.reset(seed=7)
+        o2, _ = shrunk.reset(seed=7)
+        d1, d2 = plain.draw, shrunk.draw
+        assert d1.object_scale == 1.0 and 0.5 <= d2.object_scale < 1.0
+        assert (d1.reset_seed, d1.task_seed) == (d2.reset_seed, d2.task_seed)
+        np.testing.assert_allclose(plain.start_poses["banana"], shrunk.start_poses["banana"])  # same physics
+        extents = []
+        for e in (plain, shrunk):
+            s = e.renderer.splat
+            means = s.gaussians.means[s._slices["banana"]].numpy()
+            extents.append(np.ptp(means[:, :2], axis=0).max())
+            assert means[:, 2].min() > -0.01  # shrunk about its base: still on the table
+        assert extents[1] == pytest.approx(extents[0] * d2.object_scale, rel=1e-3)
+        assert not np.array_equal(o1["observation.images.head"], o2["observation.images.head"])
+    finally:
+        plain.close()
+        shrunk.close()

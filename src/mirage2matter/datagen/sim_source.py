@@ -75,6 +75,8 @@ class SimSourceConfig:
                 out[f.name] = asdict(v) if is_dataclass(v) else v
         if out["hybrid"].get("objects") == "gaussians":  # the default: datasets made before the option keep their key
             del out["hybrid"]["objects"]
+        if not out["randomization"].get("object_shrink"):  # likewise
+            del out["randomization"]["object_shrink"]
         return {**out, "size": list(self.size), "cameras": list(self.cameras)}
 
 

@@ -31,6 +31,7 @@ class EpisodeDraw:
     T_cam_camj    {camera: [4,4]} rigid mount jitter in the camera's own frame (``T_mount_cam @ T_cam_camj``)
     reset_seed    seed of the twin's reset (``Twin.reset``: object start poses)
     task_seed     seed of the task's own random choices
+    object_scale  scale of the objects' Gaussians about their base (``Randomization.object_shrink``; 1: as built)
     """
 
     seed: int
@@ -38,6 +39,7 @@ class EpisodeDraw:
     T_cam_camj: dict[str, np.ndarray]
     reset_seed: int
     task_seed: int
+    object_scale: float = 1.0
 
 
 def _small_rotation(rng: np.random.Generator, max_deg: float) -> np.ndarray:
@@ -63,4 +65,6 @@ def draw_episode(seed: int, randomization: Randomization, cameras: tuple[str, ..
         T_cam_camj[c] = T
     reset_seed = int(rng.integers(2**31))
     task_seed = int(rng.integers(2**31))
-    return EpisodeDraw(int(seed), jitter, T_cam_camj, reset_seed, task_seed)
+    # drawn last, and only when asked for: every other choice of a seed stays what it was without it
+    scale = float(rng.uniform(1.0 - rnd.object_shrink, 1.0)) if rnd.object_shrink > 0 else 1.0
+    return EpisodeDraw(int(seed), jitter, T_cam_camj, reset_seed, task_seed, scale)

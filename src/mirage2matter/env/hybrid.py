@@ -50,6 +50,7 @@ class HybridRenderer:
         self.hand_cameras = {c for c in cameras if world.cameras[c].mount == world.robot.ee_link}
         # with mesh objects Genesis draws them, in the robot layer (``build_hybrid``)
         self.splat = splat_world(splat_parts(world, objects=options.objects == "gaussians"), options.splat)
+        self._placement_scales = [p.scale for p in self.splat.parts]
         self.jitter = ColorJitter()
         self._robot_cache: dict[str, tuple] = {}
         self.timings = dict.fromkeys(TIMING_KEYS, 0.0)
@@ -57,6 +58,8 @@ class HybridRenderer:
     def start_episode(self, draw: EpisodeDraw) -> None:
         """A new episode: its colour jitter; every cache forgotten, so a frame depends on this episode alone."""
         self.jitter = draw.jitter
+        for part, scale in zip(self.splat.parts, self._placement_scales, strict=True):
+            part.scale = scale * draw.object_scale  # takes effect as every part is re-posed below
         self.splat.reset_cache()
         self.splat.poses.clear()  # re-pose every part exactly (not "unchanged within tolerance" of the last episode)
         self._robot_cache = {}

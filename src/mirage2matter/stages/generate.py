@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from ..datagen import GenerateConfig, GenerateError, task_slug
+from ..datagen.config import Randomization
 from ..workspace import Workspace
 from .base import Input, Log
 
@@ -30,6 +31,8 @@ class Config:
     out          dataset folder (one task only; default <workspace>/datasets/<task>)
     objects      how objects are drawn: gaussians (their 3DGS) or meshes (vertex-coloured meshes: the paper's
                  mesh-only ablation)
+    object_shrink  each episode draws the objects' Gaussians at a random scale in [1 - object_shrink, 1] about
+                 their base (physics unchanged; 0: off)
     """
 
     task: tuple[str, ...] = ()
@@ -42,6 +45,7 @@ class Config:
     fps: int = GenerateConfig.fps
     out: Path | None = field(default=None, metadata={"output": True})  # written, not read
     objects: Literal["gaussians", "meshes"] = "gaussians"
+    object_shrink: float = 0.0
 
     def validate(self) -> None:
         if not self.task:
@@ -50,11 +54,14 @@ class Config:
             raise GenerateError("generate: out names one dataset folder; give one task with it")
         if self.episodes < 1 or self.workers < 1 or self.size < 2 or self.fps < 1:
             raise GenerateError("generate: episodes, workers and fps must be >= 1, size >= 2")
+        if not 0.0 <= self.object_shrink < 1.0:
+            raise GenerateError(f"generate: object_shrink must be in [0, 1), got {self.object_shrink}")
 
     def generation(self) -> GenerateConfig:
         return GenerateConfig(
             episodes=self.episodes, workers=self.workers, ray_address=self.ray_address, format=self.format,
             seed=self.seed, size=(self.size, self.size), fps=self.fps, objects=self.objects,
+            randomization=Randomization(object_shrink=self.object_shrink),
         )  # fmt: skip
 
 
