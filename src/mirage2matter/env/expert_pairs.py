@@ -77,20 +77,10 @@ def load_or_record_pairs(
 ) -> list[dict[str, Any]]:
     """:func:`record_expert_pairs`, each episode cached as ``folder/pair_<seed>.npz`` (written atomically): a
     second call, or one with more seeds, records only what is missing."""
-    from ..atomic import atomic_write
+    from .episode_cache import load_or_record_episodes
 
-    folder.mkdir(parents=True, exist_ok=True)
-    missing = [s for s in seeds if not (folder / f"pair_{s}.npz").is_file()]
-    if missing:
-        log(f"recording {len(missing)} expert episode(s) through both renderers -> {folder}")
-        for ep in record_expert_pairs(world, task, sample_dir, missing, size):
-            with atomic_write(folder / f"pair_{ep['seed']}.npz") as f:
-                np.savez_compressed(f, **ep)
-    eps = []
-    for s in seeds:
-        with np.load(folder / f"pair_{s}.npz") as z:
-            eps.append({k: (z[k].item() if z[k].ndim == 0 else z[k]) for k in z.files})
-    return eps
+    record = lambda missing: record_expert_pairs(world, task, sample_dir, missing, size)
+    return load_or_record_episodes(folder, "pair", seeds, record, log, "expert episode(s) through both renderers")
 
 
 def open_loop_error(policy: Any, episodes: Sequence[dict[str, Any]], stride: int = 2) -> dict[str, float]:

@@ -80,15 +80,12 @@ def load_or_record_streams(
     import os
 
     from ..atomic import atomic_write
+    from .episode_cache import load_or_record_episodes
 
-    folder.mkdir(parents=True, exist_ok=True)
     world_dir = Path(world_dir).resolve()
-    missing = [s for s in seeds if not (folder / f"stream_{s}.npz").is_file()]
-    if missing:
-        log(f"recording {len(missing)} expert episode(s) of {task!r} (poses and camera views) -> {folder}")
-        for st in record_splat_streams(world_dir, task, missing, size):
-            with atomic_write(folder / f"stream_{st['seed']}.npz") as f:
-                np.savez_compressed(f, **st)
+    record = lambda missing: record_splat_streams(world_dir, task, missing, size)
+    streams = load_or_record_episodes(folder, "stream", seeds, record, log,
+                                      f"expert episode(s) of {task!r} (poses and camera views)")  # fmt: skip
     parts_file = folder / "splat_parts.json"
     if not parts_file.is_file():
         from .hybrid import splat_parts
@@ -102,18 +99,14 @@ def load_or_record_streams(
     desc = json.loads(parts_file.read_text(encoding="utf-8"))
     at = lambda p: None if p is None else str(world_dir / p)
     parts = {"scene": at(desc["scene"]), "parts": [[n, at(p), s] for n, p, s in desc["parts"]]}
-    out = []
-    for s in seeds:
-        with np.load(folder / f"stream_{s}.npz") as z:
-            out.append({k: (z[k].item() if z[k].ndim == 0 else z[k]) for k in z.files})
-    return out, parts
+    return streams, parts
 
 
 def _cameras(stream: dict[str, Any]) -> list[str]:
     return sorted(k[len("view.") :] for k in stream if k.startswith("view."))
 
 
-def _frames(streams: Sequence[dict[str, Any]], demos: int) -> list[dict[str, Any]]:
+def _episodes(streams: Sequence[dict[str, Any]], demos: int) -> list[dict[str, Any]]:
     """``demos`` episodes to replay: the streams in turn, as often as needed."""
     if not streams:
         raise ValueError("no recorded episodes to replay")
@@ -127,7 +120,7 @@ def replay_generation(splat: Any, streams: Sequence[dict[str, Any]], demos: int,
     cached background. -> {"seconds", "frames" (time steps, all cameras), "demos"}."""
     t0 = time.perf_counter()
     frames = 0
-    for ep in _frames(streams, demos):
+    for ep in _episodes(streams, demos):
         splat.reset_cache()
         splat.poses.clear()
         static, cams, names = set(ep["static"].tolist()), _cameras(ep), ep["parts"].tolist()
@@ -145,7 +138,7 @@ def replay_batched(batch: Any, streams: Sequence[dict[str, Any]], demos: int, si
     """The same episodes through a :class:`SplatWorldBatch` of B copies: B episodes in lockstep, a copy taking the
     next episode when its own ends, every camera of every copy in one render call per time step (a copy with no
     episode left is drawn but not counted). -> {"seconds", "frames", "demos"}."""
-    queue = _frames(streams, demos)
+    queue = _episodes(streams, demos)
     cams = _cameras(queue[0])
     B = len(batch)
     slots: list[tuple[dict[str, Any], int] | None] = [None] * B
@@ -155,11 +148,11 @@ def replay_batched(batch: Any, streams: Sequence[dict[str, Any]], demos: int, si
     frames = 0
     while True:
         for b in range(B):
-            if (slots[b] is None or slots[b][1] >= len(slots[b][0]["poses"])) and queue:
+            if slots[b] is not None and slots[b][1] >= len(slots[b][0]["poses"]):
+                slots[b] = None  # its episode has ended
+            if slots[b] is None and queue:
                 slots[b] = (queue.pop(0), 0)
                 batch.forget(b)
-            elif slots[b] is not None and slots[b][1] >= len(slots[b][0]["poses"]):
-                slots[b] = None
         live = [b for b in range(B) if slots[b] is not None]
         if not live:
             break

@@ -59,14 +59,18 @@ class SplatWorld:
     """Static scene + movable parts, posed and rendered per frame."""
 
     def __init__(self, static: Gaussians | None, parts: list[MovablePart], options: SplatRenderOptions | None = None):
+        from ..gaussians.render import resolve_backend
+
         self.options = options or SplatRenderOptions()
         degree = self.options.sh_degree
+        # the rows live where the renderer reads them: a GPU world is not copied to the GPU at every frame
+        self.device = torch.device("cuda" if resolve_backend(self.options.backend) == "cuda" else "cpu")
 
         def lean(g: Gaussians) -> Gaussians:
             g = g.detach()
             if self.options.min_opacity > 0:
                 g = g.select(g.opacities >= self.options.min_opacity)
-            return g.with_sh_degree(min(degree, g.sh_degree))
+            return g.with_sh_degree(min(degree, g.sh_degree)).to(self.device, torch.float32)
 
         chunks: list[Gaussians] = []
         if static is not None and len(static):
@@ -83,12 +87,7 @@ class SplatWorld:
             chunks.append(p.local)
         if not chunks:
             raise ValueError("the splat world is empty: no scene Gaussians and no parts")
-        from ..gaussians.render import resolve_backend
-
-        # the rows live where the renderer reads them: a GPU world is not copied to the GPU at every frame
-        self.device = torch.device("cuda" if resolve_backend(self.options.backend) == "cuda" else "cpu")
-        self.parts = [MovablePart(p.name, p.local.to(self.device, torch.float32), p.scale) for p in self.parts]
-        self.gaussians = Gaussians.concat(chunks).map(lambda t: t.to(self.device, torch.float32).contiguous().clone())
+        self.gaussians = Gaussians.concat(chunks).map(lambda t: t.contiguous().clone())
         self._radius = self._cull_radius(self.gaussians)  # [N], kept current by set_poses
         self.poses: dict[str, np.ndarray] = {}
         self.version = 0  # bumped whenever a part is re-posed (what cached frames depend on)
