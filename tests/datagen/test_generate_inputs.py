@@ -69,3 +69,17 @@ def test_object_shrink_enters_the_fingerprint_only_when_used(tmp_path):
     assert Config(task=("grasp banana",), object_shrink=0.3).generation().randomization.object_shrink == 0.3
     with pytest.raises(GenerateError, match="object_shrink must be in"):
         Config(task=("grasp banana",), object_shrink=1.0).validate()
+
+
+def test_table_texture_enters_the_fingerprint_only_when_used(tmp_path):
+    from mirage2matter.datagen.sim_source import SimSourceConfig
+    from mirage2matter.env.config import Randomization
+    from mirage2matter.stages.generate import Config
+
+    world, task = _world(tmp_path), GraspTask("banana")
+    plain = SimSourceConfig(world=world, task=task).to_json()["randomization"]
+    textured = SimSourceConfig(world=world, task=task, randomization=Randomization(table_texture=0.3)).to_json()
+    assert "table_texture" not in plain and textured["randomization"]["table_texture"] == 0.3
+    assert Config(task=("grasp banana",), table_texture=0.3).generation().randomization.table_texture == 0.3
+    with pytest.raises(GenerateError, match="table_texture must be in"):
+        Config(task=("grasp banana",), table_texture=-0.1).validate()

@@ -147,3 +147,34 @@ def test_object_shrink_draws_smaller_objects_with_the_same_episode(ws):
     finally:
         plain.close()
         shrunk.close()
+
+
+def test_table_texture_recolours_only_the_table_with_the_same_episode(ws):
+    """Randomization.table_texture: the episode's other choices unchanged, only the table's Gaussians re-coloured
+    (the objects' and the rest of the scene's as built), and the next episode without a look gets the
+    reconstruction's table back exactly."""
+    from mirage2matter.env import TwinEnv
+    from mirage2matter.env.config import Randomization
+    from mirage2matter.env.episode import EpisodeDraw
+
+    plain = TwinEnv(ws, "grasp banana", size=(96, 72), horizon=2)
+    textured = TwinEnv(ws, "grasp banana", size=(96, 72), horizon=2, randomization=Randomization(table_texture=0.3))
+    try:
+        o1, _ = plain.reset(seed=7)
+        g0 = textured.renderer.splat.gaussians.sh[:, 0].clone()
+        o2, _ = textured.reset(seed=7)
+        d1, d2 = plain.draw, textured.draw
+        assert d1.table_texture is None and d2.table_texture is not None
+        assert (d1.reset_seed, d1.task_seed, d1.jitter) == (d2.reset_seed, d2.task_seed, d2.jitter)
+        np.testing.assert_allclose(plain.start_poses["banana"], textured.start_poses["banana"])  # same physics
+        r = textured.renderer
+        idx = r._table[0].numpy()
+        assert len(idx) > 100
+        changed = (textured.renderer.splat.gaussians.sh[:, 0] != g0).any(dim=1).numpy()
+        assert changed[idx].mean() > 0.9 and not np.delete(changed, idx).any()  # the table and nothing else
+        assert not np.array_equal(o1["observation.images.head"], o2["observation.images.head"])
+        r.start_episode(EpisodeDraw(d2.seed, d2.jitter, d2.T_cam_camj, d2.reset_seed, d2.task_seed))
+        assert (r.splat.gaussians.sh[:, 0] == g0).all()  # the reconstruction's table, exactly
+    finally:
+        plain.close()
+        textured.close()

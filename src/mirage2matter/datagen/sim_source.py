@@ -75,8 +75,9 @@ class SimSourceConfig:
                 out[f.name] = asdict(v) if is_dataclass(v) else v
         if out["hybrid"].get("objects") == "gaussians":  # the default: datasets made before the option keep their key
             del out["hybrid"]["objects"]
-        if not out["randomization"].get("object_shrink"):  # likewise
-            del out["randomization"]["object_shrink"]
+        for key in ("object_shrink", "table_texture"):  # likewise
+            if not out["randomization"].get(key):
+                del out["randomization"][key]
         return {**out, "size": list(self.size), "cameras": list(self.cameras)}
 
 
@@ -130,6 +131,7 @@ class SimEpisodeSource:
             "start_poses": {k: np.round(v, 6).tolist() for k, v in env.start_poses.items()},
             "camera_mounts": {c: np.round(self.twin.cfg.cameras[c].T_mount_cam, 6).tolist() for c in cfg.cameras},
             "color_jitter": env.draw.jitter.to_json(),
+            **({"table_texture": env.draw.table_texture.to_json()} if env.draw.table_texture is not None else {}),
             "task": self.task.to_json(),
             "task_info": {k: v for k, v in result.info.items() if isinstance(v, int | float | str | bool)},
             "steps": n,

@@ -43,6 +43,8 @@ class Randomization:
     object_shrink  the objects' Gaussians drawn at a random scale in [1 - object_shrink, 1] about their base, one per
                 episode (their physics unchanged): a policy that does not rely on a reconstruction's apparent size
                 (the sample's reconstructed objects cover 1.2-1.8x their true area in the head camera's view)
+    table_texture  the table's Gaussians re-coloured per episode: a per-channel gain in [1 - t, 1 + t] and a random
+                grain field of amplitude up to t (``env.table_texture``; 0: the reconstruction's own table)
     """
 
     camera_deg: float = 0.5
@@ -52,6 +54,7 @@ class Randomization:
     gain: float = 0.05
     objects: bool = True
     object_shrink: float = 0.0
+    table_texture: float = 0.0
 
 
 def _fast_splats() -> SplatRenderOptions:

@@ -18,6 +18,7 @@ from .config import Randomization
 
 if TYPE_CHECKING:
     from ..render.composite import ColorJitter
+    from .table_texture import TableTexture
 
 __all__ = ["EpisodeDraw", "draw_episode"]
 
@@ -32,6 +33,7 @@ class EpisodeDraw:
     reset_seed    seed of the twin's reset (``Twin.reset``: object start poses)
     task_seed     seed of the task's own random choices
     object_scale  scale of the objects' Gaussians about their base (``Randomization.object_shrink``; 1: as built)
+    table_texture the table's look (``Randomization.table_texture``; None: as reconstructed)
     """
 
     seed: int
@@ -40,6 +42,7 @@ class EpisodeDraw:
     reset_seed: int
     task_seed: int
     object_scale: float = 1.0
+    table_texture: TableTexture | None = None
 
 
 def _small_rotation(rng: np.random.Generator, max_deg: float) -> np.ndarray:
@@ -67,4 +70,9 @@ def draw_episode(seed: int, randomization: Randomization, cameras: tuple[str, ..
     task_seed = int(rng.integers(2**31))
     # drawn last, and only when asked for: every other choice of a seed stays what it was without it
     scale = float(rng.uniform(1.0 - rnd.object_shrink, 1.0)) if rnd.object_shrink > 0 else 1.0
-    return EpisodeDraw(int(seed), jitter, T_cam_camj, reset_seed, task_seed, scale)
+    texture = None
+    if rnd.table_texture > 0:
+        from .table_texture import TableTexture
+
+        texture = TableTexture.sample(rng, rnd.table_texture)
+    return EpisodeDraw(int(seed), jitter, T_cam_camj, reset_seed, task_seed, scale, texture)

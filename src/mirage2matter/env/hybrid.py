@@ -51,6 +51,8 @@ class HybridRenderer:
         # with mesh objects Genesis draws them, in the robot layer (``build_hybrid``)
         self.splat = splat_world(splat_parts(world, objects=options.objects == "gaussians"), options.splat)
         self._placement_scales = [p.scale for p in self.splat.parts]
+        self._table = self._table_rows(world.table_z)  # (row indices, their xy [M, 2], their SH DC [M, 3])
+        self._table_changed = False
         self.jitter = ColorJitter()
         self._robot_cache: dict[str, tuple] = {}
         self.timings = dict.fromkeys(TIMING_KEYS, 0.0)
@@ -60,10 +62,44 @@ class HybridRenderer:
         self.jitter = draw.jitter
         for part, scale in zip(self.splat.parts, self._placement_scales, strict=True):
             part.scale = scale * draw.object_scale  # takes effect as every part is re-posed below
+        self._retexture_table(draw.table_texture)
         self.splat.reset_cache()
         self.splat.poses.clear()  # re-pose every part exactly (not "unchanged within tolerance" of the last episode)
         self._robot_cache = {}
         self.timings = dict.fromkeys(TIMING_KEYS, 0.0)
+
+    def _table_rows(self, table_z: float) -> tuple[Any, np.ndarray, Any]:
+        import torch
+
+        from ..gaussians.sh import SH_C0
+        from .table_texture import table_rows
+
+        g = self.splat.gaussians
+        sl = self.splat.static_rows
+        dc = g.sh[sl, 0].detach()
+        rgb = (0.5 + SH_C0 * dc).clamp(0.0, 1.0).cpu().numpy()
+        means = g.means[sl].detach().cpu().numpy()
+        idx = torch.from_numpy(np.flatnonzero(table_rows(means, rgb, table_z)) + sl.start).to(g.means.device)
+        return idx, g.means[idx, :2].detach().cpu().numpy(), g.sh[idx, 0].detach().clone()
+
+    def _retexture_table(self, texture: Any) -> None:
+        """The table's Gaussians in this episode's look (``texture``: a TableTexture; None: as reconstructed)."""
+        import torch
+
+        from ..gaussians.sh import SH_C0
+
+        idx, xy, dc0 = self._table
+        if texture is None and not self._table_changed or not len(idx):
+            return
+        sh = self.splat.gaussians.sh
+        with torch.no_grad():
+            if texture is None:
+                sh[idx, 0] = dc0
+            else:
+                rgb = (0.5 + SH_C0 * dc0).clamp(0.0, 1.0).cpu().numpy()
+                new = torch.from_numpy(texture.apply(rgb, xy)).to(sh.device, sh.dtype)
+                sh[idx, 0] = (new - 0.5) / SH_C0
+        self._table_changed = texture is not None
 
     def _robot_layer(self, camera: str, state: np.ndarray) -> dict[str, np.ndarray]:
         w, h = self.size

@@ -81,6 +81,7 @@ class SplatWorld:
             raise ValueError(f"movable part names must be unique, got {names}")
         self._slices: dict[str, slice] = {}
         start = sum(len(c) for c in chunks)
+        self.static_rows = slice(0, start)  # the scene's rows (they never move; recolouring them is the caller's)
         for p in self.parts:
             self._slices[p.name] = slice(start, start + len(p.local))
             start += len(p.local)

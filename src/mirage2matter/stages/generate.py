@@ -33,6 +33,9 @@ class Config:
                  mesh-only ablation)
     object_shrink  each episode draws the objects' Gaussians at a random scale in [1 - object_shrink, 1] about
                  their base (physics unchanged; 0: off)
+    table_texture  each episode re-colours the table's Gaussians: per-channel gain in [1 - t, 1 + t] and a random
+                 grain of amplitude up to t, so a policy cannot use the reconstruction's wood grain as a landmark
+                 (0: off)
     """
 
     task: tuple[str, ...] = ()
@@ -46,6 +49,7 @@ class Config:
     out: Path | None = field(default=None, metadata={"output": True})  # written, not read
     objects: Literal["gaussians", "meshes"] = "gaussians"
     object_shrink: float = 0.0
+    table_texture: float = 0.0
 
     def validate(self) -> None:
         if not self.task:
@@ -56,12 +60,14 @@ class Config:
             raise GenerateError("generate: episodes, workers and fps must be >= 1, size >= 2")
         if not 0.0 <= self.object_shrink < 1.0:
             raise GenerateError(f"generate: object_shrink must be in [0, 1), got {self.object_shrink}")
+        if not 0.0 <= self.table_texture < 1.0:
+            raise GenerateError(f"generate: table_texture must be in [0, 1), got {self.table_texture}")
 
     def generation(self) -> GenerateConfig:
         return GenerateConfig(
             episodes=self.episodes, workers=self.workers, ray_address=self.ray_address, format=self.format,
             seed=self.seed, size=(self.size, self.size), fps=self.fps, objects=self.objects,
-            randomization=Randomization(object_shrink=self.object_shrink),
+            randomization=Randomization(object_shrink=self.object_shrink, table_texture=self.table_texture),
         )  # fmt: skip
 
 
