@@ -21,6 +21,7 @@ class _Line:
         self.x, self.t = 0.0, 0
         self.start = 0.5 if seed % 2 else 0.0  # odd seeds start half way
         self.x = self.start
+        self.start_poses = {"puck": np.array([[1, 0, 0, self.start], [0, 1, 0, 0.25], [0, 0, 1, 0], [0, 0, 0, 1.0]])}
         return {"observation.state": np.array([self.x], np.float32)}, {}
 
     def step(self, action):
@@ -37,6 +38,7 @@ def test_evaluation_counts_terminations_as_successes():
     assert summary["successes"] == 3 and summary["episodes"] == 6
     assert [r["success"] for r in summary["runs"]] == [False, True] * 3
     assert summary["wilson95"] == list(wilson_interval(3, 6)) and len(frames) == 2
+    assert [r["start_xy"] for r in summary["runs"][:2]] == [{"puck": [0.0, 0.25]}, {"puck": [0.5, 0.25]}]
 
 
 class _SlowFromStep:

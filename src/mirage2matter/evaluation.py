@@ -58,7 +58,9 @@ def evaluate_policy(
     one record per episode (seed, success, steps, seconds, the env's last ``reason``). ``done``: records of
     episodes already run (a resumed evaluation: their seeds are not run again); ``on_episode(record)`` after
     each episode (to save it). Each record also holds the slowest step's seconds (``max_step_seconds``) and the
-    env's per-part ``timings`` when it reports them. ``max_episode_seconds``: an episode still running after that
+    env's per-part ``timings`` when it reports them, and ``start_xy`` {object: [x, y]} (its origin in the base frame,
+    m) when the env reports its objects' start poses (``start_poses``, as TwinEnv does): which placements fail.
+    ``max_episode_seconds``: an episode still running after that
     much wall-clock time ends there as a failure with ``reason`` saying so and ``cut: true`` (the summary counts
     them in ``cut``): a world that renders pathologically slowly in one pose cannot hold an evaluation for hours."""
     from tqdm import tqdm
@@ -71,6 +73,7 @@ def evaluate_policy(
     for s in bar:
         t0 = clock()
         obs, _ = env.reset(seed=s)
+        start = getattr(getattr(env, "unwrapped", env), "start_poses", None)
         if hasattr(policy, "reset"):
             policy.reset()
         frames = [frame_of(obs, camera)] if len(kept) < keep_frames else None
@@ -93,6 +96,8 @@ def evaluate_policy(
             kept.append(frames)
         row = {"seed": s, "success": success, "steps": steps, "seconds": round(clock() - t0, 2),
                "max_step_seconds": round(slowest, 3)}  # fmt: skip
+        if isinstance(start, dict) and start:
+            row["start_xy"] = {n: [round(float(T[0][3]), 4), round(float(T[1][3]), 4)] for n, T in start.items()}
         timings = info.get("timings") if isinstance(info, dict) else None
         if timings is None:  # an episode cut short: the env's running totals
             timings = getattr(getattr(env, "unwrapped", env), "timings", None)
