@@ -54,10 +54,21 @@ def test_train_then_eval_in_the_hybrid_world(ws: Path, capsys) -> None:
     assert len(frames) == 1 + rows[0]["steps"] + 5 and frames[0].shape == (48, 96, 3)  # head | wrist, last held
     assert (report / "contact_sheet.png").is_file()
 
+    assert s["inference"] == {"ensemble_decay": 0.1, "replan_every": None}  # the checkpoint's
+
     # the same settings again: nothing to do
     assert main(["eval-policy", "-w", str(ws), "--policy", "tiny", "--episodes", "2", "--horizon", "4",
                  "--video-episodes", "1"]) == 0  # fmt: skip
     assert "up to date" in capsys.readouterr().out
+
+    # another way of running the chunks (the workspace's settings put back after: the flags persist in m2m.yaml)
+    settings = (ws / "m2m.yaml").read_bytes()
+    try:
+        assert main(["eval-policy", "-w", str(ws), "--policy", "tiny", "--episodes", "1", "--horizon", "3",
+                     "--video-episodes", "0", "--replan-every", "2", "--name", "replan"]) == 0  # fmt: skip
+    finally:
+        (ws / "m2m.yaml").write_bytes(settings)
+    assert json.loads((ws / "evals" / "replan" / "summary.json").read_text())["inference"]["replan_every"] == 2
 
 
 @pytest.mark.slow
@@ -132,6 +143,11 @@ def test_bad_input_is_a_clear_error_and_leaves_no_report(ws: Path, tmp_path: Pat
                  progress=False)  # fmt: skip
     err = _error(capsys, "eval-policy", "-w", w, "--policy", str(tmp_path / "so100_policy"), "--task", TASK)
     assert "so100_policy" in err and "trained for robot_type 'so100', not 'franka_panda'" in err
+    # inference settings that cannot apply
+    assert "ensemble_decay must be >= 0" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",
+                                                   "--ensemble-decay", "-1")  # fmt: skip
+    assert "replan_every must be in [1," in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",
+                                                   "--replan-every", "99")  # fmt: skip
     # an unknown policy name
     assert "neither a policy in" in _error(capsys, "eval-policy", "-w", w, "--policy", "nope", "--task", TASK)
     after = sorted(p.name for p in (ws / "evals").iterdir()) if (ws / "evals").is_dir() else []

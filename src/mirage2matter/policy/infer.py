@@ -52,7 +52,8 @@ class Policy:
         self.source = source
         self.device = device
         if replan_every is not None and not 1 <= replan_every <= self.spec.chunk:
-            raise PolicyError(f"replan_every must be in [1, {self.spec.chunk}] (the chunk), got {replan_every}")
+            raise PolicyError(f"{source}: replan_every must be in [1, {self.spec.chunk}] (the policy's chunk length), "
+                              f"got {replan_every}")  # fmt: skip
         if ensemble_decay < 0:
             raise PolicyError(f"ensemble_decay must be >= 0, got {ensemble_decay}")
         self.replan_every = replan_every

@@ -49,6 +49,10 @@ class Config:
     name            the report's folder: <workspace>/evals/<name> (default: <policy>-<renderer>-<task>)
     video_episodes  episodes shown in rollout.mp4 and contact_sheet.png
     device          where a trained policy runs: auto, cpu, cuda
+    ensemble_decay  a trained policy's temporal-ensembling weights exp(-m i) over its overlapping chunks (default:
+                    the checkpoint's, 0.1; ACT's is 0.01; 0 averages them equally)
+    replan_every    run a trained policy's network every n steps and play its chunk open-loop in between, instead of
+                    temporal ensembling (1 <= n <= its chunk length)
     """
 
     policy: str = "policy"
@@ -63,9 +67,15 @@ class Config:
     name: str | None = None
     video_episodes: int = 4
     device: str = "auto"
+    ensemble_decay: float | None = None
+    replan_every: int | None = None
 
     def validate(self) -> None:
         bad = []
+        if self.ensemble_decay is not None and not self.ensemble_decay >= 0:
+            bad.append(f"ensemble_decay must be >= 0, got {self.ensemble_decay}")
+        if self.replan_every is not None and self.replan_every < 1:
+            bad.append(f"replan_every must be >= 1, got {self.replan_every}")
         if self.episodes < 1:
             bad.append(f"episodes must be >= 1, got {self.episodes}")
         if self.horizon < 1:
@@ -197,8 +207,11 @@ def open_policy(ws: Workspace, cfg: Config, world: Any):
     spec = world.robot.spec
     p = policy_path(ws, cfg)
     if p is None:
+        if cfg.ensemble_decay is not None or cfg.replan_every is not None:
+            raise PolicyError(f"eval-policy: ensemble_decay and replan_every set how a policy trained by m2m "
+                              f"train-policy runs its chunks; {cfg.policy} is a callable: leave them out")  # fmt: skip
         return load_policy_callable(cfg.policy, action_dim=len(spec.action_names))
-    policy = load_policy(p, device=cfg.device)
+    policy = load_policy(p, device=cfg.device, replan_every=cfg.replan_every, ensemble_decay=cfg.ensemble_decay)
     policy.check_matches(robot_type=spec.robot_type, state_names=spec.state_names, action_names=spec.action_names,
                          fps=10, cameras=[c for c in CAMERAS if c in world.cameras])  # fmt: skip
     return policy
@@ -259,6 +272,8 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         "policy": cfg.policy,
         "size": size,
         "seeds": [cfg.seed, cfg.seed + cfg.episodes - 1],
+        **({"inference": {"ensemble_decay": policy.ensemble_decay, "replan_every": policy.replan_every}}
+           if hasattr(policy, "ensemble_decay") else {}),  # fmt: skip
         "seconds": {"build": round(build_s, 1), "episodes": round(eval_s, 1),
                     "per_step": round(eval_s / max(steps, 1), 4)},  # fmt: skip
         "files": {"episodes": EPISODES_FILE, **({"video": "rollout.mp4", "contact_sheet": "contact_sheet.png"}
