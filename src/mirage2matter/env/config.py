@@ -43,8 +43,9 @@ class Randomization:
     object_shrink  the objects' Gaussians drawn at a random scale in [1 - object_shrink, 1] about their base, one per
                 episode (their physics unchanged): a policy that does not rely on a reconstruction's apparent size
                 (the sample's reconstructed objects cover 1.2-1.8x their true area in the head camera's view)
-    table_texture  the table's Gaussians re-coloured per episode: a per-channel gain in [1 - t, 1 + t] and a random
-                grain field of amplitude up to t (``env.table_texture``; 0: the reconstruction's own table)
+    table_texture  the table's Gaussians re-coloured per episode: evened out towards their mean colour (up to 2t), a
+                per-channel gain in [1 - t, 1 + t] and a random grain field of amplitude up to t
+                (``env.table_texture``; 0: the reconstruction's own table)
     """
 
     camera_deg: float = 0.5

@@ -51,7 +51,7 @@ class HybridRenderer:
         # with mesh objects Genesis draws them, in the robot layer (``build_hybrid``)
         self.splat = splat_world(splat_parts(world, objects=options.objects == "gaussians"), options.splat)
         self._placement_scales = [p.scale for p in self.splat.parts]
-        self._table = self._table_rows(world.table_z)  # (row indices, their xy [M, 2], their SH DC [M, 3])
+        self._table: tuple | None = None  # the table's rows, found when an episode first re-colours them
         self._table_changed = False
         self.jitter = ColorJitter()
         self._robot_cache: dict[str, tuple] = {}
@@ -68,37 +68,37 @@ class HybridRenderer:
         self._robot_cache = {}
         self.timings = dict.fromkeys(TIMING_KEYS, 0.0)
 
-    def _table_rows(self, table_z: float) -> tuple[Any, np.ndarray, Any]:
+    def _table_rows(self) -> tuple:
+        """(row indices [M] of the table's Gaussians in the splat world, their xy [M, 2], SH DC [M, 3] as built, and
+        rgb [M, 3] in [0, 1] as built)."""
         import torch
 
         from ..gaussians.sh import SH_C0
         from .table_texture import table_rows
 
-        g = self.splat.gaussians
-        sl = self.splat.static_rows
-        dc = g.sh[sl, 0].detach()
-        rgb = (0.5 + SH_C0 * dc).clamp(0.0, 1.0).cpu().numpy()
-        means = g.means[sl].detach().cpu().numpy()
-        idx = torch.from_numpy(np.flatnonzero(table_rows(means, rgb, table_z)) + sl.start).to(g.means.device)
-        return idx, g.means[idx, :2].detach().cpu().numpy(), g.sh[idx, 0].detach().clone()
+        g, sl = self.splat.gaussians, self.splat.static_rows
+        rgb = (0.5 + SH_C0 * g.sh[sl, 0].detach()).clamp(0.0, 1.0).cpu().numpy()
+        rows = np.flatnonzero(table_rows(g.means[sl].detach().cpu().numpy(), rgb, self.twin.cfg.table_z))
+        idx = torch.from_numpy(rows + sl.start).to(g.means.device)
+        return idx, g.means[idx, :2].detach().cpu().numpy(), g.sh[idx, 0].detach().clone(), rgb[rows]
 
     def _retexture_table(self, texture: Any) -> None:
         """The table's Gaussians in this episode's look (``texture``: a TableTexture; None: as reconstructed)."""
         import torch
 
-        from ..gaussians.sh import SH_C0
+        from ..gaussians.sh import rgb_to_sh_dc
 
-        idx, xy, dc0 = self._table
-        if texture is None and not self._table_changed or not len(idx):
+        if texture is None and not self._table_changed:
             return
+        if self._table is None:
+            self._table = self._table_rows()
+        idx, xy, dc0, rgb0 = self._table
         sh = self.splat.gaussians.sh
         with torch.no_grad():
             if texture is None:
                 sh[idx, 0] = dc0
-            else:
-                rgb = (0.5 + SH_C0 * dc0).clamp(0.0, 1.0).cpu().numpy()
-                new = torch.from_numpy(texture.apply(rgb, xy)).to(sh.device, sh.dtype)
-                sh[idx, 0] = (new - 0.5) / SH_C0
+            elif len(idx):
+                sh[idx, 0] = rgb_to_sh_dc(torch.from_numpy(texture.apply(rgb0, xy)).to(sh.device, sh.dtype))
         self._table_changed = texture is not None
 
     def _robot_layer(self, camera: str, state: np.ndarray) -> dict[str, np.ndarray]:

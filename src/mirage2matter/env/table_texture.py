@@ -5,8 +5,9 @@ sample's ground-truth world mostly because of the table, not the banana: pasting
 pixels into ground-truth first frames took the policy's open-loop error on its failed episodes from 0.068 to
 0.031 (action-std units; the banana's pixels: 0.041; the floor and walls: 0.062). Every generated episode shows
 the same reconstructed wood grain, so a network can use the grain as a landmark; a real table (or the
-ground-truth one) has other grain. With ``Randomization.table_texture`` each episode multiplies the table's
-Gaussians' colours by a per-channel gain and a smooth random grain field (a few plane waves over the table),
+ground-truth one) has other grain. With ``Randomization.table_texture`` each episode evens the table's Gaussians'
+colours out towards their mean, then multiplies them by a per-channel gain and a smooth random grain field (a few
+plane waves over the table),
 so nothing about the table's texture is the same from one demonstration to the next.
 
 Which Gaussians are "the table": the scene's within ``band`` of the table plane and ``radius`` of the robot
@@ -43,8 +44,10 @@ def table_rows(
 
 @dataclass(frozen=True)
 class TableTexture:
-    """One episode's table look: ``rgb' = clip(rgb * gain * (1 + amplitude * grain(x, y)), 0, 1)``.
+    """One episode's table look:
+    ``rgb' = clip(((1 - flatten) * rgb + flatten * mean(rgb)) * gain * (1 + amplitude * grain(x, y)), 0, 1)``.
 
+    flatten     how much of the reconstruction's own grain is evened out towards the table's mean colour
     gain        [3] per-channel colour gain (the wood's tint and brightness)
     amplitude   strength of the grain field
     waves       [K, 2] spatial frequencies (cycles per metre, in the base frame's x-y) of the grain's plane waves

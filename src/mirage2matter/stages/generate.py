@@ -33,9 +33,9 @@ class Config:
                  mesh-only ablation)
     object_shrink  each episode draws the objects' Gaussians at a random scale in [1 - object_shrink, 1] about
                  their base (physics unchanged; 0: off)
-    table_texture  each episode re-colours the table's Gaussians: per-channel gain in [1 - t, 1 + t] and a random
-                 grain of amplitude up to t, so a policy cannot use the reconstruction's wood grain as a landmark
-                 (0: off)
+    table_texture  each episode re-colours the table's Gaussians: evened out (up to 2t), per-channel gain in
+                 [1 - t, 1 + t] and a random grain of amplitude up to t, so a policy cannot use the reconstruction's
+                 wood grain as a landmark (0: off)
     """
 
     task: tuple[str, ...] = ()
