@@ -70,3 +70,19 @@ def test_a_randomization_option_enters_the_fingerprint_only_when_used(tmp_path, 
     assert getattr(Config(task=("grasp banana",), **{option: 0.3}).generation().randomization, option) == 0.3
     with pytest.raises(GenerateError, match=f"{option} must be in"):
         Config(task=("grasp banana",), **{option: bad}).validate()
+
+
+def test_a_splat_server_is_refused_with_ray_and_is_not_part_of_the_dataset(tmp_path):
+    """--splat-server is how the same episodes are drawn, not which: the fingerprint ignores it; it serves local
+    worker processes only, so Ray with it is refused before anything starts."""
+    from mirage2matter.datagen import dataset_fingerprint
+
+    world, task = _world(tmp_path), GraspTask("banana")
+    plain, served = GenerateConfig(episodes=1), GenerateConfig(episodes=1, splat_server=True)
+    assert dataset_fingerprint(world, task, plain) == dataset_fingerprint(world, task, served)
+    world.cameras = {c: CameraConfig(mount="base", T_mount_cam=np.eye(4), K=np.array([[50.0, 0, 32], [0, 50.0, 24],
+                     [0, 0, 1]]), width=64, height=48) for c in ("head", "wrist")}  # fmt: skip
+    with pytest.raises(GenerateError, match="cannot serve Ray actors"):
+        generate(world, task, tmp_path / "ds", GenerateConfig(episodes=1, splat_server=True, ray_address="local"),
+                 progress=False)  # fmt: skip
+    assert not (tmp_path / "ds").exists()

@@ -76,3 +76,49 @@ def test_replayed_grasp_reproduces_the_generated_episode(world):
 def test_replay_of_every_task_at_full_size(world, text):
     for seed in (11, 12):
         _check(world, text, seed, size=(224, 224))
+
+
+def test_a_splat_server_draws_the_same_episode(world):
+    """Generation's workers can hand their splat layer to one batched renderer (``--splat-server``, for a GPU): the
+    same episode, with the episode's own object scale and table look, states identical and frames as the
+    in-process renderer draws them (>= 40 dB; it draws the head camera over a cached background)."""
+    from mirage2matter.datagen.sim_source import SimEpisodeSource, SimSourceConfig
+    from mirage2matter.env.config import Randomization
+    from mirage2matter.env.hybrid import splat_parts
+    from mirage2matter.render.splat_server import SplatServer
+    from mirage2matter.sim.tasks import parse_task
+
+    cfg = SimSourceConfig(world=world, task=parse_task("grasp banana", world), size=(32, 24),
+                          randomization=Randomization(object_shrink=0.3, table_texture=0.3))  # fmt: skip
+    runs = []
+    server = SplatServer(splat_parts(world), cfg.hybrid.splat, slots=1, cameras=len(cfg.cameras), size=cfg.size,
+                         background=cfg.hybrid.background, table_z=world.table_z)  # fmt: skip
+    with server as handle:
+        for splat_server in (None, handle):
+            source = SimEpisodeSource(cfg, splat_server)
+            try:
+                assert (source.env.renderer.splat is None) == (splat_server is not None)
+                runs.append(source.run(0, 1234))
+            finally:
+                source.env.close()
+    local, served = runs
+    assert local.success and served.success, (local.reason, served.reason)
+    np.testing.assert_array_equal(local.episode.state, served.episode.state)
+    for c, frames in local.episode.images.items():
+        worst = min(_psnr(a, b) for a, b in zip(frames, served.episode.images[c], strict=True))
+        assert worst >= 40.0, (c, worst)
+    assert server.stats["frames"] == len(local.episode.action) + 1  # every frame drawn there (the last one too)
+
+
+@pytest.mark.slow
+def test_generate_with_a_splat_server_and_two_workers_writes_a_valid_dataset(world, tmp_path):
+    """The server's handle travels into spawned worker processes, which draw through it: a dataset an independent
+    reader loads, every frame drawn by the server."""
+    from mirage2matter.datagen import GenerateConfig, generate
+    from mirage2matter.export.validate import validate
+    from mirage2matter.sim.tasks import parse_task
+
+    cfg = GenerateConfig(episodes=2, workers=2, size=(32, 24), preview=0, splat_server=True)
+    s = generate(world, parse_task("grasp banana", world), tmp_path / "ds", cfg, progress=False)
+    assert s["episodes"] == 2 and validate(s["dataset"]) == []
+    assert s["splat_server"]["frames"] >= s["frames"] and s["splat_server"]["largest_batch"] <= 2

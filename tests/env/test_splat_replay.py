@@ -77,6 +77,25 @@ def test_both_paths_run_a_real_world_and_count_alike() -> None:
     assert a["seconds"] > 0 and b["seconds"] > 0
 
 
+def test_served_replay_draws_every_frame_through_the_server(tmp_path) -> None:
+    """replay_served: worker processes asking one splat server for their episodes' frames (generate
+    --splat-server), every recorded frame drawn there once."""
+    from test_composite import _blob
+
+    from mirage2matter.env.splat_replay import replay_served
+    from mirage2matter.gaussians.ply import write_ply
+    from mirage2matter.render import SplatRenderOptions
+
+    parts = {"scene": None, "parts": []}
+    for name, color, seed in (("a", (0.9, 0.1, 0.1), 5), ("b", (0.1, 0.1, 0.9), 6)):
+        write_ply(tmp_path / f"{name}.ply", _blob((0, 0, 0.02), color, seed=seed))
+        parts["parts"].append([name, str(tmp_path / f"{name}.ply"), 1.0])
+    r = replay_served(parts, SplatRenderOptions(backend="cpu"), [_stream(1, 4), _stream(2, 6)], demos=3, size=16,
+                      workers=2)  # fmt: skip
+    assert r["frames"] == r["server"]["frames"] == 4 + 6 + 4 and r["demos"] == 3
+    assert 1 <= r["server"]["largest_batch"] <= 2 and r["seconds"] > 0
+
+
 @pytest.mark.slow
 def test_bench_splats_records_once_then_replays_without_the_simulator(sample_world_ws, tmp_path, capsys,
                                                                       monkeypatch) -> None:  # fmt: skip
@@ -91,11 +110,12 @@ def test_bench_splats_records_once_then_replays_without_the_simulator(sample_wor
     ws = tmp_path / "ws"
     shutil.copytree(src / "world", ws / "world")
     argv = ["bench", "splats", "-w", str(ws), "--episodes", "1", "--demos", "2", "--size", "48", "--batch", "1", "2",
-            "--runs", "1", "--backend", "cpu"]  # fmt: skip
+            "--server", "2", "--runs", "1", "--backend", "cpu"]  # fmt: skip
     assert main(argv) == 0
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert result["backend"] == "cpu" and result["cameras"] == ["head", "wrist"] and result["size"] == 48
-    assert [r["batch"] for r in result["results"]] == [1, 2] and all(r["demos_per_min"] > 0 for r in result["results"])
+    assert [r.get("batch", r.get("server_workers")) for r in result["results"]] == [1, 2, 2]
+    assert all(r["demos_per_min"] > 0 for r in result["results"]) and result["results"][2]["mean_batch"] >= 1
     (folder,) = (ws / "evals" / "splat_streams").glob("grasp_banana-48px-*")  # and the world's hash
     st = np.load(folder / "stream_3000000.npz")
     T = len(st["poses"])

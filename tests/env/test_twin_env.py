@@ -168,7 +168,7 @@ def test_table_texture_recolours_only_the_table_with_the_same_episode(ws):
         assert (d1.reset_seed, d1.task_seed, d1.jitter) == (d2.reset_seed, d2.task_seed, d2.jitter)
         np.testing.assert_allclose(plain.start_poses["banana"], textured.start_poses["banana"])  # same physics
         r = textured.renderer
-        idx = r._table[0].numpy()  # found at the textured episode's start
+        idx = r._table.rows.numpy()  # found at the textured episode's start
         assert len(idx) > 100
         changed = (textured.renderer.splat.gaussians.sh[:, 0] != g0).any(dim=1).numpy()
         assert changed[idx].mean() > 0.9 and not np.delete(changed, idx).any()  # the table and nothing else

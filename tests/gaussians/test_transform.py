@@ -115,15 +115,17 @@ def test_degree_zero_and_empty():
     assert len(empty) == 0 and empty.sh.shape == (0, 16, 3)
 
 
-def test_apply_rigid_batch_is_apply_sim3_per_pose() -> None:
+@pytest.mark.parametrize("scale", [1.3, (0.7, 1.0, 1.3)], ids=["one-scale", "per-pose-scales"])
+def test_apply_rigid_batch_is_apply_sim3_per_pose(scale) -> None:
     from mirage2matter.gaussians.transform import apply_rigid_batch
 
     g = _gaussians(degree=2, dtype=torch.float32)
     rng = np.random.default_rng(3)
     Rs = np.stack([axis_angle_to_matrix(rng.normal(size=3), a) for a in (0.0, 0.7, 2.9)])
     ts = rng.normal(size=(3, 3))
-    out = apply_rigid_batch(g, 1.3, Rs, ts)
+    out = apply_rigid_batch(g, np.asarray(scale) if isinstance(scale, tuple) else scale, Rs, ts)
+    scales = np.broadcast_to(np.asarray(scale, np.float64), (3,))
     for b in range(3):
-        want = apply_sim3(g, Sim3(1.3, Rs[b], ts[b]))
+        want = apply_sim3(g, Sim3(float(scales[b]), Rs[b], ts[b]))
         for k in ("means", "quats", "log_scales", "sh"):
             torch.testing.assert_close(out[k][b], getattr(want, k), atol=2e-5, rtol=1e-5)

@@ -59,6 +59,33 @@ def test_posing_one_copy_leaves_the_others() -> None:
     assert np.abs(after[1] - before[1]).mean() > 1e-3
 
 
+def test_a_subset_of_copies_and_a_copy_at_its_own_scale() -> None:
+    """``copies=`` draws only the copies named (a splat server's episodes that asked for a frame), in their order;
+    ``set_scale`` draws one copy's parts at its own scale (an episode's object scale), the others as built."""
+    batch = SplatWorldBatch(_world(backend="cpu"), 3)
+    batch.set_scale(2, 0.6)
+    batch.set_poses([_poses(0), _poses(1), _poses(1)])
+    view = _camera((0.0, 0.0, 0.5))
+    views, Ks = np.tile(view, (2, 1, 1, 1)), np.tile(K, (2, 1, 1, 1))
+    rgb, alpha, depth = batch.render(views, Ks, W, H, copies=[2, 0])
+    assert rgb.shape == (2, 1, H, W, 3)
+    plain = _world(backend="cpu")
+    plain.set_poses(_poses(0))
+    np.testing.assert_allclose(rgb[1, 0], plain.render(view, K, W, H)[0], atol=1e-6)
+    small = _world(backend="cpu")
+    for part in small.parts:
+        part.scale *= 0.6
+    small.set_poses(_poses(1))
+    np.testing.assert_allclose(rgb[0, 0], small.render(view, K, W, H)[0], atol=1e-6)
+    full = _world(backend="cpu")
+    full.set_poses(_poses(1))
+    assert np.abs(rgb[0, 0] - full.render(view, K, W, H)[0]).mean() > 1e-3  # the scale really applied
+    with pytest.raises(ValueError, match="distinct indices below 3"):
+        batch.render(views, Ks, W, H, copies=[0, 0])
+    with pytest.raises(ValueError, match="must be positive"):
+        batch.set_scale(0, 0.0)
+
+
 def test_bad_camera_stacks_are_named() -> None:
     batch = SplatWorldBatch(_world(backend="cpu"), 2)
     with pytest.raises(ValueError, match=r"viewmats \[2,C,4,4\]"):

@@ -4,6 +4,8 @@ gsplat 1.5.3 kills the process with SIGFPE). Skipped without a CUDA GPU and gspl
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from test_composite import H, K, W, _blob, _camera
 
@@ -82,3 +84,38 @@ def test_a_batch_of_worlds_in_one_gsplat_call_matches_the_cpu_worlds():
             r, a, _ = alone.render(views[k, c], K, W, H, background=(0.1, 0.2, 0.3))
             assert _psnr(rgb[k, c], r) >= 35.0 and _psnr(alpha[k, c], a) >= 35.0
     assert np.abs(rgb[0, 0] - rgb[1, 0]).mean() > 1e-3
+
+
+def test_a_splat_server_on_the_gpu_draws_each_slot_as_the_cpu_does(tmp_path):
+    """generate --splat-server's renderer on the GPU: two of three slots asking together, drawn in one gsplat call,
+    each slot's frames (one with its own object scale and table look) as its CPU world's."""
+    import threading
+
+    from test_splat_batch import _poses
+    from test_splat_server import KS, OPTIONS, TABLE_Z, VIEWS, _alone, write_parts
+
+    from mirage2matter.env.table_texture import TableTexture
+    from mirage2matter.render.splat_server import RemoteSplatLayer, SplatServer
+
+    parts = write_parts(tmp_path)
+    texture = TableTexture.sample(np.random.default_rng(1), 0.3)
+    server = SplatServer(parts, replace(OPTIONS, backend="cuda"), slots=3, cameras=2, size=(W, H),
+                         background=(0.1, 0.2, 0.3), table_z=TABLE_Z, gather_ms=20_000)  # fmt: skip
+    frames = {}
+    with server as handle:
+        layers = [RemoteSplatLayer(handle) for _ in range(2)]  # 2 of 3 slots: the batch drawn is a subset
+        layers[0].start_episode()
+        layers[1].start_episode(object_scale=0.6, table_texture=texture)
+
+        def ask(i: int) -> None:
+            frames[i] = layers[i].render(_poses(i + 1), VIEWS, KS)
+
+        threads = [threading.Thread(target=ask, args=(i,)) for i in range(2)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    assert server.stats["largest_batch"] == 2
+    for i, want in ((0, _alone(parts, _poses(1))), (1, _alone(parts, _poses(2), 0.6, texture))):
+        for c in range(2):
+            assert _psnr(frames[i][0][c], want[0][c]) >= 35.0 and _psnr(frames[i][1][c], want[1][c]) >= 35.0

@@ -87,6 +87,9 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     p.add_argument("--size", type=int_at_least(16), default=224, metavar="PX", help="frame side (default 224)")
     p.add_argument("--batch", type=int_at_least(1), nargs="+", default=[1, 16], metavar="B",
                    help="episodes per render call; 1 = generation's path (default: 1 16)")  # fmt: skip
+    p.add_argument("--server", type=int_at_least(1), nargs="*", default=[], metavar="W",
+                   help="also through a splat server (generate --splat-server) fed by W worker processes, for each W "
+                   "given (default: none)")  # fmt: skip
     p.add_argument("--backend", default="auto", help="render backend: auto, cpu, cuda (default auto)")
     p.add_argument("--runs", type=int_at_least(1), default=3, metavar="R", help="repetitions (default 3)")
     p.set_defaults(func=_splats)
@@ -244,7 +247,7 @@ def _splats(args: argparse.Namespace) -> int:
     from ..datagen import task_slug
     from ..env.config import HybridOptions
     from ..env.hybrid import splat_world
-    from ..env.splat_replay import load_or_record_streams, replay_batched, replay_generation
+    from ..env.splat_replay import load_or_record_streams, replay_batched, replay_generation, replay_served
     from ..render import SplatWorldBatch
     from ..workspace import Workspace
 
@@ -279,6 +282,18 @@ def _splats(args: argparse.Namespace) -> int:
                         "ms_per_frame": round(1000 * secs / runs[0]["frames"], 3),
                         "seconds": [round(r["seconds"], 2) for r in runs]})  # fmt: skip
         del batch
+    for w in args.server:
+        runs = []
+        for _ in range(args.runs):
+            r = replay_served(parts, options, streams, args.demos, args.size, w)
+            runs.append(r)
+            info(f"server, {w} workers: {r['demos'] / r['seconds'] * 60:.1f} demos/min ({r['seconds']:.1f} s, mean "
+                 f"batch {r['server']['mean_batch']:.1f})")  # fmt: skip
+        secs = statistics.median(r["seconds"] for r in runs)
+        results.append({"server_workers": w, "demos_per_min": round(args.demos / secs * 60, 1),
+                        "ms_per_frame": round(1000 * secs / runs[0]["frames"], 3),
+                        "mean_batch": round(statistics.median(r["server"]["mean_batch"] for r in runs), 2),
+                        "seconds": [round(r["seconds"], 2) for r in runs]})  # fmt: skip
     cams = sorted(k[len("view.") :] for k in streams[0] if k.startswith("view."))
     print(json.dumps({"backend": dev.type, "device": name, "gaussians": len(world), "size": args.size,
                       "cameras": cams, "frames_per_demo": round(frames_per_demo, 1), "demos": args.demos,

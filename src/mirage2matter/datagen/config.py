@@ -27,6 +27,9 @@ class GenerateConfig:
     preview        episodes shown in preview.mp4 / contact_sheet.png (0: none)
     randomization  per-episode camera-mount and colour jitter, random object start poses
     objects        how objects are drawn: "gaussians" (the method) or "meshes" (the mesh-only ablation)
+    splat_server   draw every worker's splat layer in one process, batched (``render.splat_server``): for a GPU,
+                   where one batched gsplat call serves all the workers' episodes; the same episodes, every camera
+                   drawn whole (not over a cached background); local worker processes only (not with Ray)
     """
 
     episodes: int
@@ -41,3 +44,4 @@ class GenerateConfig:
     preview: int = 4
     randomization: Randomization = field(default_factory=Randomization)
     objects: str = "gaussians"
+    splat_server: bool = False

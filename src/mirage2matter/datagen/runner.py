@@ -97,7 +97,7 @@ class _Inline:
         pass
 
 
-def _die_with_parent() -> None:
+def die_with_parent() -> None:
     """Linux: SIGKILL this worker when its parent dies (a killed generator must not leave workers
     behind that would keep committing attempts next to the rerun)."""
     try:
@@ -110,7 +110,7 @@ def _die_with_parent() -> None:
 
 
 def _worker_main(factory, staging_root, threads, tasks, results, parent) -> None:  # runs in a worker process
-    _die_with_parent()
+    die_with_parent()
     if os.getppid() != parent:  # the parent died before prctl took effect
         os._exit(1)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")

@@ -82,16 +82,19 @@ class SimSourceConfig:
 
 
 class SimEpisodeSource:
-    """Builds the environment (twin + hybrid renderer) once; :meth:`run` makes one attempt."""
+    """Builds the environment (twin + hybrid renderer) once; :meth:`run` makes one attempt. ``splat_server``: a
+    running splat server's handle, which then draws the splat layer (``env.hybrid.HybridRenderer``)."""
 
-    def __init__(self, cfg: SimSourceConfig):
+    def __init__(self, cfg: SimSourceConfig, splat_server: Any = None):
+        from dataclasses import replace
+
         from ..env.twin_env import TwinEnv
 
         self.cfg = cfg
         self.spec = cfg.spec()
         self.task = cfg.task
         t0 = time.perf_counter()
-        self.env = TwinEnv.from_config(cfg.env_config())
+        self.env = TwinEnv.from_config(replace(cfg.env_config(), splat_server=splat_server))
         self.twin = self.env.twin
         self.build_s = time.perf_counter() - t0
 
@@ -149,9 +152,11 @@ class SimEpisodeSource:
 
 @dataclass(frozen=True)
 class SimSourceFactory:
-    """Picklable: builds a :class:`SimEpisodeSource` inside a worker."""
+    """Picklable (a splat server's handle only into processes as they are spawned): builds a
+    :class:`SimEpisodeSource` inside a worker."""
 
     cfg: SimSourceConfig
+    splat_server: Any = None
 
     def __call__(self) -> SimEpisodeSource:
-        return SimEpisodeSource(self.cfg)
+        return SimEpisodeSource(self.cfg, self.splat_server)

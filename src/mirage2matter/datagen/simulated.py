@@ -13,6 +13,7 @@ import re
 import shutil
 import statistics
 from collections.abc import Callable
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -113,8 +114,34 @@ def generate(
     source = _source(world, task, cfg)
     run = _run_config(cfg)
     render_robot_file(world.robot.file, source.hybrid.robot_render_faces)  # built once, before workers race for it
-    return generate_dataset(out, SimSourceFactory(source), source.spec(), run, _source_fingerprint(world, source),
-                            {"task": task.text, "dataset": str(out)}, log, progress)  # fmt: skip
+    fingerprint, extra = _source_fingerprint(world, source), {"task": task.text, "dataset": str(out)}
+    if not cfg.splat_server:
+        return generate_dataset(out, SimSourceFactory(source), source.spec(), run, fingerprint, extra, log, progress)
+    with _splat_server(world, source, cfg, log) as (handle, server):
+        summary = generate_dataset(out, SimSourceFactory(source, handle), source.spec(), run, fingerprint, extra, log,
+                                   progress)  # fmt: skip
+        summary["splat_server"] = server.close()
+    return summary
+
+
+@contextmanager
+def _splat_server(world: WorldConfig, source, cfg: GenerateConfig, log: Callable[[str], None]):
+    """A splat server for the run's workers: one slot per worker, the workers' splat settings and cameras."""
+    from ..env.hybrid import splat_parts
+    from ..render.splat_server import SplatServer
+
+    if cfg.ray_address:
+        raise GenerateError("--splat-server serves local worker processes; it cannot serve Ray actors (drop "
+                            "--ray-address, or --splat-server)")  # fmt: skip
+    server = SplatServer(splat_parts(world, objects=cfg.objects == "gaussians"), source.hybrid.splat,
+                         slots=max(cfg.workers, 1), cameras=len(source.cameras), size=tuple(source.size),
+                         background=source.hybrid.background, table_z=world.table_z)  # fmt: skip
+    handle = server.start()
+    log(f"splat server: {server.stats['gaussians']:,} Gaussians, {max(cfg.workers, 1)} slot(s), pid {handle.pid}")
+    try:
+        yield handle, server
+    finally:
+        server.close()
 
 
 def bench_datagen(
@@ -164,4 +191,5 @@ def bench_datagen(
         "cpu_s_per_demo": med("cpu_s_per_demo"),
         "demos_per_cpu_min": med("demos_per_cpu_min"),
         "stage_seconds_total": per_run[-1].get("stage_seconds_total"),
+        **({"splat_server": per_run[-1]["splat_server"]} if cfg.splat_server else {}),
     }

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ..errors import M2MError
 
@@ -109,6 +109,8 @@ class EnvConfig:
     hybrid         the hybrid renderer's settings
     ground_truth   a sample folder holding ``ground_truth.json`` (the ``ground_truth`` renderer's world)
     backend        Genesis backend: "cpu" or "gpu"
+    splat_server   a running ``render.splat_server.SplatServer``'s handle: the hybrid splat layer is drawn there
+                   (generation's workers sharing one GPU renderer); None: in this process
     """
 
     world: WorldConfig
@@ -122,6 +124,7 @@ class EnvConfig:
     hybrid: HybridOptions = field(default_factory=HybridOptions)
     ground_truth: Path | None = None
     backend: str = "cpu"
+    splat_server: Any = None
 
 
 def check_config(cfg: EnvConfig, dt: float = 0.01) -> None:

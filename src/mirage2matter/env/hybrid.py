@@ -39,19 +39,28 @@ class HybridRenderer:
 
     Use :meth:`start_episode` after every reset (it forgets the per-episode caches and takes the episode's colour
     jitter), then :meth:`render` per control tick. ``timings`` holds the episode's seconds per part so far.
+    ``splat_server``: a running ``render.splat_server.SplatServer``'s handle; the splat layer is then drawn there
+    (batched with other workers' episodes, every camera whole) and this process holds no Gaussians
+    (``self.splat`` is None).
     """
 
-    def __init__(self, twin: Twin, cameras: tuple[str, ...], size: tuple[int, int], options: HybridOptions) -> None:
+    def __init__(self, twin: Twin, cameras: tuple[str, ...], size: tuple[int, int], options: HybridOptions,
+                 splat_server: Any = None) -> None:  # fmt: skip
         from ..render.composite import ColorJitter
 
         world = twin.cfg
         self.twin, self.cameras, self.size, self.options = twin, tuple(cameras), tuple(size), options
         self.static_cameras = {c for c in cameras if world.cameras[c].mount == "base"}
         self.hand_cameras = {c for c in cameras if world.cameras[c].mount == world.robot.ee_link}
-        # with mesh objects Genesis draws them, in the robot layer (``build_hybrid``)
-        self.splat = splat_world(splat_parts(world, objects=options.objects == "gaussians"), options.splat)
-        self._placement_scales = [p.scale for p in self.splat.parts]
-        self._table: tuple | None = None  # the table's rows, found when an episode first re-colours them
+        self.remote = None
+        if splat_server is not None:
+            from ..render.splat_server import RemoteSplatLayer
+
+            self.remote, self.splat = RemoteSplatLayer(splat_server), None
+        else:  # with mesh objects Genesis draws them, in the robot layer (``build_hybrid``)
+            self.splat = splat_world(splat_parts(world, objects=options.objects == "gaussians"), options.splat)
+            self._placement_scales = [p.scale for p in self.splat.parts]
+        self._table = None  # TableGaussians, found when an episode first re-colours them
         self._table_changed = False
         self.jitter = ColorJitter()
         self._robot_cache: dict[str, tuple] = {}
@@ -60,45 +69,29 @@ class HybridRenderer:
     def start_episode(self, draw: EpisodeDraw) -> None:
         """A new episode: its colour jitter; every cache forgotten, so a frame depends on this episode alone."""
         self.jitter = draw.jitter
+        self._robot_cache = {}
+        self.timings = dict.fromkeys(TIMING_KEYS, 0.0)
+        if self.remote is not None:
+            self.remote.start_episode(draw.object_scale, draw.table_texture)
+            return
         for part, scale in zip(self.splat.parts, self._placement_scales, strict=True):
             part.scale = scale * draw.object_scale  # takes effect as every part is re-posed below
         self._retexture_table(draw.table_texture)
         self.splat.reset_cache()
         self.splat.poses.clear()  # re-pose every part exactly (not "unchanged within tolerance" of the last episode)
-        self._robot_cache = {}
-        self.timings = dict.fromkeys(TIMING_KEYS, 0.0)
-
-    def _table_rows(self) -> tuple:
-        """(row indices [M] of the table's Gaussians in the splat world, their xy [M, 2], SH DC [M, 3] as built, and
-        rgb [M, 3] in [0, 1] as built)."""
-        import torch
-
-        from ..gaussians.sh import SH_C0
-        from .table_texture import table_rows
-
-        g, sl = self.splat.gaussians, self.splat.static_rows
-        rgb = (0.5 + SH_C0 * g.sh[sl, 0].detach()).clamp(0.0, 1.0).cpu().numpy()
-        rows = np.flatnonzero(table_rows(g.means[sl].detach().cpu().numpy(), rgb, self.twin.cfg.table_z))
-        idx = torch.from_numpy(rows + sl.start).to(g.means.device)
-        return idx, g.means[idx, :2].detach().cpu().numpy(), g.sh[idx, 0].detach().clone(), rgb[rows]
 
     def _retexture_table(self, texture: Any) -> None:
         """The table's Gaussians in this episode's look (``texture``: a TableTexture; None: as reconstructed)."""
         import torch
 
-        from ..gaussians.sh import rgb_to_sh_dc
+        from .table_texture import TableGaussians
 
         if texture is None and not self._table_changed:
             return
-        if self._table is None:
-            self._table = self._table_rows()
-        idx, xy, dc0, rgb0 = self._table
-        sh = self.splat.gaussians.sh
+        if self._table is None:  # found when an episode first re-colours them, kept as built
+            self._table = TableGaussians.find(self.splat.gaussians, self.splat.static_rows, self.twin.cfg.table_z)
         with torch.no_grad():
-            if texture is None:
-                sh[idx, 0] = dc0
-            elif len(idx):
-                sh[idx, 0] = rgb_to_sh_dc(torch.from_numpy(texture.apply(rgb0, xy)).to(sh.device, sh.dtype))
+            self.splat.gaussians.sh[self._table.rows, 0] = self._table.sh_dc(texture)
         self._table_changed = texture is not None
 
     def _robot_layer(self, camera: str, state: np.ndarray) -> dict[str, np.ndarray]:
@@ -134,14 +127,22 @@ class HybridRenderer:
         twin, opt, (w, h) = self.twin, self.options, self.size
         t0 = time.perf_counter()
         poses, views = self.splat_views()
-        self.splat.set_poses(poses)
-        self.timings["pose_splats"] += time.perf_counter() - t0
+        served = None
+        if self.remote is not None:  # every camera's layers in one request, drawn with other episodes'
+            served = self.remote.render(poses, np.stack([views[c][0] for c in self.cameras]),
+                                        np.stack([views[c][1] for c in self.cameras]))  # fmt: skip
+            self.timings["splat_render"] += time.perf_counter() - t0
+        else:
+            self.splat.set_poses(poses)
+            self.timings["pose_splats"] += time.perf_counter() - t0
         state = twin.robot_state()
         frames = {}
-        for c in self.cameras:
+        for i, c in enumerate(self.cameras):
             t1 = time.perf_counter()
             view, Kr = views[c]
-            if c in self.static_cameras:  # fixed in the base: the scene is drawn once per episode
+            if served is not None:
+                rgb, alpha, depth = (layer[i] for layer in served)
+            elif c in self.static_cameras:  # fixed in the base: the scene is drawn once per episode
                 rgb, alpha, depth = self.splat.render_static_camera(c, view, Kr, w, h, opt.background)
             else:
                 rgb, alpha, depth = self.splat.render_camera(c, view, Kr, w, h, opt.background)
@@ -162,7 +163,9 @@ class HybridRenderer:
         return frames
 
     def close(self) -> None:
-        """Nothing of its own to free (the twin is the environment's)."""
+        """Give a splat server's slot back (the twin is the environment's)."""
+        if self.remote is not None:
+            self.remote.close()
 
 
 def splat_parts(world: WorldConfig, objects: bool = True) -> dict[str, Any]:
@@ -208,7 +211,7 @@ def build_hybrid(cfg: EnvConfig) -> tuple[Twin, HybridRenderer]:
                           draw_scene=False, draw_objects=meshes)  # fmt: skip
     twin = Twin.build(world, options)
     try:
-        return twin, HybridRenderer(twin, cfg.cameras, cfg.size, cfg.hybrid)
+        return twin, HybridRenderer(twin, cfg.cameras, cfg.size, cfg.hybrid, cfg.splat_server)
     except BaseException:
         twin.close()
         raise

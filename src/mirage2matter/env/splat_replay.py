@@ -3,9 +3,11 @@ recorded once through the simulator, then rendered again without it.
 
 The splat layer is where generation spends most of its time on a CPU (10 of 26 s per demo at 224 px on the
 2-core development machine) and what a GPU takes over. Replaying recorded episodes measures it on any machine,
-a GPU one without the simulator included, by the two paths ``bench splats`` compares: the one generation runs
-(one :class:`SplatWorld`, frame by frame, camera by camera, the head camera's background cached), and
-:class:`SplatWorldBatch` (B episodes in lockstep, every camera of every episode in one call).
+a GPU one without the simulator included, by the paths ``bench splats`` compares: the one generation runs
+(one :class:`SplatWorld`, frame by frame, camera by camera, the head camera's background cached),
+:class:`SplatWorldBatch` (B episodes in lockstep, every camera of every episode in one call), and the splat
+server (``generate --splat-server``: W worker processes asking one server process for their frames, which it
+batches as they come).
 
 A stream (``record_splat_streams``) is a dict: ``parts`` [P] names, ``poses`` float64 [T,P,4,4] (``T_base_obj`` of
 each part at each frame), ``view.<camera>`` [T,4,4] base-to-camera, ``K.<camera>`` [T,3,3] at the frame size,
@@ -21,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["load_or_record_streams", "record_splat_streams", "replay_batched", "replay_generation"]
+__all__ = ["load_or_record_streams", "record_splat_streams", "replay_batched", "replay_generation", "replay_served"]
 
 Log = Callable[[str], None]
 
@@ -167,3 +169,59 @@ def replay_batched(batch: Any, streams: Sequence[dict[str, Any]], demos: int, si
         batch.render(views, Ks, size, size, background)
         frames += len(live)
     return {"seconds": time.perf_counter() - t0, "frames": frames, "demos": demos}
+
+
+def _served_client(handle: Any, episodes: list[dict[str, Any]], ready: Any, go: Any, done: Any) -> None:
+    """A worker process of :func:`replay_served`: its episodes' frames asked of the server, one after the other."""
+    from ..render.splat_server import RemoteSplatLayer
+
+    layer = RemoteSplatLayer(handle)
+    ready.put(layer.slot)
+    go.wait()
+    frames = 0
+    for ep in episodes:
+        layer.start_episode()
+        cams, names = _cameras(ep), ep["parts"].tolist()
+        views = np.stack([ep[f"view.{c}"] for c in cams], axis=1)  # [T,C,4,4]
+        Ks = np.stack([ep[f"K.{c}"] for c in cams], axis=1)
+        for t in range(len(ep["poses"])):
+            layer.render(dict(zip(names, ep["poses"][t], strict=True)), views[t], Ks[t])
+            frames += 1
+    layer.close()
+    done.put(frames)
+
+
+def replay_served(parts: dict[str, Any], options: Any, streams: Sequence[dict[str, Any]], demos: int, size: int,
+                  workers: int, background=(0.0, 0.0, 0.0), gather_ms: float = 2.0) -> dict[str, Any]:  # fmt: skip
+    """The same episodes through a splat server (``render.splat_server``, what ``generate --splat-server`` runs):
+    ``workers`` processes, each replaying its share of the episodes frame by frame as a generation worker asks for
+    them (without the physics between frames: the server at its busiest). -> {"seconds" (from every worker ready to
+    the last frame), "frames", "demos", "server": the server's statistics (mean batch...)}."""
+    import multiprocessing as mp
+
+    from ..render.splat_server import SplatServer
+
+    queue = _episodes(streams, demos)
+    server = SplatServer(parts, options, slots=workers, cameras=len(_cameras(queue[0])), size=(size, size),
+                         background=background, gather_ms=gather_ms)  # fmt: skip
+    ctx = mp.get_context("spawn")
+    ready, done, go = ctx.Queue(), ctx.Queue(), ctx.Event()
+    with server as handle:
+        procs = [ctx.Process(target=_served_client, args=(handle, queue[w::workers], ready, go, done), daemon=True)
+                 for w in range(workers)]  # fmt: skip
+        for p in procs:
+            p.start()
+        try:
+            for _ in procs:
+                ready.get(timeout=300)
+            t0 = time.perf_counter()
+            go.set()
+            frames = sum(done.get(timeout=3600) for _ in procs)
+            seconds = time.perf_counter() - t0
+        finally:
+            for p in procs:
+                p.join(timeout=10)
+                if p.is_alive():
+                    p.kill()
+        stats = server.close()
+    return {"seconds": seconds, "frames": frames, "demos": demos, "server": stats}

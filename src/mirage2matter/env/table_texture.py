@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["TableTexture", "table_rows"]
+__all__ = ["TableGaussians", "TableTexture", "table_rows"]
 
 
 def table_rows(
@@ -90,3 +90,39 @@ class TableTexture:
     def to_json(self) -> dict:
         return {"flatten": self.flatten, "gain": list(self.gain), "amplitude": self.amplitude,
                 "waves": [list(w) for w in self.waves], "phases": list(self.phases)}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class TableGaussians:
+    """The table's Gaussians in a splat world, as built: ``rows`` (torch long [M], on the world's device) of its
+    tensors, their base-frame ``xy`` [M, 2], SH DC ``dc`` (torch [M, 3]) and ``rgb`` [M, 3] in [0, 1]. What a
+    renderer re-colours per episode (``sh[rows, 0] = sh_dc(texture)``) and restores."""
+
+    rows: object
+    xy: np.ndarray
+    dc: object
+    rgb: np.ndarray
+
+    @classmethod
+    def find(cls, gaussians, scene_rows: slice, table_z: float) -> TableGaussians:
+        """The table among ``gaussians``' scene rows (``scene_rows``: the static scene's slice)."""
+        import torch
+
+        from ..gaussians.sh import SH_C0
+
+        sh = gaussians.sh[scene_rows, 0].detach()
+        rgb = (0.5 + SH_C0 * sh).clamp(0.0, 1.0).cpu().numpy()
+        rows = np.flatnonzero(table_rows(gaussians.means[scene_rows].detach().cpu().numpy(), rgb, table_z))
+        idx = torch.from_numpy(rows + scene_rows.start).to(gaussians.means.device)
+        return cls(idx, gaussians.means[idx, :2].detach().cpu().numpy(), gaussians.sh[idx, 0].detach().clone(),
+                   rgb[rows])  # fmt: skip
+
+    def sh_dc(self, texture: TableTexture | None):
+        """torch [M, 3]: the rows' SH DC in ``texture``'s look (None: as built), on the world's device and dtype."""
+        import torch
+
+        from ..gaussians.sh import rgb_to_sh_dc
+
+        if texture is None or not len(self.rgb):
+            return self.dc
+        return rgb_to_sh_dc(torch.from_numpy(texture.apply(self.rgb, self.xy)).to(self.dc.device, self.dc.dtype))

@@ -30,26 +30,30 @@ def apply_sim3(g: Gaussians, sim3: Sim3, rotate_sh: bool = True) -> Gaussians:
     return Gaussians(means, quats, log_scales, g.logit_opacities, sh)
 
 
-def apply_rigid_batch(g: Gaussians, scale: float, R: np.ndarray, t: np.ndarray) -> dict[str, torch.Tensor]:
-    """:func:`apply_sim3` of ``g`` for B poses at once, all with one ``scale`` (an object's placement scale, the
-    rigid physics pose varying): R [B,3,3], t [B,3] numpy -> {"means" [B,N,3], "quats" [B,N,4], "log_scales"
-    [B,N,3], "sh" [B,N,K,3]} on g's device and dtype (opacities unchanged, not returned). The small per-pose
-    matrices (sR, q(R), the SH rotation) are made on the CPU and sent in one transfer: on a GPU, posing B copies of
-    an object costs a handful of kernels, not a handful per copy. No autograd through R and t."""
+def apply_rigid_batch(
+    g: Gaussians, scale: float | np.ndarray, R: np.ndarray, t: np.ndarray
+) -> dict[str, torch.Tensor]:
+    """:func:`apply_sim3` of ``g`` for B poses at once: ``scale`` one float for all (an object's placement scale, the
+    rigid physics pose varying) or [B] (copies drawn at their own scale); R [B,3,3], t [B,3] numpy -> {"means"
+    [B,N,3], "quats" [B,N,4], "log_scales" [B,N,3], "sh" [B,N,K,3]} on g's device and dtype (opacities unchanged,
+    not returned). The small per-pose matrices (sR, q(R), log s, the SH rotation) are made on the CPU and sent in one
+    transfer: on a GPU, posing B copies of an object costs a handful of kernels, not a handful per copy. No autograd
+    through R and t."""
     from .sh_rotation import sh_rotation_matrix
 
     R, t = np.asarray(R, np.float64), np.asarray(t, np.float64)
     B = len(R)
+    s = np.broadcast_to(np.asarray(scale, np.float64), (B,))
     D = sh_rotation_matrix(R, g.sh_degree).numpy()  # [B,K,K]
     q = matrix_to_quat(R)  # [B,4]
-    small = np.concatenate([(scale * R).reshape(B, 9), t, q, D.reshape(B, -1)], axis=1)
+    small = np.concatenate([(s[:, None, None] * R).reshape(B, 9), t, q, np.log(s)[:, None], D.reshape(B, -1)], axis=1)
     small = torch.as_tensor(small).to(g.means.device, g.means.dtype)
-    sR, tt, qq = small[:, :9].reshape(B, 3, 3), small[:, 9:12], small[:, 12:16]
-    Dk = small[:, 16:].reshape(D.shape)
+    sR, tt, qq, ls = small[:, :9].reshape(B, 3, 3), small[:, 9:12], small[:, 12:16], small[:, 16]
+    Dk = small[:, 17:].reshape(D.shape)
     n = len(g)
     return {
         "means": g.means @ sR.transpose(1, 2) + tt[:, None],
         "quats": quat_normalize(quat_multiply(qq[:, None].expand(B, n, 4), g.quats.expand(B, n, 4))),
-        "log_scales": (g.log_scales + math.log(scale)).expand(B, n, 3),
+        "log_scales": g.log_scales + ls[:, None, None],
         "sh": torch.einsum("bij,njc->bnic", Dk, g.sh),
     }

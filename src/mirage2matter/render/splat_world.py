@@ -242,8 +242,9 @@ class SplatWorldBatch:
 
     The copies are the rows of one ``[B, N, ...]`` stack. :meth:`set_poses` takes every copy's part poses at once
     and re-poses each part for all the copies it moved in in one batched transform (not one small GPU job per
-    copy); :meth:`forget` starts a copy afresh (a new episode). Every camera renders the whole world each frame (no
-    static-camera background cache: a batched GPU call costs less than its bookkeeping).
+    copy); :meth:`forget` starts a copy afresh (a new episode), :meth:`set_scale` draws a copy's parts at its own
+    scale (an episode's object scale). Every camera renders the whole world each frame (no static-camera background
+    cache: a batched GPU call costs less than its bookkeeping).
     """
 
     def __init__(self, world: SplatWorld, batch: int):
@@ -253,6 +254,7 @@ class SplatWorldBatch:
         self.sh_degree = world.gaussians.sh_degree
         self.stack = {k: t.unsqueeze(0).repeat(batch, *[1] * t.ndim) for k, t in world.gaussians.tensors().items()}
         self._poses: list[dict[str, np.ndarray]] = [{} for _ in range(batch)]
+        self.scale = np.ones(batch)  # [B] each copy's factor on its parts' placement scales
         # Copy b as a SplatWorld on row b (views: posing the stack moves it), for the CPU path's renders. A part's
         # cull radius depends on its scales alone, which a rigid pose keeps: the world's radii hold for every copy.
         self.worlds: list[SplatWorld] = []
@@ -269,6 +271,14 @@ class SplatWorldBatch:
     def forget(self, b: int) -> None:
         """Copy ``b`` starts a new episode: its next poses are applied exactly, not skipped as unchanged."""
         self._poses[b] = {}
+
+    def set_scale(self, b: int, factor: float) -> None:
+        """Copy ``b``'s parts drawn at ``factor`` x their placement scale about their origin, from its next poses on
+        (every part is re-posed at them)."""
+        if not factor > 0:
+            raise ValueError(f"a copy's scale factor must be positive, got {factor}")
+        self.scale[b] = float(factor)
+        self.forget(b)
 
     def set_poses(self, poses: list[dict[str, np.ndarray] | None]) -> None:
         """Copy b's parts to ``poses[b]`` ({name: T_base_obj [4,4]}; None or a missing name: unchanged)."""
@@ -295,31 +305,39 @@ class SplatWorldBatch:
         """Part ``p`` in copies ``idx`` at poses T [B',4,4], all in one batched transform."""
         from ..gaussians.transform import apply_rigid_batch
 
-        moved = apply_rigid_batch(p.local, p.scale, T[:, :3, :3], T[:, :3, 3])
+        moved = apply_rigid_batch(p.local, p.scale * self.scale[idx], T[:, :3, :3], T[:, :3, 3])
         sl, rows = self._slices[p.name], torch.as_tensor(idx, device=p.local.means.device)
         with torch.no_grad():
             for k in ("means", "quats", "log_scales"):
                 self.stack[k][rows, sl] = moved[k]
             self.stack["sh"][rows, sl, : moved["sh"].shape[2]] = moved["sh"]
 
-    def render(self, viewmats, Ks, width: int, height: int, background=(0.0, 0.0, 0.0)):
+    def render(self, viewmats, Ks, width: int, height: int, background=(0.0, 0.0, 0.0), copies=None):
         """Every copy b from its cameras (viewmats [B,C,4,4] world-to-camera, Ks [B,C,3,3]) -> (rgb [B,C,H,W,3] in
-        [0,1], alpha [B,C,H,W], depth [B,C,H,W] camera-z m), float32 numpy."""
+        [0,1], alpha [B,C,H,W], depth [B,C,H,W] camera-z m), float32 numpy. ``copies``: only these copies (indices,
+        in order; the leading axis of the inputs and outputs is theirs), e.g. the episodes that asked for a frame."""
         from ..gaussians.render import gpu_out_of_memory, render_gsplat_batch
 
         viewmats, Ks = np.asarray(viewmats, np.float64), np.asarray(Ks, np.float64)
-        B = len(self.worlds)
+        rows = list(range(len(self.worlds))) if copies is None else [int(b) for b in copies]
+        B = len(rows)
+        if not rows or min(rows) < 0 or max(rows) >= len(self.worlds) or len(set(rows)) != B:
+            raise ValueError(f"copies must be distinct indices below {len(self.worlds)}, got {copies}")
         if viewmats.ndim != 4 or viewmats.shape[0] != B or viewmats.shape[2:] != (4, 4) or \
                 Ks.shape != (*viewmats.shape[:2], 3, 3):  # fmt: skip
             raise ValueError(f"a batch of {B} worlds renders viewmats [{B},C,4,4] and Ks [{B},C,3,3], got "
                              f"{viewmats.shape} and {Ks.shape}")  # fmt: skip
         if self.worlds[0].device.type != "cuda" or self.stack["means"].shape[1] == 0:  # gsplat dies on N = 0
-            outs = [[w.render(v, k, width, height, background) for v, k in zip(vs, ks, strict=True)]
-                    for w, vs, ks in zip(self.worlds, viewmats, Ks, strict=True)]  # fmt: skip
+            outs = [[self.worlds[b].render(v, k, width, height, background) for v, k in zip(vs, ks, strict=True)]
+                    for b, vs, ks in zip(rows, viewmats, Ks, strict=True)]  # fmt: skip
             return tuple(np.stack([np.stack([o[i] for o in row]) for row in outs]) for i in range(3))
+        stack = self.stack
+        if copies is not None and rows != list(range(len(self.worlds))):
+            sel = torch.as_tensor(rows, device=self.stack["means"].device)
+            stack = {k: t.index_select(0, sel) for k, t in self.stack.items()}
         try:
             f32 = lambda a: torch.tensor(np.asarray(a, np.float32))  # a copy: the inputs may be read-only views
-            out = render_gsplat_batch(self.stack, self.sh_degree, f32(viewmats), f32(Ks), int(width), int(height),
+            out = render_gsplat_batch(stack, self.sh_degree, f32(viewmats), f32(Ks), int(width), int(height),
                                       f32(background), self.options.antialias)  # fmt: skip
         except torch.cuda.OutOfMemoryError as e:
             lower = "the episodes per batch, the image size or the Gaussians (min_opacity)"

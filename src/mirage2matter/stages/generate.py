@@ -36,6 +36,8 @@ class Config:
     table_texture  each episode re-colours the table's Gaussians: evened out (up to 2t), per-channel gain in
                  [1 - t, 1 + t] and a random grain of amplitude up to t, so a policy cannot use the reconstruction's
                  wood grain as a landmark (0: off)
+    splat_server  draw every worker's splat layer in one process, batched: for a GPU, where one gsplat call serves
+                 all the workers' episodes (the same episodes; every camera drawn whole; not with ray_address)
     """
 
     task: tuple[str, ...] = ()
@@ -50,6 +52,7 @@ class Config:
     objects: Literal["gaussians", "meshes"] = "gaussians"
     object_shrink: float = 0.0
     table_texture: float = 0.0
+    splat_server: bool = False
 
     def validate(self) -> None:
         if not self.task:
@@ -62,11 +65,15 @@ class Config:
             raise GenerateError(f"generate: object_shrink must be in [0, 1), got {self.object_shrink}")
         if not 0.0 <= self.table_texture < 1.0:
             raise GenerateError(f"generate: table_texture must be in [0, 1), got {self.table_texture}")
+        if self.splat_server and self.ray_address:
+            raise GenerateError("generate: splat_server serves local worker processes, not Ray actors; drop one of "
+                                "splat_server and ray_address")  # fmt: skip
 
     def generation(self) -> GenerateConfig:
         return GenerateConfig(
             episodes=self.episodes, workers=self.workers, ray_address=self.ray_address, format=self.format,
             seed=self.seed, size=(self.size, self.size), fps=self.fps, objects=self.objects,
+            splat_server=self.splat_server,
             randomization=Randomization(object_shrink=self.object_shrink, table_texture=self.table_texture),
         )  # fmt: skip
 
