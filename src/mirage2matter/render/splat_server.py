@@ -107,7 +107,9 @@ class SplatServer:
                 kind, payload = "error", f"it did not start within {self.start_timeout_s:.0f} s"
         except EOFError:
             self.proc.join(timeout=5)
-            kind, payload = "error", f"it died while starting (exit code {self.proc.exitcode})"
+            kind, payload = "error", (f"it died while starting (exit code {self.proc.exitcode}); a script that starts "
+                                      "one must guard its main code with `if __name__ == '__main__':` (processes "
+                                      "are spawned, and re-import the script)")  # fmt: skip
         if kind != "ready":
             self.close()
             raise SplatServerError(f"the splat server failed to start: {payload}")
