@@ -29,6 +29,7 @@ import numpy as np
 from ..errors import M2MError
 from ..export.spec import DatasetSpec, EpisodeData
 from ..export.staging import commit_attempt
+from ..processes import die_with_parent
 
 
 class RunnerError(M2MError, RuntimeError):
@@ -94,18 +95,6 @@ class _Inline:
         return _run_and_commit(self.source, self.root, attempt, seed)
 
     def close(self) -> None:
-        pass
-
-
-def die_with_parent() -> None:
-    """Linux: SIGKILL this worker when its parent dies (a killed generator must not leave workers
-    behind that would keep committing attempts next to the rerun)."""
-    try:
-        import ctypes
-        import signal
-
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
         pass
 
 

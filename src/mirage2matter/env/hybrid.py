@@ -185,12 +185,9 @@ def splat_parts(world: WorldConfig, objects: bool = True) -> dict[str, Any]:
 def splat_world(parts: dict[str, Any], options: SplatRenderOptions) -> SplatWorld:
     """The :class:`SplatWorld` of :func:`splat_parts`' description: the scene's Gaussians static, each part's
     movable."""
-    from ..gaussians.ply import read_ply
-    from ..render.splat_world import MovablePart, SplatWorld
+    from ..render.splat_world import SplatWorld
 
-    movable = [MovablePart(name, read_ply(path), scale) for name, path, scale in parts["parts"]]
-    static = read_ply(parts["scene"]) if parts["scene"] is not None else None
-    return SplatWorld(static, movable, options)
+    return SplatWorld.from_files(parts, options)
 
 
 def build_hybrid(cfg: EnvConfig) -> tuple[Twin, HybridRenderer]:

@@ -146,7 +146,7 @@ class SplatServer:
 
 def _serve(parts, options, slots, cameras, size, background, table_z, gather_s, requests, replies, buffers, status,
            parent) -> None:  # fmt: skip  (the server process)
-    from ..datagen.runner import die_with_parent
+    from ..processes import die_with_parent
 
     die_with_parent()
     if os.getppid() != parent:
@@ -154,10 +154,9 @@ def _serve(parts, options, slots, cameras, size, background, table_z, gather_s, 
     try:
         import torch
 
-        from ..env.hybrid import splat_world
-        from .splat_world import SplatWorldBatch
+        from .splat_world import SplatWorld, SplatWorldBatch
 
-        world = splat_world(parts, options)
+        world = SplatWorld.from_files(parts, options)
         batch = SplatWorldBatch(world, slots)
         w, h = size
         outs = [np.frombuffer(b, np.float32).reshape(cameras, h, w, LAYERS) for b in buffers]

@@ -94,6 +94,16 @@ class SplatWorld:
         self.version = 0  # bumped whenever a part is re-posed (what cached frames depend on)
         self.reset_cache()
 
+    @classmethod
+    def from_files(cls, parts: dict, options: SplatRenderOptions | None = None) -> SplatWorld:
+        """The world of a splat layer's description ``{"scene": PLY path or None, "parts": [[name, PLY path,
+        placement scale], ...]}`` (``env.hybrid.splat_parts``): the scene's Gaussians static, each part's movable."""
+        from ..gaussians.ply import read_ply
+
+        movable = [MovablePart(name, read_ply(path), scale) for name, path, scale in parts["parts"]]
+        static = read_ply(parts["scene"]) if parts["scene"] is not None else None
+        return cls(static, movable, options)
+
     def __len__(self) -> int:
         return len(self.gaussians)
 
