@@ -70,6 +70,15 @@ def test_train_then_eval_in_the_hybrid_world(ws: Path, capsys) -> None:
         (ws / "m2m.yaml").write_bytes(settings)
     assert json.loads((ws / "evals" / "replan" / "summary.json").read_text())["inference"]["replan_every"] == 2
 
+    # the mesh-only ablation's world (its objects drawn from their meshes), where such a policy was trained
+    try:
+        assert main(["eval-policy", "-w", str(ws), "--policy", "tiny", "--episodes", "1", "--horizon", "2",
+                     "--video-episodes", "0", "--objects", "meshes"]) == 0  # fmt: skip
+    finally:
+        (ws / "m2m.yaml").write_bytes(settings)
+    meshes = json.loads((ws / "evals" / "tiny-hybrid-mesh_objects-grasp_banana" / "summary.json").read_text())
+    assert meshes["objects"] == "meshes" and meshes["episodes"] == 1
+
 
 @pytest.mark.slow
 def test_eval_in_the_ground_truth_world(ws: Path, sample_dir: Path) -> None:
@@ -148,6 +157,8 @@ def test_bad_input_is_a_clear_error_and_leaves_no_report(ws: Path, tmp_path: Pat
                                                    "--ensemble-decay", "-1")  # fmt: skip
     assert "replan_every must be in [1," in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",
                                                    "--replan-every", "99")  # fmt: skip
+    assert "the ground_truth renderer draws its own world" in _error(
+        capsys, "eval-policy", "-w", w, "--policy", "tiny", "--renderer", "ground_truth", "--objects", "meshes")
     # an unknown policy name
     assert "neither a policy in" in _error(capsys, "eval-policy", "-w", w, "--policy", "nope", "--task", TASK)
     after = sorted(p.name for p in (ws / "evals").iterdir()) if (ws / "evals").is_dir() else []

@@ -53,6 +53,8 @@ class Config:
                     the checkpoint's, 0.1; ACT's is 0.01; 0 averages them equally)
     replan_every    run a trained policy's network every n steps and play its chunk open-loop in between, instead of
                     temporal ensembling (1 <= n <= its chunk length)
+    objects         how the hybrid renderer draws objects: gaussians (the method) or meshes (the world a mesh-only
+                    ablation policy was trained in, ``generate --objects meshes``)
     """
 
     policy: str = "policy"
@@ -69,6 +71,7 @@ class Config:
     device: str = "auto"
     ensemble_decay: float | None = None
     replan_every: int | None = None
+    objects: Literal["gaussians", "meshes"] = "gaussians"
 
     def validate(self) -> None:
         bad = []
@@ -84,6 +87,9 @@ class Config:
             bad.append(f"max_episode_minutes must be >= 0 (0: no limit), got {self.max_episode_minutes}")
         if self.size != 0 and self.size < 16:
             bad.append(f"size must be 0 (the datasets') or >= 16, got {self.size}")
+        if self.objects != "gaussians" and self.renderer != "hybrid":
+            bad.append(f"objects={self.objects} is how the hybrid renderer draws them; the {self.renderer} renderer "
+                       "draws its own world")  # fmt: skip
         if self.video_episodes < 0:
             bad.append(f"video_episodes must be >= 0, got {self.video_episodes}")
         if self.name is not None and (not self.name or Path(self.name).name != self.name):
@@ -184,7 +190,8 @@ def report_name(ws: Workspace, cfg: Config) -> str:
         return cfg.name
     p = policy_path(ws, cfg)
     who = p.name if p is not None else task_slug(cfg.policy)
-    return f"{who}-{cfg.renderer}-{task_slug(task_of(ws, cfg))}"
+    world = cfg.renderer + ("-mesh_objects" if cfg.objects == "meshes" else "")
+    return f"{who}-{world}-{task_slug(task_of(ws, cfg))}"
 
 
 # ---- the stage --------------------------------------------------------------------------------------------------
@@ -221,6 +228,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     import time
 
     from ..atomic import atomic_write
+    from ..env.config import HybridOptions
     from ..env.twin_env import TwinEnv, make_config
     from ..evaluation import contact_sheet, evaluate_policy
     from ..video import write_video
@@ -230,7 +238,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     gt = ground_truth_dir(ws, cfg) if cfg.renderer == "ground_truth" else None
     # every check (the task, the renderer's ground truth, the policy against the robot) before the twin's build
     env_cfg = make_config(ws.committed.world_dir, task, renderer=cfg.renderer, size=size, horizon=cfg.horizon,
-                          ground_truth=gt)  # fmt: skip
+                          ground_truth=gt, hybrid=HybridOptions(objects=cfg.objects))  # fmt: skip
     policy = open_policy(ws, cfg, env_cfg.world)
     out = ws.eval_dir(report_name(ws, cfg))
     out.mkdir(parents=True, exist_ok=True)
@@ -269,6 +277,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         **{k: v for k, v in summary.items() if k != "runs"},
         "task": task,
         "renderer": cfg.renderer,
+        **({"objects": cfg.objects} if cfg.objects != "gaussians" else {}),
         "policy": cfg.policy,
         "size": size,
         "seeds": [cfg.seed, cfg.seed + cfg.episodes - 1],
