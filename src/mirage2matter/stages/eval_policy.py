@@ -89,7 +89,8 @@ class Config:
             bad.append(f"size must be 0 (the datasets') or >= 16, got {self.size}")
         if self.objects != "gaussians" and self.renderer != "hybrid":
             bad.append(f"objects={self.objects} is how the hybrid renderer draws them; the {self.renderer} renderer "
-                       "draws its own world")  # fmt: skip
+                       "draws its own world: add --objects gaussians (a setting given once stays in the workspace's "
+                       "m2m.yaml)")  # fmt: skip
         if self.video_episodes < 0:
             bad.append(f"video_episodes must be >= 0, got {self.video_episodes}")
         if self.name is not None and (not self.name or Path(self.name).name != self.name):
