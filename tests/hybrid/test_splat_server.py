@@ -11,10 +11,9 @@ import pytest
 from test_composite import H, K, W, _blob, _camera
 from test_splat_batch import _poses
 
-from mirage2matter.env.hybrid import splat_world
 from mirage2matter.env.table_texture import TableGaussians, TableTexture
 from mirage2matter.gaussians.ply import write_ply
-from mirage2matter.render import SplatRenderOptions
+from mirage2matter.render import SplatRenderOptions, SplatWorld
 from mirage2matter.render.splat_server import RemoteSplatLayer, SplatServer, SplatServerError
 
 OPTIONS = SplatRenderOptions(backend="cpu", sh_degree=1)
@@ -45,7 +44,7 @@ def _alone(parts, poses, scale=1.0, texture=None):
     """(rgb, alpha, depth) [C, ...] of a world of its own posed alike: the reference."""
     import torch
 
-    world = splat_world(parts, OPTIONS)
+    world = SplatWorld.from_files(parts, OPTIONS)
     for p in world.parts:
         p.scale *= scale
     if texture is not None:

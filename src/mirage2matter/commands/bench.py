@@ -246,9 +246,8 @@ def _splats(args: argparse.Namespace) -> int:
 
     from ..datagen import task_slug
     from ..env.config import HybridOptions
-    from ..env.hybrid import splat_world
     from ..env.splat_replay import load_or_record_streams, replay_batched, replay_generation, replay_served
-    from ..render import SplatWorldBatch
+    from ..render import SplatWorld, SplatWorldBatch
     from ..workspace import Workspace
 
     threads = configure_threads()
@@ -259,7 +258,7 @@ def _splats(args: argparse.Namespace) -> int:
     folder = ws.evals_dir / "splat_streams" / f"{task_slug(args.task)}-{args.size}px-{world_id}"
     streams, parts = load_or_record_streams(folder, ws.committed.world_dir, args.task, seeds, args.size, log=info)
     options = replace(HybridOptions().splat, backend=backend(args.backend))  # generation's splat settings
-    world = splat_world(parts, options)  # the Gaussians alone: neither the simulator nor the robot's model needed
+    world = SplatWorld.from_files(parts, options)  # the Gaussians alone: no simulator, no robot model
     dev = world.device
     name = torch.cuda.get_device_name(dev) if dev.type == "cuda" else f"cpu ({threads} threads)"
     frames_per_demo = float(np.mean([len(s["poses"]) for s in streams]))
@@ -267,33 +266,32 @@ def _splats(args: argparse.Namespace) -> int:
          f" frames, {args.demos} replayed per run, {args.size} px")  # fmt: skip
     replay_generation(world, streams[:1], 1, args.size)  # warm-up: kernels compiled / loaded, caches allocated
     results = []
+
+    def timed(label: dict, what: str, replay) -> None:
+        """``args.runs`` runs of ``replay()`` -> one row of results: demos/min and ms per frame of the median run."""
+        runs = []
+        for _ in range(args.runs):
+            r = replay()
+            runs.append(r)
+            batch = f", mean batch {r['server']['mean_batch']:.1f}" if "server" in r else ""
+            info(f"{what}: {r['demos'] / r['seconds'] * 60:.1f} demos/min ({r['seconds']:.1f} s{batch})")
+        secs = statistics.median(r["seconds"] for r in runs)
+        row = {**label, "demos_per_min": round(args.demos / secs * 60, 1),
+               "ms_per_frame": round(1000 * secs / runs[0]["frames"], 3)}  # fmt: skip
+        if "server" in runs[0]:
+            row["mean_batch"] = round(statistics.median(r["server"]["mean_batch"] for r in runs), 2)
+        results.append({**row, "seconds": [round(r["seconds"], 2) for r in runs]})
+
     for b in args.batch:
         batch = None if b == 1 else SplatWorldBatch(world, b)
         if batch is not None:
             replay_batched(batch, streams[:1], 1, args.size)
-        runs = []
-        for _ in range(args.runs):
-            r = replay_generation(world, streams, args.demos, args.size) if batch is None else \
-                replay_batched(batch, streams, args.demos, args.size)  # fmt: skip
-            runs.append(r)
-            info(f"batch {b}: {r['demos'] / r['seconds'] * 60:.1f} demos/min ({r['seconds']:.1f} s)")
-        secs = statistics.median(r["seconds"] for r in runs)
-        results.append({"batch": b, "demos_per_min": round(args.demos / secs * 60, 1),
-                        "ms_per_frame": round(1000 * secs / runs[0]["frames"], 3),
-                        "seconds": [round(r["seconds"], 2) for r in runs]})  # fmt: skip
+        timed({"batch": b}, f"batch {b}", lambda batch=batch: replay_generation(world, streams, args.demos, args.size)
+              if batch is None else replay_batched(batch, streams, args.demos, args.size))  # fmt: skip
         del batch
     for w in args.server:
-        runs = []
-        for _ in range(args.runs):
-            r = replay_served(parts, options, streams, args.demos, args.size, w)
-            runs.append(r)
-            info(f"server, {w} workers: {r['demos'] / r['seconds'] * 60:.1f} demos/min ({r['seconds']:.1f} s, mean "
-                 f"batch {r['server']['mean_batch']:.1f})")  # fmt: skip
-        secs = statistics.median(r["seconds"] for r in runs)
-        results.append({"server_workers": w, "demos_per_min": round(args.demos / secs * 60, 1),
-                        "ms_per_frame": round(1000 * secs / runs[0]["frames"], 3),
-                        "mean_batch": round(statistics.median(r["server"]["mean_batch"] for r in runs), 2),
-                        "seconds": [round(r["seconds"], 2) for r in runs]})  # fmt: skip
+        timed({"server_workers": w}, f"server, {w} workers",
+              lambda w=w: replay_served(parts, options, streams, args.demos, args.size, w))  # fmt: skip
     cams = sorted(k[len("view.") :] for k in streams[0] if k.startswith("view."))
     print(json.dumps({"backend": dev.type, "device": name, "gaussians": len(world), "size": args.size,
                       "cameras": cams, "frames_per_demo": round(frames_per_demo, 1), "demos": args.demos,

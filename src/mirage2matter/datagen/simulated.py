@@ -79,6 +79,9 @@ def _check(world: WorldConfig, task: Task, cfg: GenerateConfig) -> None:
     from ..env.config import EnvError, check_config
     from ..sim.tasks import TaskError
 
+    if cfg.splat_server and cfg.ray_address:
+        raise GenerateError("--splat-server serves local worker processes; it cannot serve Ray actors (drop "
+                            "--ray-address, or --splat-server)")  # fmt: skip
     missing = [c for c in cfg.cameras if c not in world.cameras]
     if missing:
         raise GenerateError(
@@ -130,9 +133,6 @@ def _splat_server(world: WorldConfig, source, cfg: GenerateConfig, log: Callable
     from ..env.hybrid import splat_parts
     from ..render.splat_server import SplatServer
 
-    if cfg.ray_address:
-        raise GenerateError("--splat-server serves local worker processes; it cannot serve Ray actors (drop "
-                            "--ray-address, or --splat-server)")  # fmt: skip
     server = SplatServer(splat_parts(world, objects=cfg.objects == "gaussians"), source.hybrid.splat,
                          slots=max(cfg.workers, 1), cameras=len(source.cameras), size=tuple(source.size),
                          background=source.hybrid.background, table_z=world.table_z)  # fmt: skip

@@ -17,12 +17,11 @@ from .config import EnvConfig, HybridOptions
 from .robot_proxy import render_robot_file
 
 if TYPE_CHECKING:
-    from ..render.splat_world import SplatRenderOptions, SplatWorld
     from ..sim.twin import Twin
     from ..world.config import WorldConfig
     from .episode import EpisodeDraw
 
-__all__ = ["TIMING_KEYS", "HybridRenderer", "build_hybrid", "render_K", "splat_parts", "splat_world"]
+__all__ = ["TIMING_KEYS", "HybridRenderer", "build_hybrid", "render_K", "splat_parts"]
 
 TIMING_KEYS = ("pose_splats", "splat_render", "robot_render", "composite")
 
@@ -58,7 +57,10 @@ class HybridRenderer:
 
             self.remote, self.splat = RemoteSplatLayer(splat_server), None
         else:  # with mesh objects Genesis draws them, in the robot layer (``build_hybrid``)
-            self.splat = splat_world(splat_parts(world, objects=options.objects == "gaussians"), options.splat)
+            from ..render.splat_world import SplatWorld
+
+            parts = splat_parts(world, objects=options.objects == "gaussians")
+            self.splat = SplatWorld.from_files(parts, options.splat)
             self._placement_scales = [p.scale for p in self.splat.parts]
         self._table = None  # TableGaussians, found when an episode first re-colours them
         self._table_changed = False
@@ -180,14 +182,6 @@ def splat_parts(world: WorldConfig, objects: bool = True) -> dict[str, Any]:
             parts.append([f"{a.name}/cap", str(a.cap.gaussians), float(a.placement.scale)])
     scene = str(world.scene_gaussians) if world.scene_gaussians is not None else None
     return {"scene": scene, "parts": parts}
-
-
-def splat_world(parts: dict[str, Any], options: SplatRenderOptions) -> SplatWorld:
-    """The :class:`SplatWorld` of :func:`splat_parts`' description: the scene's Gaussians static, each part's
-    movable."""
-    from ..render.splat_world import SplatWorld
-
-    return SplatWorld.from_files(parts, options)
 
 
 def build_hybrid(cfg: EnvConfig) -> tuple[Twin, HybridRenderer]:

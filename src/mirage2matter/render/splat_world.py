@@ -342,7 +342,7 @@ class SplatWorldBatch:
                     for b, vs, ks in zip(rows, viewmats, Ks, strict=True)]  # fmt: skip
             return tuple(np.stack([np.stack([o[i] for o in row]) for row in outs]) for i in range(3))
         stack = self.stack
-        if copies is not None and rows != list(range(len(self.worlds))):
+        if rows != list(range(len(self.worlds))):
             sel = torch.as_tensor(rows, device=self.stack["means"].device)
             stack = {k: t.index_select(0, sel) for k, t in self.stack.items()}
         try:

@@ -65,9 +65,6 @@ class Config:
             raise GenerateError(f"generate: object_shrink must be in [0, 1), got {self.object_shrink}")
         if not 0.0 <= self.table_texture < 1.0:
             raise GenerateError(f"generate: table_texture must be in [0, 1), got {self.table_texture}")
-        if self.splat_server and self.ray_address:
-            raise GenerateError("generate: splat_server serves local worker processes, not Ray actors; drop one of "
-                                "splat_server and ray_address")  # fmt: skip
 
     def generation(self) -> GenerateConfig:
         return GenerateConfig(
