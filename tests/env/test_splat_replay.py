@@ -134,3 +134,67 @@ def test_bench_splats_records_once_then_replays_without_the_simulator(sample_wor
     assert main(argv) == 0
     again = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert again["gaussians"] == result["gaussians"] and again["frames_per_demo"] == T
+
+    exp = tmp_path / "for_a_gpu_box"  # --export: what a GPU machine without the simulator is given
+    assert main(["bench", "splats", "-w", str(ws), "--episodes", "1", "--size", "48", "--export", str(exp)]) == 0
+    capsys.readouterr()
+    assert main([*argv[:3], str(exp), *argv[4:]]) == 0
+    there = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert there["gaussians"] == result["gaussians"] and there["frames_per_demo"] == T
+
+
+def test_export_keeps_what_generation_draws_and_nothing_half_written(tmp_path) -> None:
+    """bench splats --export (env/splat_replay.export_splat_bench): a workspace with the recorded streams and the
+    world's Gaussians cut to what generation draws (SH 1, faint ones dropped), at the same paths relative to world/,
+    whose splat world renders the frames of the original one."""
+    import json
+
+    import torch
+    from test_composite import H, K, W, _blob, _camera
+
+    from mirage2matter.configs import ConfigError
+    from mirage2matter.env.splat_replay import export_splat_bench
+    from mirage2matter.gaussians.ply import read_ply, write_ply
+    from mirage2matter.render import SplatRenderOptions, SplatWorld
+
+    ws = tmp_path / "ws"
+    (ws / "world").mkdir(parents=True)
+    (ws / "objects" / "a").mkdir(parents=True)
+    (ws / "world" / "world.yaml").write_text("name: test world\n")
+    scene = _blob((0.5, 0.0, -0.05), (0.3, 0.3, 0.3), n=600, radius=0.12, seed=4, sh_degree=3)
+    scene.logit_opacities[:200] = torch.logit(torch.tensor(0.01))  # faint: generation drops them
+    write_ply(ws / "world" / "scene.ply", scene)
+    write_ply(ws / "objects" / "a" / "gaussians.ply", _blob((0, 0, 0.02), (0.9, 0.1, 0.1), seed=5, sh_degree=3))
+    streams = ws / "evals" / "splat_streams" / "task-16px-00000000"
+    streams.mkdir(parents=True)
+    np.savez(streams / "stream_1.npz", **_stream(1, 3))
+    (streams / "splat_parts.json").write_text(json.dumps({"scene": "scene.ply",
+                                                          "parts": [["a", "../objects/a/gaussians.ply", 1.0]]}))
+    parts = {"scene": str(ws / "world" / "scene.ply"), "parts": [["a", str(ws / "objects/a/gaussians.ply"), 1.2]]}
+    options = SplatRenderOptions(sh_degree=1, min_opacity=0.02, backend="cpu")  # generation's (env.config)
+
+    dest = tmp_path / "export"
+    assert export_splat_bench(ws / "world" / "world.yaml", streams, parts, options, dest) == 400 + 400
+    assert (dest / "world" / "world.yaml").read_bytes() == (ws / "world" / "world.yaml").read_bytes()
+    assert sorted(p.name for p in (dest / "evals" / "splat_streams" / streams.name).iterdir()) == [
+        "splat_parts.json", "stream_1.npz"]  # fmt: skip
+    cut = read_ply(dest / "world" / "scene.ply")
+    assert cut.sh_degree == 1 and len(cut) == 400 and float(cut.opacities.min()) >= 0.02
+    moved = {"scene": str(dest / "world" / "scene.ply"), "parts": [["a", str(dest / "objects/a/gaussians.ply"), 1.2]]}
+    pose = np.eye(4)
+    pose[:3, 3] = (0.45, 0.0, 0.15)
+    frames = []
+    for p in (parts, moved):
+        world = SplatWorld.from_files(p, options)
+        world.set_poses({"a": pose})
+        frames.append(world.render(_camera((0.0, 0.0, 0.5)), K, W, H)[0])
+    np.testing.assert_allclose(frames[0], frames[1], atol=1e-6)
+
+    with pytest.raises(ConfigError, match="exists"):  # never over an earlier export
+        export_splat_bench(ws / "world" / "world.yaml", streams, parts, options, dest)
+    outside = tmp_path / "elsewhere.ply"
+    write_ply(outside, _blob((0, 0, 0), (0.5, 0.5, 0.5), seed=7))
+    with pytest.raises(ConfigError, match="outside the workspace"):
+        export_splat_bench(ws / "world" / "world.yaml", streams, {**parts, "parts": [["b", str(outside), 1.0]]},
+                           options, tmp_path / "second")  # fmt: skip
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["elsewhere.ply", "export", "ws"]  # no half-written folder

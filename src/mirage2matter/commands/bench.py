@@ -92,6 +92,10 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
                    "given (default: none)")  # fmt: skip
     p.add_argument("--backend", default="auto", help="render backend: auto, cpu, cuda (default auto)")
     p.add_argument("--runs", type=int_at_least(1), default=3, metavar="R", help="repetitions (default 3)")
+    p.add_argument("--export", type=Path, metavar="DIR",
+                   help="instead of timing: write DIR, a workspace holding only the recorded episodes and the world's "
+                   "Gaussians as generation draws them (SH 1, faint ones dropped; the sample's: 35 MB), for a GPU "
+                   "machine without the simulator: there, bench splats -w DIR")  # fmt: skip
     p.set_defaults(func=_splats)
 
     from .sim2real import Sim2RealConfig
@@ -258,6 +262,13 @@ def _splats(args: argparse.Namespace) -> int:
     folder = ws.evals_dir / "splat_streams" / f"{task_slug(args.task)}-{args.size}px-{world_id}"
     streams, parts = load_or_record_streams(folder, ws.committed.world_dir, args.task, seeds, args.size, log=info)
     options = replace(HybridOptions().splat, backend=backend(args.backend))  # generation's splat settings
+    if args.export is not None:
+        from ..env.splat_replay import export_splat_bench
+
+        rows = export_splat_bench(world_yaml, folder, parts, options, args.export)
+        info(f"bench splats: {len(streams)} recorded episodes and {rows:,} Gaussians -> {args.export}")
+        print(json.dumps({"export": str(args.export), "episodes": len(streams), "gaussians": rows}), flush=True)
+        return 0
     world = SplatWorld.from_files(parts, options)  # the Gaussians alone: no simulator, no robot model
     dev = world.device
     name = torch.cuda.get_device_name(dev) if dev.type == "cuda" else f"cpu ({threads} threads)"

@@ -23,7 +23,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["load_or_record_streams", "record_splat_streams", "replay_batched", "replay_generation", "replay_served"]
+__all__ = ["export_splat_bench", "load_or_record_streams", "record_splat_streams", "replay_batched",
+           "replay_generation", "replay_served"]  # fmt: skip
 
 Log = Callable[[str], None]
 
@@ -102,6 +103,44 @@ def load_or_record_streams(
     at = lambda p: None if p is None else str(world_dir / p)
     parts = {"scene": at(desc["scene"]), "parts": [[n, at(p), s] for n, p, s in desc["parts"]]}
     return streams, parts
+
+
+def export_splat_bench(world_yaml: Path, streams_folder: Path, parts: dict[str, Any], options: Any, dest: Path) -> int:
+    """Write ``dest``: a workspace holding only what ``bench splats`` replays (``world/world.yaml``, whose bytes name
+    the recording, the recorded streams and the splat layer's PLYs at their paths relative to ``world/``), each PLY
+    cut to the rows generation draws (``render.splat_world.rendered_rows`` with ``options``), so a GPU machine
+    without the simulator, given little room to copy to, renders the same frames. Built in a temporary folder and
+    renamed. -> the Gaussians written."""
+    import os
+    import shutil
+
+    from ..atomic import atomic_dir
+    from ..configs import ConfigError
+    from ..gaussians.ply import read_ply, write_ply
+    from ..render.splat_world import rendered_rows
+
+    dest = Path(dest)
+    if dest.exists():
+        raise ConfigError(f"bench splats --export: {dest} exists; remove it or name another folder")
+    world_dir = Path(world_yaml).parent.resolve()
+    files = [parts["scene"]] if parts["scene"] is not None else []
+    files += [p for _, p, _ in parts["parts"]]
+    rows = 0
+    with atomic_dir(dest) as tmp:
+        (tmp / "world").mkdir()
+        shutil.copy2(world_yaml, tmp / "world" / "world.yaml")
+        shutil.copytree(streams_folder, tmp / "evals" / "splat_streams" / Path(streams_folder).name)
+        for f in files:
+            rel = os.path.relpath(Path(f).resolve(), world_dir)
+            out = Path(os.path.normpath(tmp / "world" / rel))
+            if tmp.resolve() not in out.resolve().parents:
+                raise ConfigError(f"bench splats --export: {f} lies outside the workspace of {world_yaml}; "
+                                  "--export copies only a world whose Gaussians are inside its workspace")  # fmt: skip
+            out.parent.mkdir(parents=True, exist_ok=True)
+            g = rendered_rows(read_ply(f), options)
+            write_ply(out, g)
+            rows += len(g)
+    return rows
 
 
 def _cameras(stream: dict[str, Any]) -> list[str]:

@@ -55,6 +55,15 @@ class SplatRenderOptions:
     antialias: bool = False
 
 
+def rendered_rows(g: Gaussians, options: SplatRenderOptions) -> Gaussians:
+    """What of ``g`` a splat world with ``options`` draws: Gaussians at least ``min_opacity`` opaque, SH bands up to
+    ``sh_degree`` (detached; same device)."""
+    g = g.detach()
+    if options.min_opacity > 0:
+        g = g.select(g.opacities >= options.min_opacity)
+    return g.with_sh_degree(min(options.sh_degree, g.sh_degree))
+
+
 class SplatWorld:
     """Static scene + movable parts, posed and rendered per frame."""
 
@@ -62,15 +71,11 @@ class SplatWorld:
         from ..gaussians.render import resolve_backend
 
         self.options = options or SplatRenderOptions()
-        degree = self.options.sh_degree
         # the rows live where the renderer reads them: a GPU world is not copied to the GPU at every frame
         self.device = torch.device("cuda" if resolve_backend(self.options.backend) == "cuda" else "cpu")
 
         def lean(g: Gaussians) -> Gaussians:
-            g = g.detach()
-            if self.options.min_opacity > 0:
-                g = g.select(g.opacities >= self.options.min_opacity)
-            return g.with_sh_degree(min(degree, g.sh_degree)).to(self.device, torch.float32)
+            return rendered_rows(g, self.options).to(self.device, torch.float32)
 
         chunks: list[Gaussians] = []
         if static is not None and len(static):
