@@ -156,6 +156,7 @@ def test_export_keeps_what_generation_draws_and_nothing_half_written(tmp_path) -
     from mirage2matter.env.splat_replay import export_splat_bench
     from mirage2matter.gaussians.ply import read_ply, write_ply
     from mirage2matter.render import SplatRenderOptions, SplatWorld
+    from mirage2matter.workspace import Workspace
 
     ws = tmp_path / "ws"
     (ws / "world").mkdir(parents=True)
@@ -174,7 +175,7 @@ def test_export_keeps_what_generation_draws_and_nothing_half_written(tmp_path) -
     options = SplatRenderOptions(sh_degree=1, min_opacity=0.02, backend="cpu")  # generation's (env.config)
 
     dest = tmp_path / "export"
-    assert export_splat_bench(ws / "world" / "world.yaml", streams, parts, options, dest) == 400 + 400
+    assert export_splat_bench(Workspace(ws), streams, parts, options, dest) == 400 + 400
     assert (dest / "world" / "world.yaml").read_bytes() == (ws / "world" / "world.yaml").read_bytes()
     assert sorted(p.name for p in (dest / "evals" / "splat_streams" / streams.name).iterdir()) == [
         "splat_parts.json", "stream_1.npz"]  # fmt: skip
@@ -191,10 +192,10 @@ def test_export_keeps_what_generation_draws_and_nothing_half_written(tmp_path) -
     np.testing.assert_allclose(frames[0], frames[1], atol=1e-6)
 
     with pytest.raises(ConfigError, match="exists"):  # never over an earlier export
-        export_splat_bench(ws / "world" / "world.yaml", streams, parts, options, dest)
+        export_splat_bench(Workspace(ws), streams, parts, options, dest)
     outside = tmp_path / "elsewhere.ply"
     write_ply(outside, _blob((0, 0, 0), (0.5, 0.5, 0.5), seed=7))
     with pytest.raises(ConfigError, match="outside the workspace"):
-        export_splat_bench(ws / "world" / "world.yaml", streams, {**parts, "parts": [["b", str(outside), 1.0]]},
+        export_splat_bench(Workspace(ws), streams, {**parts, "parts": [["b", str(outside), 1.0]]},
                            options, tmp_path / "second")  # fmt: skip
     assert sorted(p.name for p in tmp_path.iterdir()) == ["elsewhere.ply", "export", "ws"]  # no half-written folder

@@ -265,7 +265,7 @@ def _splats(args: argparse.Namespace) -> int:
     if args.export is not None:
         from ..env.splat_replay import export_splat_bench
 
-        rows = export_splat_bench(world_yaml, folder, parts, options, args.export)
+        rows = export_splat_bench(ws.committed, folder, parts, options, args.export)
         info(f"bench splats: {len(streams)} recorded episodes and {rows:,} Gaussians -> {args.export}")
         print(json.dumps({"export": str(args.export), "episodes": len(streams), "gaussians": rows}), flush=True)
         return 0

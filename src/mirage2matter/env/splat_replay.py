@@ -105,9 +105,10 @@ def load_or_record_streams(
     return streams, parts
 
 
-def export_splat_bench(world_yaml: Path, streams_folder: Path, parts: dict[str, Any], options: Any, dest: Path) -> int:
-    """Write ``dest``: a workspace holding only what ``bench splats`` replays (``world/world.yaml``, whose bytes name
-    the recording, the recorded streams and the splat layer's PLYs at their paths relative to ``world/``), each PLY
+def export_splat_bench(ws: Any, streams_folder: Path, parts: dict[str, Any], options: Any, dest: Path) -> int:
+    """Write ``dest``: a workspace holding only what ``bench splats`` replays from workspace ``ws`` (its world.yaml,
+    whose bytes name the recording, the recorded streams in ``streams_folder`` and the splat layer's PLYs at their
+    paths relative to the world folder), each PLY
     cut to the rows generation draws (``render.splat_world.rendered_rows`` with ``options``), so a GPU machine
     without the simulator, given little room to copy to, renders the same frames. Built in a temporary folder and
     renamed. -> the Gaussians written."""
@@ -122,19 +123,22 @@ def export_splat_bench(world_yaml: Path, streams_folder: Path, parts: dict[str, 
     dest = Path(dest)
     if dest.exists():
         raise ConfigError(f"bench splats --export: {dest} exists; remove it or name another folder")
-    world_dir = Path(world_yaml).parent.resolve()
+    from ..workspace import Workspace
+
+    world_dir = ws.world_dir.resolve()
     files = [parts["scene"]] if parts["scene"] is not None else []
     files += [p for _, p, _ in parts["parts"]]
     rows = 0
     with atomic_dir(dest) as tmp:
-        (tmp / "world").mkdir()
-        shutil.copy2(world_yaml, tmp / "world" / "world.yaml")
-        shutil.copytree(streams_folder, tmp / "evals" / "splat_streams" / Path(streams_folder).name)
+        out_ws = Workspace(tmp)
+        out_ws.world_dir.mkdir()
+        shutil.copy2(ws.world_yaml, out_ws.world_yaml)
+        shutil.copytree(streams_folder, tmp / os.path.relpath(Path(streams_folder).resolve(), Path(ws.root).resolve()))
         for f in files:
             rel = os.path.relpath(Path(f).resolve(), world_dir)
-            out = Path(os.path.normpath(tmp / "world" / rel))
+            out = Path(os.path.normpath(out_ws.world_dir / rel))
             if tmp.resolve() not in out.resolve().parents:
-                raise ConfigError(f"bench splats --export: {f} lies outside the workspace of {world_yaml}; "
+                raise ConfigError(f"bench splats --export: {f} lies outside the workspace {ws.root}; "
                                   "--export copies only a world whose Gaussians are inside its workspace")  # fmt: skip
             out.parent.mkdir(parents=True, exist_ok=True)
             g = rendered_rows(read_ply(f), options)
