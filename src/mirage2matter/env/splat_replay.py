@@ -106,12 +106,11 @@ def load_or_record_streams(
 
 
 def export_splat_bench(ws: Any, streams_folder: Path, parts: dict[str, Any], options: Any, dest: Path) -> int:
-    """Write ``dest``: a workspace holding only what ``bench splats`` replays from workspace ``ws`` (its world.yaml,
-    whose bytes name the recording, the recorded streams in ``streams_folder`` and the splat layer's PLYs at their
-    paths relative to the world folder), each PLY
-    cut to the rows generation draws (``render.splat_world.rendered_rows`` with ``options``), so a GPU machine
-    without the simulator, given little room to copy to, renders the same frames. Built in a temporary folder and
-    renamed. -> the Gaussians written."""
+    """Write ``dest``: a workspace holding only what ``bench splats`` replays from workspace ``ws`` (a
+    ``Workspace``): its world.yaml, whose bytes name the recording, the recorded streams in ``streams_folder``, and
+    the splat layer's PLYs, each at its own path relative to the workspace and cut to the rows generation draws
+    (``render.splat_world.rendered_rows`` with ``options``), so a GPU machine without the simulator, given little
+    room to copy to, renders the same frames. Built in a temporary folder and renamed. -> the Gaussians written."""
     import os
     import shutil
 
@@ -123,26 +122,28 @@ def export_splat_bench(ws: Any, streams_folder: Path, parts: dict[str, Any], opt
     dest = Path(dest)
     if dest.exists():
         raise ConfigError(f"bench splats --export: {dest} exists; remove it or name another folder")
-    from ..workspace import Workspace
+    root = Path(ws.root).resolve()
 
-    world_dir = ws.world_dir.resolve()
-    files = [parts["scene"]] if parts["scene"] is not None else []
-    files += [p for _, p, _ in parts["parts"]]
+    def within(path: Any) -> Path:
+        """``path``'s place relative to the workspace (the copy keeps the layout that splat_parts.json names)."""
+        rel = Path(os.path.relpath(Path(path).resolve(), root))
+        if rel.parts[:1] == ("..",):
+            raise ConfigError(f"bench splats --export: {path} lies outside the workspace {ws.root}; --export copies "
+                              "only a world whose Gaussians and recordings are inside its workspace")  # fmt: skip
+        return rel
+
+    plys = [parts["scene"]] if parts["scene"] is not None else []
+    plys = [(f, within(f)) for f in plys + [p for _, p, _ in parts["parts"]]]
+    copies = [(ws.world_yaml, within(ws.world_yaml)), (streams_folder, within(streams_folder))]
     rows = 0
     with atomic_dir(dest) as tmp:
-        out_ws = Workspace(tmp)
-        out_ws.world_dir.mkdir()
-        shutil.copy2(ws.world_yaml, out_ws.world_yaml)
-        shutil.copytree(streams_folder, tmp / os.path.relpath(Path(streams_folder).resolve(), Path(ws.root).resolve()))
-        for f in files:
-            rel = os.path.relpath(Path(f).resolve(), world_dir)
-            out = Path(os.path.normpath(out_ws.world_dir / rel))
-            if tmp.resolve() not in out.resolve().parents:
-                raise ConfigError(f"bench splats --export: {f} lies outside the workspace {ws.root}; "
-                                  "--export copies only a world whose Gaussians are inside its workspace")  # fmt: skip
-            out.parent.mkdir(parents=True, exist_ok=True)
-            g = rendered_rows(read_ply(f), options)
-            write_ply(out, g)
+        for src, rel in copies:
+            (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+            (shutil.copytree if Path(src).is_dir() else shutil.copy2)(src, tmp / rel)
+        for src, rel in plys:
+            (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+            g = rendered_rows(read_ply(src), options)
+            write_ply(tmp / rel, g)
             rows += len(g)
     return rows
 
