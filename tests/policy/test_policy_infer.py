@@ -7,7 +7,16 @@ import pytest
 import torch
 
 from fixtures.policy_datasets import ROBOT
-from mirage2matter.policy import CallablePolicy, Policy, PolicyError, load_policy, load_policy_callable, open_policy
+from mirage2matter.policy import (
+    CallablePolicy,
+    Policy,
+    PolicyEnsemble,
+    PolicyError,
+    load_ensemble,
+    load_policy,
+    load_policy_callable,
+    open_policy,
+)
 
 
 def _obs(rng, h=224, w=224, s=9) -> dict:
@@ -60,6 +69,43 @@ def test_temporal_ensembling_and_replanning(tiny_run):
     assert [float(replan({})[0]) for _ in range(5)] == [0.0, 1.0, 10.0, 11.0, 20.0]
     with pytest.raises(PolicyError, match="replan_every"):
         load_policy(out, replan_every=k + 1)
+
+
+def test_an_ensemble_averages_its_members_chunks_and_executes_them_as_one_policy(tiny_run, tmp_path):
+    _, out, _, _ = tiny_run
+    rng = np.random.default_rng(1)
+    obs = _obs(rng)
+    single = load_policy(out)
+    same = load_ensemble([out, out])
+    assert isinstance(same, PolicyEnsemble) and same.action_dim == 8
+    assert same.observation_keys == single.observation_keys
+    np.testing.assert_allclose(same.predict_chunk(obs), single.predict_chunk(obs), atol=1e-6)
+    np.testing.assert_allclose(same(obs), single(obs), atol=1e-6)  # the same execution (temporal ensembling)
+
+    k = 4  # the tiny run's chunk
+    ens = load_ensemble([out, out], ensemble_decay=0.0)
+    ens.members[0].predict_chunk = lambda o: np.zeros((k, 8), np.float32)
+    ens.members[1].predict_chunk = lambda o: np.full((k, 8), 2.0, np.float32) + np.arange(k)[:, None]
+    assert ens.predict_chunk(obs)[:, 0].tolist() == [1.0, 1.5, 2.0, 2.5]  # the members' mean chunk
+    assert [float(ens(obs)[0]) for _ in range(2)] == [1.0, 1.25]  # step 1: mean of chunk0[1] and chunk1[0]
+    replan = load_ensemble([out, out], replan_every=2)
+    replan.members[0].predict_chunk = replan.members[1].predict_chunk = lambda o: np.arange(k)[:, None] * np.ones(8)
+    assert [float(replan(obs)[0]) for _ in range(3)] == [0.0, 1.0, 0.0]
+
+    # members of another rate cannot join; the robot checks reach every member
+    other = tmp_path / "other"
+    other.mkdir()
+    blob = torch.load(out / "policy.pt", weights_only=True)
+    blob["meta"]["fps"] = 20
+    torch.save(blob, other / "policy.pt")
+    with pytest.raises(PolicyError, match=r"other/policy.pt cannot join an ensemble with .*policy.pt: its rate differ"):
+        load_ensemble([out, other])
+    with pytest.raises(PolicyError, match=r"policy.pt: this policy was trained for 10 Hz, not 20 Hz"):
+        load_ensemble([out, out], fps=20)
+    with pytest.raises(PolicyError, match=r"robot_type 'franka_panda'.*not 'ur5e'"):
+        load_ensemble([out, out]).check_matches(robot_type="ur5e")
+    with pytest.raises(PolicyError, match="two or more"):
+        PolicyEnsemble([single])
 
 
 def test_checkpoint_of_another_robot_or_that_does_not_load(tiny_run, tmp_path):

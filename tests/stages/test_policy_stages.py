@@ -79,6 +79,18 @@ def test_train_then_eval_in_the_hybrid_world(ws: Path, capsys) -> None:
     meshes = json.loads((ws / "evals" / "tiny-hybrid-mesh_objects-grasp_banana" / "summary.json").read_text())
     assert meshes["objects"] == "meshes" and meshes["episodes"] == 1
 
+    # an ensemble of two trained policies (their chunks averaged), its report named by its members
+    try:
+        assert main(["train-policy", "-w", str(ws), "--steps", "6", "--batch-size", "8", "--image-size", "32",
+                     "--val-fraction", "0", "--seed", "1", "--name", "tiny1"]) == 0  # fmt: skip
+        assert main(["eval-policy", "-w", str(ws), "--policy", "tiny,tiny1", "--episodes", "1", "--horizon", "2",
+                     "--video-episodes", "0"]) == 0  # fmt: skip
+    finally:
+        (ws / "m2m.yaml").write_bytes(settings)
+    ens = json.loads((ws / "evals" / "tiny+tiny1-hybrid-grasp_banana" / "summary.json").read_text())
+    assert ens["policy"] == "tiny,tiny1" and ens["episodes"] == 1 and ens["size"] == 48
+    assert ens["inference"] == {"ensemble_decay": 0.1, "replan_every": None}
+
 
 @pytest.mark.slow
 def test_eval_in_the_ground_truth_world(ws: Path, sample_dir: Path) -> None:
@@ -161,6 +173,8 @@ def test_bad_input_is_a_clear_error_and_leaves_no_report(ws: Path, tmp_path: Pat
         capsys, "eval-policy", "-w", w, "--policy", "tiny", "--renderer", "ground_truth", "--objects", "meshes")
     # an unknown policy name
     assert "neither a policy in" in _error(capsys, "eval-policy", "-w", w, "--policy", "nope", "--task", TASK)
+    assert "neither a policy in" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny,nope", "--task", TASK)
+    assert "names each trained policy once" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny,tiny")
     after = sorted(p.name for p in (ws / "evals").iterdir()) if (ws / "evals").is_dir() else []
     assert after == before  # no half-written report
 

@@ -216,7 +216,7 @@ def _policy_gap(args: argparse.Namespace) -> int:
     world = make_config(ws.committed.world_dir, args.task, size=args.size).world  # the task and world, checked
     policies = {}
     for ref in args.policy:  # every policy opened and checked against the robot before the long recording
-        if eval_policy.policy_path(ws, replace(cfg, policy=ref)) is None:
+        if not eval_policy.policy_paths(ws, replace(cfg, policy=ref)):
             raise eval_policy.PolicyError(f"bench policy-gap: {ref!r} is a callable; it needs a trained policy (the "
                                           "error is in its action-std units)")  # fmt: skip
         policies[ref] = eval_policy.open_policy(ws, replace(cfg, policy=ref), world)

@@ -31,7 +31,8 @@ from .data import (
 # The torch-backed names are imported on first use: the command line and the stages read the configs above
 # without loading torch.
 _LAZY = {
-    "CallablePolicy": "infer", "Policy": "infer", "load_policy": "infer", "load_policy_callable": "infer",
+    "CallablePolicy": "infer", "ChunkedPolicy": "infer", "Policy": "infer", "PolicyEnsemble": "infer",
+    "load_ensemble": "infer", "load_policy": "infer", "load_policy_callable": "infer",
     "open_policy": "infer", "ModelSpec": "model", "VisuomotorPolicy": "model", "train_policy": "train",
 }  # fmt: skip
 
@@ -47,15 +48,18 @@ def __getattr__(name: str):
 __all__ = [
     "AugmentConfig",
     "CallablePolicy",
+    "ChunkedPolicy",
     "DatasetMeta",
     "Demonstrations",
     "ModelSpec",
     "Policy",
+    "PolicyEnsemble",
     "PolicyError",
     "PolicyTrainConfig",
     "VisuomotorPolicy",
     "chunk_indices",
     "dataset_meta",
+    "load_ensemble",
     "load_episodes",
     "load_policy",
     "load_policy_callable",

@@ -25,16 +25,76 @@ from .data import IMAGE_PREFIX, STATE_KEY, DatasetMeta, PolicyError, resize_area
 from .model import ModelSpec, VisuomotorPolicy
 from .train import CHECKPOINT_FILE, CHECKPOINT_FORMAT, POLICY_FILE, resolve_device
 
-__all__ = ["CallablePolicy", "Policy", "load_policy", "load_policy_callable", "open_policy"]
+__all__ = [
+    "CallablePolicy",
+    "ChunkedPolicy",
+    "Policy",
+    "PolicyEnsemble",
+    "load_ensemble",
+    "load_policy",
+    "load_policy_callable",
+    "open_policy",
+]
 
 
-class Policy:
-    """A trained policy: ``policy(obs) -> action`` float32 [A] (unnormalised, the dataset's units).
+class ChunkedPolicy:
+    """``policy(obs) -> action`` float32 [A] (unnormalised, the dataset's units) from K-step action chunks that
+    :meth:`predict_chunk` makes (a subclass's); how the chunks are executed:
 
-    replan_every     None: temporal ensembling, the network runs every step; n: run it every n steps and
-                     execute the chunk's actions in between (1 <= n <= K)
+    replan_every     None: temporal ensembling, a chunk is predicted every step; n: predict one every n steps and
+                     execute its actions in between (1 <= n <= K)
     ensemble_decay   m of the ensembling weights exp(-m i); 0 averages all predictions equally
     """
+
+    spec: ModelSpec
+    meta: DatasetMeta
+    source: Path
+
+    def _set_execution(self, replan_every: int | None, ensemble_decay: float) -> None:
+        if replan_every is not None and not 1 <= replan_every <= self.spec.chunk:
+            raise PolicyError(f"{self.source}: replan_every must be in [1, {self.spec.chunk}] (the policy's chunk "
+                              f"length), got {replan_every}")  # fmt: skip
+        if ensemble_decay < 0:
+            raise PolicyError(f"ensemble_decay must be >= 0, got {ensemble_decay}")
+        self.replan_every = replan_every
+        self.ensemble_decay = float(ensemble_decay)
+        self.reset()
+
+    @property
+    def action_dim(self) -> int:
+        return self.spec.action_dim
+
+    @property
+    def observation_keys(self) -> tuple[str, ...]:
+        return (*[IMAGE_PREFIX + c for c in self.meta.cameras], STATE_KEY)
+
+    def reset(self) -> None:
+        """Forget the previous episode's predictions (call before each episode)."""
+        self._t = 0
+        self._chunks: deque[tuple[int, np.ndarray]] = deque(maxlen=self.spec.chunk)  # (step made, [K, A])
+
+    def predict_chunk(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """float32 [K, A] the actions for this step and the K-1 after it (unnormalised)."""
+        raise NotImplementedError
+
+    def __call__(self, obs: Mapping[str, Any]) -> np.ndarray:
+        t = self._t
+        self._t += 1
+        if self.replan_every is not None:
+            if not self._chunks or t - self._chunks[-1][0] >= self.replan_every:
+                self._chunks.append((t, self.predict_chunk(obs)))
+            t0, chunk = self._chunks[-1]
+            return chunk[t - t0].astype(np.float32)
+        self._chunks.append((t, self.predict_chunk(obs)))
+        # the chunks still covering step t, oldest first (the deque holds the last K, each covers K steps)
+        preds = np.stack([c[t - t0] for t0, c in self._chunks if t - t0 < len(c)])
+        w = np.exp(-self.ensemble_decay * np.arange(len(preds)))
+        return ((w[:, None] * preds).sum(0) / w.sum()).astype(np.float32)
+
+
+
+class Policy(ChunkedPolicy):
+    """A policy that :func:`train_policy` wrote: its network, the robot it was trained for and its statistics."""
 
     def __init__(
         self,
@@ -47,39 +107,19 @@ class Policy:
         ensemble_decay: float = 0.1,
     ) -> None:
         self.model = model.eval()
-        self.spec: ModelSpec = model.spec
+        self.spec = model.spec
         self.meta = meta
         self.source = source
         self.device = device
-        if replan_every is not None and not 1 <= replan_every <= self.spec.chunk:
-            raise PolicyError(f"{source}: replan_every must be in [1, {self.spec.chunk}] (the policy's chunk length), "
-                              f"got {replan_every}")  # fmt: skip
-        if ensemble_decay < 0:
-            raise PolicyError(f"ensemble_decay must be >= 0, got {ensemble_decay}")
-        self.replan_every = replan_every
-        self.ensemble_decay = float(ensemble_decay)
         f = lambda k: np.asarray(stats[k], np.float32)
         self._s_mean, self._s_std = f("state_mean"), f("state_std")
         self._a_mean, self._a_std = f("action_mean"), f("action_std")
-        self.reset()
-
-    @property
-    def action_dim(self) -> int:
-        return self.spec.action_dim
+        self._set_execution(replan_every, ensemble_decay)
 
     @property
     def action_std(self) -> np.ndarray:
         """float32 [A]: the training data's per-entry action spread (the unit of the training loss)."""
         return self._a_std
-
-    @property
-    def observation_keys(self) -> tuple[str, ...]:
-        return (*[IMAGE_PREFIX + c for c in self.meta.cameras], STATE_KEY)
-
-    def reset(self) -> None:
-        """Forget the previous episode's predictions (call before each episode)."""
-        self._t = 0
-        self._chunks: deque[tuple[int, np.ndarray]] = deque(maxlen=self.spec.chunk)  # (step made, [K, A])
 
     def check_matches(
         self,
@@ -139,19 +179,44 @@ class Policy:
         out = self.model(images, state)[0].float().cpu().numpy()
         return out * self._a_std + self._a_mean
 
-    def __call__(self, obs: Mapping[str, Any]) -> np.ndarray:
-        t = self._t
-        self._t += 1
-        if self.replan_every is not None:
-            if not self._chunks or t - self._chunks[-1][0] >= self.replan_every:
-                self._chunks.append((t, self.predict_chunk(obs)))
-            t0, chunk = self._chunks[-1]
-            return chunk[t - t0].astype(np.float32)
-        self._chunks.append((t, self.predict_chunk(obs)))
-        # the chunks still covering step t, oldest first (the deque holds the last K, each covers K steps)
-        preds = np.stack([c[t - t0] for t0, c in self._chunks if t - t0 < len(c)])
-        w = np.exp(-self.ensemble_decay * np.arange(len(preds)))
-        return ((w[:, None] * preds).sum(0) / w.sum()).astype(np.float32)
+class PolicyEnsemble(ChunkedPolicy):
+    """Several policies trained for the same robot, rate, cameras and chunk length (e.g. the same recipe from
+    different seeds), run as one: at each prediction every member's chunk (unnormalised) is averaged, and the mean
+    chunk is executed as one policy's. Seeds of one recipe disagree most where each is unsure; the mean is steadier
+    than any one of them (measured on the sample: see the README's closed-loop section)."""
+
+    def __init__(self, members: Sequence[Policy], replan_every: int | None = None,
+                 ensemble_decay: float = 0.1) -> None:  # fmt: skip
+        if len(members) < 2:
+            raise PolicyError(f"an ensemble needs two or more policies, got {len(members)}")
+        first = members[0]
+        for m in members[1:]:
+            differs = [name for name, a, b in (("robot", first.meta.robot_type, m.meta.robot_type),
+                                               ("state", first.meta.state_names, m.meta.state_names),
+                                               ("action", first.meta.action_names, m.meta.action_names),
+                                               ("rate", first.meta.fps, m.meta.fps),
+                                               ("cameras", first.meta.cameras, m.meta.cameras),
+                                               ("chunk length", first.spec.chunk, m.spec.chunk)) if a != b]  # fmt: skip
+            if differs:
+                raise PolicyError(f"{m.source} cannot join an ensemble with {first.source}: its "
+                                  f"{', '.join(differs)} differ; ensemble policies trained on the same robot's "
+                                  "datasets with the same --chunk")  # fmt: skip
+        self.members = list(members)
+        self.spec, self.meta = first.spec, first.meta
+        self.source = first.source
+        self._set_execution(replan_every, ensemble_decay)
+
+    @property
+    def action_std(self) -> np.ndarray:
+        """float32 [A]: the first member's training-data action spread (the unit its loss and errors are in)."""
+        return self.members[0].action_std
+
+    def check_matches(self, *args: Any, **kwargs: Any) -> None:
+        for m in self.members:
+            m.check_matches(*args, **kwargs)
+
+    def predict_chunk(self, obs: Mapping[str, Any]) -> np.ndarray:
+        return np.mean([m.predict_chunk(obs) for m in self.members], axis=0).astype(np.float32)
 
 
 def _checkpoint_file(path: Path) -> Path:
@@ -212,6 +277,15 @@ def load_policy(
     policy = Policy(model, meta, stats, path, dev, replan_every, ensemble_decay)
     policy.check_matches(robot_type, state_names, action_names, fps, cameras)
     return policy
+
+
+def load_ensemble(checkpoint_dirs: Sequence[str | Path], device: str = "auto", replan_every: int | None = None,
+                  ensemble_decay: float | None = None, **robot: Any) -> PolicyEnsemble:
+    """Open several policies as one :class:`PolicyEnsemble` (each as :func:`load_policy` opens it; the robot
+    arguments are checked against every member). ``ensemble_decay`` defaults to the first member's."""
+    members = [load_policy(d, device=device, ensemble_decay=ensemble_decay, **robot) for d in checkpoint_dirs]
+    decay = members[0].ensemble_decay if members else 0.1
+    return PolicyEnsemble(members, replan_every=replan_every, ensemble_decay=decay)
 
 
 class CallablePolicy:

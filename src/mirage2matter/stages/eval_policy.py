@@ -32,7 +32,8 @@ EPISODES_FILE = "episodes.jsonl"
 class Config:
     """eval-policy settings.
 
-    policy          the policy: a name under <workspace>/policies, a policy folder, or module:function (obs -> action)
+    policy          the policy: a name under <workspace>/policies, a policy folder, or module:function (obs -> action);
+                    several names or folders joined by commas (A,B,C) run as one ensemble, their chunks averaged
     task            the task instruction (default: the task of the datasets the policy was trained on, when one)
     renderer        observations: hybrid (the reconstructed world, as generation renders it) or ground_truth (a
                     sample's own world, as its video was rendered)
@@ -104,39 +105,49 @@ def _is_callable_ref(ref: str) -> bool:
     return ":" in ref and not Path(ref).exists()
 
 
-def policy_path(ws: Workspace, cfg: Config) -> Path | None:
-    """The trained policy's folder (None for a module:function callable)."""
-    if _is_callable_ref(cfg.policy):
-        return None
-    named = ws.committed.policy_dir(cfg.policy)
-    if Path(cfg.policy).name == cfg.policy and (named / POLICY_FILE).is_file():
+def _policy_dir(ws: Workspace, ref: str) -> Path:
+    named = ws.committed.policy_dir(ref)
+    if Path(ref).name == ref and (named / POLICY_FILE).is_file():
         return named
-    p = Path(cfg.policy)
+    p = Path(ref)
     if p.is_file():
         p = p.parent
     if not (p / POLICY_FILE).is_file():
         have = sorted(q.parent.name for q in ws.committed.policies_dir.glob(f"*/{POLICY_FILE}"))
-        raise PolicyError(f"policy {cfg.policy!r}: neither a policy in {ws.committed.policies_dir} (have: "
+        raise PolicyError(f"policy {ref!r}: neither a policy in {ws.committed.policies_dir} (have: "
                           f"{have or 'none'}; `m2m train-policy -w {ws.root}`), nor a folder with {POLICY_FILE}, nor "
                           "module:function")  # fmt: skip
     return p
 
 
-def _trained_on(path: Path | None) -> list[Path]:
-    """The dataset folders a policy of ours was trained on (its summary.json), when they are still there."""
-    if path is None or not (path / "summary.json").is_file():
+def policy_paths(ws: Workspace, cfg: Config) -> list[Path]:
+    """The trained policies' folders: one, several for an ensemble (``A,B,C``), none for a module:function."""
+    if _is_callable_ref(cfg.policy):
         return []
-    try:
-        return [Path(d) for d in json.loads((path / "summary.json").read_text())["datasets"]]
-    except (OSError, ValueError, KeyError, TypeError):
-        return []
+    refs = [r.strip() for r in cfg.policy.split(",")] if "," in cfg.policy and not Path(cfg.policy).exists() \
+        else [cfg.policy]  # fmt: skip
+    if any(not r for r in refs) or len(set(refs)) != len(refs):
+        raise PolicyError(f"policy {cfg.policy!r}: an ensemble names each trained policy once, joined by commas "
+                          "(e.g. --policy A,B,C)")  # fmt: skip
+    return [_policy_dir(ws, r) for r in refs]
+
+
+def _trained_on(paths: list[Path]) -> list[Path]:
+    """The dataset folders policies of ours were trained on (their summary.json), when they are still there."""
+    out: list[Path] = []
+    for path in paths:
+        try:
+            out += [Path(d) for d in json.loads((path / "summary.json").read_text())["datasets"] if Path(d) not in out]
+        except (OSError, ValueError, KeyError, TypeError):
+            pass
+    return out
 
 
 def task_of(ws: Workspace, cfg: Config) -> str:
     if cfg.task:
         return cfg.task
     tasks = set()
-    for d in _trained_on(policy_path(ws, cfg)):
+    for d in _trained_on(policy_paths(ws, cfg)):
         try:
             tasks.add(json.loads((d / "summary.json").read_text())["task"])
         except (OSError, ValueError, KeyError, TypeError):
@@ -152,7 +163,7 @@ def _size_of(ws: Workspace, cfg: Config) -> int:
 
     if cfg.size:
         return cfg.size
-    for d in _trained_on(policy_path(ws, cfg)):
+    for d in _trained_on(policy_paths(ws, cfg)):
         if (d / "meta" / "info.json").is_file():
             return dataset_meta(d)[1][1]
     return 224
@@ -189,8 +200,8 @@ def report_name(ws: Workspace, cfg: Config) -> str:
 
     if cfg.name:
         return cfg.name
-    p = policy_path(ws, cfg)
-    who = p.name if p is not None else task_slug(cfg.policy)
+    paths = policy_paths(ws, cfg)
+    who = "+".join(p.name for p in paths) if paths else task_slug(cfg.policy)
     world = cfg.renderer + ("-mesh_objects" if cfg.objects == "meshes" else "")
     return f"{who}-{world}-{task_slug(task_of(ws, cfg))}"
 
@@ -198,9 +209,7 @@ def report_name(ws: Workspace, cfg: Config) -> str:
 # ---- the stage --------------------------------------------------------------------------------------------------
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
     files = [Input(ws.committed.world_yaml, made_by="compose")]
-    p = policy_path(ws, cfg)
-    if p is not None:
-        files.append(Input(p / POLICY_FILE, made_by="train-policy"))
+    files += [Input(p / POLICY_FILE, made_by="train-policy") for p in policy_paths(ws, cfg)]
     if cfg.renderer == "ground_truth":
         files.append(Input(ground_truth_dir(ws, cfg) / "ground_truth.json", field="ground_truth"))
     return files
@@ -210,16 +219,17 @@ def open_policy(ws: Workspace, cfg: Config, world: Any):
     """The policy, checked against the world's robot before anything is built (a policy of another robot, rate
     or cameras is an error naming its file)."""
     from ..env.config import CAMERAS
-    from ..policy import load_policy, load_policy_callable
+    from ..policy import load_ensemble, load_policy, load_policy_callable
 
     spec = world.robot.spec
-    p = policy_path(ws, cfg)
-    if p is None:
+    paths = policy_paths(ws, cfg)
+    if not paths:
         if cfg.ensemble_decay is not None or cfg.replan_every is not None:
             raise PolicyError(f"eval-policy: ensemble_decay and replan_every set how a policy trained by m2m "
                               f"train-policy runs its chunks; {cfg.policy} is a callable: leave them out")  # fmt: skip
         return load_policy_callable(cfg.policy, action_dim=len(spec.action_names))
-    policy = load_policy(p, device=cfg.device, replan_every=cfg.replan_every, ensemble_decay=cfg.ensemble_decay)
+    how = {"device": cfg.device, "replan_every": cfg.replan_every, "ensemble_decay": cfg.ensemble_decay}
+    policy = load_policy(paths[0], **how) if len(paths) == 1 else load_ensemble(paths, **how)
     policy.check_matches(robot_type=spec.robot_type, state_names=spec.state_names, action_names=spec.action_names,
                          fps=10, cameras=[c for c in CAMERAS if c in world.cameras])  # fmt: skip
     return policy
