@@ -123,7 +123,8 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     )  # fmt: skip
     g.add_argument("-w", "--workspace", required=True, type=Path, help="workspace with the sample's world")
     g.add_argument("--policy", nargs="+", required=True, metavar="POLICY",
-                   help="policies: names under <workspace>/policies or folders that train-policy wrote")
+                   help="policies: names under <workspace>/policies or folders that train-policy wrote (A,B,C: "
+                        "one ensemble of them)")
     g.add_argument("--task", default="grasp banana", help="the expert's task (default: grasp banana)")
     g.add_argument("--episodes", type=int_at_least(1), default=10, metavar="N", help="expert episodes (default 10)")
     g.add_argument("--seed", type=int, default=2_000_000, help="episode seed of the first (default 2000000)")
