@@ -1,8 +1,9 @@
-"""Deploying a policy: ``load_policy(dir) -> Policy``, a callable ``obs -> action [A]``, and user callables.
+"""Deploying a policy: ``load_policy(dir) -> Policy``, a callable ``obs -> action [A]``; ``load_ensemble(dirs) ->
+PolicyEnsemble``, several trained policies whose chunks are averaged; and user callables.
 
 Observations have exactly the keys of our datasets: ``observation.images.<camera>`` (uint8 [H, W, 3], any
 size: resized inside with the training's area filter) and ``observation.state`` (float [S]). The network
-predicts K actions per observation; :class:`Policy` either runs it every step and averages all predictions
+predicts K actions per observation; a :class:`ChunkedPolicy` either runs it every step and averages all predictions
 made for the current step (ACT's temporal ensembling: weights exp(-m i), i = 0 the oldest, so the executed
 trajectory stays smooth while each new observation still pulls it), or re-plans every n steps and executes
 the chunk open-loop in between. ``reset()`` between episodes.
@@ -90,7 +91,6 @@ class ChunkedPolicy:
         preds = np.stack([c[t - t0] for t0, c in self._chunks if t - t0 < len(c)])
         w = np.exp(-self.ensemble_decay * np.arange(len(preds)))
         return ((w[:, None] * preds).sum(0) / w.sum()).astype(np.float32)
-
 
 
 class Policy(ChunkedPolicy):
