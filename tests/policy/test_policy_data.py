@@ -11,7 +11,7 @@ import torch
 
 from fixtures.policy_datasets import spec_for
 from mirage2matter.policy import AugmentConfig, PolicyError, chunk_indices, load_episodes, normalization_stats
-from mirage2matter.policy.augment import augment
+from mirage2matter.policy.augment import augment, drop_cameras
 from mirage2matter.policy.data import MIN_STD, resize_area
 
 
@@ -146,6 +146,22 @@ def test_randconv_remaps_textures_but_keeps_each_channels_level():
     grey = augment(x, _only(grayscale=1.0), torch.Generator().manual_seed(0))
     assert torch.equal(grey[:, 0], grey[:, 1]) and torch.equal(grey[:, 1], grey[:, 2])
     torch.testing.assert_close(grey[:, 0], 0.299 * x[:, 0] + 0.587 * x[:, 1] + 0.114 * x[:, 2])
+
+
+def test_camera_dropout_blanks_at_most_one_camera_per_sample_at_its_rate():
+    b = 4000
+    images = {"head": torch.rand(b, 3, 4, 4), "wrist": torch.rand(b, 3, 4, 4)}
+    out = drop_cameras(images, 0.4, torch.Generator().manual_seed(0))
+    again = drop_cameras(images, 0.4, torch.Generator().manual_seed(0))
+    assert all(torch.equal(out[c], again[c]) for c in images), "the generator alone decides the draw"
+    blank = {c: (out[c] == 0.5).flatten(1).all(1) for c in images}
+    kept = {c: torch.equal(out[c][~blank[c]], images[c][~blank[c]]) for c in images}
+    assert all(kept.values()), "a camera not blanked is untouched"
+    assert not (blank["head"] & blank["wrist"]).any(), "never both views of one sample"
+    for c in images:  # each camera blanked in about p / 2 of the samples
+        assert abs(blank[c].float().mean().item() - 0.2) < 0.03, (c, blank[c].float().mean())
+    none = drop_cameras(images, 0.0, torch.Generator().manual_seed(0))
+    assert all(torch.equal(none[c], images[c]) for c in images)
 
 
 def test_input_blur_hides_detail_finer_than_it_and_keeps_the_weights_layout():

@@ -18,7 +18,7 @@ import torch.nn.functional as F
 from ..gaussians.losses import gaussian_window
 from .config import AugmentConfig
 
-__all__ = ["AugmentConfig", "augment"]
+__all__ = ["AugmentConfig", "augment", "drop_cameras"]
 
 
 def _u(n: int, half: float, g: torch.Generator, device: torch.device) -> torch.Tensor:
@@ -102,3 +102,17 @@ def augment(images: torch.Tensor, cfg: AugmentConfig, g: torch.Generator) -> tor
         sigma = (torch.rand(b, generator=g) * cfg.noise).to(dev).view(b, 1, 1, 1)
         x = x + sigma * torch.randn(x.shape, generator=g).to(dev)
     return x.clamp(0.0, 1.0)
+
+
+def drop_cameras(images: dict[str, torch.Tensor], p: float, g: torch.Generator) -> dict[str, torch.Tensor]:
+    """{camera: float [B, 3, S, S]} -> the same with, for each sample with probability ``p``, one camera drawn
+    uniformly set to mid-grey (0.5, what the encoders' [-1, 1] input maps to 0)."""
+    cams = list(images)
+    b = next(iter(images.values())).shape[0]
+    on = torch.rand(b, generator=g) < p
+    which = torch.randint(len(cams), (b,), generator=g)
+    out = {}
+    for i, c in enumerate(cams):
+        blank = (on & (which == i)).to(images[c].device).view(b, 1, 1, 1)
+        out[c] = torch.where(blank, torch.full_like(images[c], 0.5), images[c])
+    return out

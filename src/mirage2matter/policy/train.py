@@ -35,7 +35,7 @@ import torch
 
 from ..atomic import atomic_path, atomic_write
 from ..fingerprint import fingerprint
-from .augment import augment
+from .augment import augment, drop_cameras
 from .config import CHECKPOINT_FILE, CHECKPOINT_FORMAT, POLICY_FILE, AugmentConfig, PolicyTrainConfig
 from .data import Demonstrations, PolicyError, chunk_indices, load_episodes, normalization_stats
 from .model import ModelSpec, VisuomotorPolicy
@@ -108,6 +108,8 @@ class _Batches:
             raw = self.images[c][frames]
             x = augment(raw, aug, g) if aug is not None else raw.float() / 255.0
             images[c] = x.contiguous(memory_format=torch.channels_last)
+        if aug is not None and aug.camera_dropout > 0 and len(self.cameras) > 1:
+            images = drop_cameras(images, aug.camera_dropout, g)
         idx = self.chunk_idx[frames]
         return images, self.state[frames], self.action[idx], self.chunk_mask[frames]
 
