@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -45,6 +46,8 @@ def test_resume_after_a_kill_gives_the_uninterrupted_result(make_dataset, tmp_pa
     ds, _ = make_dataset(seeds=(0,), length=10)
     cfg = tiny_config(steps=24, checkpoint_every=10, eval_every=8, val_fraction=0.0, widths=(4,), keypoints=4,
                       hidden=16, batch_size=8)  # fmt: skip
+    # with every random draw of a step on: camera dropout too
+    cfg = dataclasses.replace(cfg, augment=dataclasses.replace(cfg.augment, camera_dropout=0.5))
     quiet = dict(log=lambda s: None, progress=False)
     whole = train_policy(ds, tmp_path / "whole", cfg, **quiet)
 
