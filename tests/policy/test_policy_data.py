@@ -148,6 +148,23 @@ def test_randconv_remaps_textures_but_keeps_each_channels_level():
     torch.testing.assert_close(grey[:, 0], 0.299 * x[:, 0] + 0.587 * x[:, 1] + 0.114 * x[:, 2])
 
 
+def test_hue_band_gains_change_colours_of_different_hues_independently_and_leave_greys():
+    x = torch.zeros(64, 3, 4, 12)
+    x[..., 0:4] = torch.tensor([0.9, 0.8, 0.2]).view(1, 3, 1, 1)  # banana yellow
+    x[..., 4:8] = torch.tensor([0.55, 0.35, 0.2]).view(1, 3, 1, 1)  # table brown
+    x[..., 8:12] = 0.6  # grey
+    y = augment(x, _only(hue_bands=0.4), torch.Generator().manual_seed(0))
+    assert torch.equal(y, augment(x, _only(hue_bands=0.4), torch.Generator().manual_seed(0)))
+    torch.testing.assert_close(y[..., 8:], x[..., 8:], atol=1e-5, rtol=0)  # no hue, no change
+    luma = lambda im: (0.299 * im[:, 0] + 0.587 * im[:, 1] + 0.114 * im[:, 2]).mean(dim=(1, 2))
+    ratio_yellow = luma(y[..., 0:4]) / luma(x[..., 0:4])
+    ratio_brown = luma(y[..., 4:8]) / luma(x[..., 4:8])
+    assert ratio_yellow.std() > 0.1 and ratio_brown.std() > 0.1  # each changes from image to image ...
+    assert abs(np.corrcoef(ratio_yellow.numpy(), ratio_brown.numpy())[0, 1]) < 0.5  # ... and not together
+    assert ((y[..., 0:8] - x[..., 0:8]).abs().amax(dim=(1, 2, 3)) < 0.45).all()  # within the range's reach
+    torch.testing.assert_close(augment(x, _only(hue_bands=0.0), torch.Generator().manual_seed(0)), x)
+
+
 def test_camera_dropout_blanks_at_most_one_camera_per_sample_at_its_rate():
     b = 4000
     images = {"head": torch.rand(b, 3, 4, 4), "wrist": torch.rand(b, 3, 4, 4)}

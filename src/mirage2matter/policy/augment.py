@@ -59,6 +59,33 @@ def _randconv(x: torch.Tensor, p: float, g: torch.Generator) -> torch.Tensor:
     return out
 
 
+HUE_BANDS = 12  # 30 degrees of chroma angle each: yellow and orange-brown fall in different bands
+
+
+def _hue_band_gains(x: torch.Tensor, half: float, g: torch.Generator) -> torch.Tensor:
+    """float [B, 3, S, S] -> the same with each image's colours of each hue band brightened / saturated by their own
+    gains in [1 - half, 1 + half]: the chroma angle (YIQ) is split into ``HUE_BANDS`` bands, a pixel takes the gains
+    of its two nearest band centres in proportion (no edges), and a pixel counts as coloured in proportion to its
+    chroma (greys, the white robot, the black board: unchanged)."""
+    b, dev = x.shape[0], x.device
+    fwd = _RGB2YIQ.to(dev)
+    yiq = torch.einsum("ij,bjhw->bihw", fwd, x)
+    i, q = yiq[:, 1], yiq[:, 2]
+    pos = torch.atan2(q, i) / (2 * math.pi) * HUE_BANDS % HUE_BANDS  # [B, S, S] in [0, bands)
+    lo = pos.floor().long() % HUE_BANDS
+    hi, frac = (lo + 1) % HUE_BANDS, pos - pos.floor()
+    gains = 1.0 + _u(2 * b * HUE_BANDS, half, g, dev).view(2, b, HUE_BANDS)  # luma, chroma gains per band
+
+    def at(k: torch.Tensor, which: int) -> torch.Tensor:
+        return torch.gather(gains[which], 1, k.flatten(1)).view_as(pos)
+
+    coloured = (torch.sqrt(i * i + q * q) / 0.1).clamp(max=1.0)  # chroma 0.1 and above: fully
+    gy = 1.0 + coloured * ((1 - frac) * at(lo, 0) + frac * at(hi, 0) - 1.0)
+    gc = 1.0 + coloured * ((1 - frac) * at(lo, 1) + frac * at(hi, 1) - 1.0)
+    yiq = torch.stack([yiq[:, 0] * gy, i * gc, q * gc], 1)
+    return torch.einsum("ij,bjhw->bihw", torch.linalg.inv(fwd), yiq)
+
+
 def augment(images: torch.Tensor, cfg: AugmentConfig, g: torch.Generator) -> torch.Tensor:
     """uint8 or float [B, 3, S, S] -> float [B, 3, S, S] in [0, 1], each image changed at random."""
     x = images.float() / 255.0 if images.dtype == torch.uint8 else images.float()
@@ -90,6 +117,8 @@ def augment(images: torch.Tensor, cfg: AugmentConfig, g: torch.Generator) -> tor
     mat = torch.linalg.inv(fwd) @ m @ fwd  # [B, 3, 3] acting on RGB
     gain = (1.0 + _u(3 * b, cfg.gain, g, dev).view(b, 3, 1)) * (1.0 + _u(b, cfg.brightness, g, dev).view(b, 1, 1))
     x = torch.einsum("bij,bjp->bip", gain * mat, x.flatten(2)).view_as(x)
+    if cfg.hue_bands > 0:
+        x = _hue_band_gains(x, cfg.hue_bands, g)
     mean = x.mean(dim=(1, 2, 3), keepdim=True)
     x = (x - mean) * (1.0 + _u(b, cfg.contrast, g, dev).view(b, 1, 1, 1)) + mean
     if cfg.randconv > 0:

@@ -34,6 +34,9 @@ class AugmentConfig:
                 image's own per-channel mean and spread, then blended with the image by a uniform weight), so
                 shapes and places must carry the decision rather than the reconstruction's exact colours
     grayscale   probability that an image is turned to grey (luma in every channel)
+    hue_bands   per-hue-band gains: each image's colours of each 30-degree band of hue get their own brightness and
+                saturation gains in [1 - x, 1 + x] (greys unchanged), so one object's colour against another's (a
+                reconstructed banana's against the table's) is not a cue the policy can lean on
     camera_dropout  probability that one of a sample's cameras, drawn uniformly, is blanked to mid-grey (with two
                 cameras or more; modality dropout): each camera must carry the decision alone at times, so the
                 policy cannot lean on one view's look only
@@ -60,6 +63,7 @@ class AugmentConfig:
     # all three (32/50 = 64 % [50-76 %] on seeds 1000000-49).
     randconv: float = 0.5
     grayscale: float = 0.1
+    hue_bands: float = 0.0
     camera_dropout: float = 0.0
 
 
