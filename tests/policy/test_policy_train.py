@@ -113,6 +113,9 @@ def test_bad_config_and_inputs(make_dataset, tmp_path):
         train_policy(ds, tmp_path / "x", tiny_config(chunk=0, lr=0.0), progress=False)
     with pytest.raises(PolicyError, match="state_noise must be >= 0"):
         train_policy(ds, tmp_path / "x", tiny_config(state_noise=-0.1), progress=False)
+    aug = dataclasses.replace(tiny_config().augment, camera_dropout=1.5, hue_bands=1.0)
+    with pytest.raises(PolicyError, match=r"camera_dropout must be a probability .*; augment.hue_bands must be in"):
+        train_policy(ds, tmp_path / "x", tiny_config(augment=aug), progress=False)
     with pytest.raises(PolicyError, match="no datasets given"):
         train_policy([], tmp_path / "x", tiny_config(), progress=False)
     if not torch.cuda.is_available():

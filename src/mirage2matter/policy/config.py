@@ -174,6 +174,10 @@ class PolicyTrainConfig:
             p.append(f"aux_weight must be >= 0, got {self.aux_weight!r}")
         if any(isinstance(h, bool) or not isinstance(h, int) or not 1 <= h <= 1000 for h in self.aux_horizons):
             p.append(f"aux_horizons must be steps in [1, 1000], got {self.aux_horizons!r}")
+        if not 0 <= self.augment.camera_dropout <= 1:
+            p.append(f"augment.camera_dropout must be a probability in [0, 1], got {self.augment.camera_dropout!r}")
+        if not 0 <= self.augment.hue_bands < 1:
+            p.append(f"augment.hue_bands must be in [0, 1) (gains in [1 - x, 1 + x]), got {self.augment.hue_bands!r}")
         if len(set(self.cameras)) != len(self.cameras):
             p.append(f"cameras are repeated: {self.cameras!r}")
         if not (self.device in ("auto", "cpu", "cuda") or self.device.startswith("cuda:")):
