@@ -119,7 +119,9 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
         "observation rendered twice (hybrid, as generation writes it, and the sample's ground truth; cached in "
         "<workspace>/evals/expert_pairs), then for each policy the mean |predicted chunk - expert's actions| in "
         "action-std units on each renderer's frames. Minutes where a closed-loop evaluation takes tens of minutes; "
-        "on the sample the ground-truth error ranked nine grasp policies much as their closed-loop success did.",
+        "on the sample the ground-truth error ranked nine grasp policies much as their closed-loop success did. "
+        "It scores the expert's states only: compare policies of one training recipe with it, not recipes (a "
+        "hue-band-augmented policy scored best and failed closed loop, in its own world too).",
     )  # fmt: skip
     g.add_argument("-w", "--workspace", required=True, type=Path, help="workspace with the sample's world")
     g.add_argument("--policy", nargs="+", required=True, metavar="POLICY",
