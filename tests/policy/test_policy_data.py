@@ -179,6 +179,10 @@ def test_camera_dropout_blanks_at_most_one_camera_per_sample_at_its_rate():
         assert abs(blank[c].float().mean().item() - 0.2) < 0.03, (c, blank[c].float().mean())
     none = drop_cameras(images, 0.0, torch.Generator().manual_seed(0))
     assert all(torch.equal(none[c], images[c]) for c in images)
+    g = torch.Generator().manual_seed(0)
+    alone = drop_cameras({"head": images["head"]}, 1.0, g)
+    assert torch.equal(alone["head"], images["head"]), "a lone camera is never blanked"
+    assert torch.equal(g.get_state(), torch.Generator().manual_seed(0).get_state()), "and nothing is drawn"
 
 
 def test_input_blur_hides_detail_finer_than_it_and_keeps_the_weights_layout():

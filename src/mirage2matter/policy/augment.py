@@ -28,6 +28,7 @@ def _u(n: int, half: float, g: torch.Generator, device: torch.device) -> torch.T
 
 # YIQ: luma + a chroma plane in which a hue change is a rotation.
 _RGB2YIQ = torch.tensor([[0.299, 0.587, 0.114], [0.596, -0.274, -0.322], [0.211, -0.523, 0.312]])
+_YIQ2RGB = torch.linalg.inv(_RGB2YIQ)
 
 
 def _gaussian5(device: torch.device) -> torch.Tensor:
@@ -83,7 +84,7 @@ def _hue_band_gains(x: torch.Tensor, half: float, g: torch.Generator) -> torch.T
     gy = 1.0 + coloured * ((1 - frac) * at(lo, 0) + frac * at(hi, 0) - 1.0)
     gc = 1.0 + coloured * ((1 - frac) * at(lo, 1) + frac * at(hi, 1) - 1.0)
     yiq = torch.stack([yiq[:, 0] * gy, i * gc, q * gc], 1)
-    return torch.einsum("ij,bjhw->bihw", torch.linalg.inv(fwd), yiq)
+    return torch.einsum("ij,bjhw->bihw", _YIQ2RGB.to(dev), yiq)
 
 
 def augment(images: torch.Tensor, cfg: AugmentConfig, g: torch.Generator) -> torch.Tensor:
@@ -114,7 +115,7 @@ def augment(images: torch.Tensor, cfg: AugmentConfig, g: torch.Generator) -> tor
     m[:, 1, 1], m[:, 1, 2] = sat * torch.cos(h), -sat * torch.sin(h)
     m[:, 2, 1], m[:, 2, 2] = sat * torch.sin(h), sat * torch.cos(h)
     fwd = _RGB2YIQ.to(dev)
-    mat = torch.linalg.inv(fwd) @ m @ fwd  # [B, 3, 3] acting on RGB
+    mat = _YIQ2RGB.to(dev) @ m @ fwd  # [B, 3, 3] acting on RGB
     gain = (1.0 + _u(3 * b, cfg.gain, g, dev).view(b, 3, 1)) * (1.0 + _u(b, cfg.brightness, g, dev).view(b, 1, 1))
     x = torch.einsum("bij,bjp->bip", gain * mat, x.flatten(2)).view_as(x)
     if cfg.hue_bands > 0:
@@ -135,8 +136,11 @@ def augment(images: torch.Tensor, cfg: AugmentConfig, g: torch.Generator) -> tor
 
 def drop_cameras(images: dict[str, torch.Tensor], p: float, g: torch.Generator) -> dict[str, torch.Tensor]:
     """{camera: float [B, 3, S, S]} -> the same with, for each sample with probability ``p``, one camera drawn
-    uniformly set to mid-grey (0.5, what the encoders' [-1, 1] input maps to 0)."""
+    uniformly set to mid-grey (0.5, what the encoders' [-1, 1] input maps to 0). A single camera is never blanked
+    (nothing would be left to see); nothing is drawn then."""
     cams = list(images)
+    if len(cams) < 2 or p <= 0:
+        return images
     b = next(iter(images.values())).shape[0]
     on = torch.rand(b, generator=g) < p
     which = torch.randint(len(cams), (b,), generator=g)

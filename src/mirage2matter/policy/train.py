@@ -108,7 +108,7 @@ class _Batches:
             raw = self.images[c][frames]
             x = augment(raw, aug, g) if aug is not None else raw.float() / 255.0
             images[c] = x.contiguous(memory_format=torch.channels_last)
-        if aug is not None and aug.camera_dropout > 0 and len(self.cameras) > 1:
+        if aug is not None:
             images = drop_cameras(images, aug.camera_dropout, g)
         idx = self.chunk_idx[frames]
         return images, self.state[frames], self.action[idx], self.chunk_mask[frames]
