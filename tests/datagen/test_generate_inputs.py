@@ -86,3 +86,21 @@ def test_a_splat_server_is_refused_with_ray_and_is_not_part_of_the_dataset(tmp_p
         generate(world, task, tmp_path / "ds", GenerateConfig(episodes=1, splat_server=True, ray_address="local"),
                  progress=False)  # fmt: skip
     assert not (tmp_path / "ds").exists()
+
+
+def test_supersample_enters_the_fingerprint_only_when_used(tmp_path):
+    """--supersample changes the frames, so the dataset: off (1) keeps the fingerprint of datasets made before the
+    option; on, the source records it and the hybrid renderer gets it."""
+    from mirage2matter.datagen import dataset_fingerprint
+    from mirage2matter.datagen.simulated import _source
+    from mirage2matter.stages.generate import Config
+
+    world, task = _world(tmp_path), GraspTask("banana")
+    plain, ss = GenerateConfig(episodes=1), GenerateConfig(episodes=1, supersample=4)
+    assert "supersample" not in _source(world, task, plain).to_json()["hybrid"]["splat"]
+    assert _source(world, task, ss).to_json()["hybrid"]["splat"]["supersample"] == 4
+    assert _source(world, task, ss).env_config().hybrid.splat.supersample == 4
+    assert dataset_fingerprint(world, task, plain) != dataset_fingerprint(world, task, ss)
+    assert Config(task=("grasp banana",), supersample=3).generation().supersample == 3
+    with pytest.raises(GenerateError, match="supersample must be from 1"):
+        Config(task=("grasp banana",), supersample=0).validate()

@@ -79,6 +79,15 @@ def test_train_then_eval_in_the_hybrid_world(ws: Path, capsys) -> None:
     meshes = json.loads((ws / "evals" / "tiny-hybrid-mesh_objects-grasp_banana" / "summary.json").read_text())
     assert meshes["objects"] == "meshes" and meshes["episodes"] == 1
 
+    # the world of a policy trained on supersampled demos (generate --supersample 2)
+    try:
+        assert main(["eval-policy", "-w", str(ws), "--policy", "tiny", "--episodes", "1", "--horizon", "2",
+                     "--video-episodes", "0", "--supersample", "2"]) == 0  # fmt: skip
+    finally:
+        (ws / "m2m.yaml").write_bytes(settings)
+    ss = json.loads((ws / "evals" / "tiny-hybrid-ss2-grasp_banana" / "summary.json").read_text())
+    assert ss["supersample"] == 2 and ss["episodes"] == 1
+
     # an ensemble of two trained policies (their chunks averaged), its report named by its members
     try:
         assert main(["train-policy", "-w", str(ws), "--steps", "6", "--batch-size", "8", "--image-size", "32",
@@ -171,6 +180,10 @@ def test_bad_input_is_a_clear_error_and_leaves_no_report(ws: Path, tmp_path: Pat
                                                    "--replan-every", "99")  # fmt: skip
     assert "the ground_truth renderer draws its own world" in _error(
         capsys, "eval-policy", "-w", w, "--policy", "tiny", "--renderer", "ground_truth", "--objects", "meshes")
+    assert "add --supersample 1" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny", "--renderer",
+                                           "ground_truth", "--supersample", "2")  # fmt: skip
+    assert "supersample must be from 1" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",
+                                                  "--supersample", "0")  # fmt: skip
     # an unknown policy name
     assert "neither a policy in" in _error(capsys, "eval-policy", "-w", w, "--policy", "nope", "--task", TASK)
     assert "neither a policy in" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny,nope", "--task", TASK)

@@ -30,6 +30,8 @@ class GenerateConfig:
     splat_server   draw every worker's splat layer in one process, batched (``render.splat_server``): for a GPU,
                    where one batched gsplat call serves all the workers' episodes; the same episodes, every camera
                    drawn whole (not over a cached background); local worker processes only (not with Ray)
+    supersample    the splat layer drawn at s x the frame size and box-averaged down (``SplatRenderOptions``):
+                   objects far smaller than the frame's pixels keep their true area (~s^2 the splat time)
     """
 
     episodes: int
@@ -45,3 +47,4 @@ class GenerateConfig:
     randomization: Randomization = field(default_factory=Randomization)
     objects: str = "gaussians"
     splat_server: bool = False
+    supersample: int = 1

@@ -75,6 +75,8 @@ class SimSourceConfig:
                 out[f.name] = asdict(v) if is_dataclass(v) else v
         if out["hybrid"].get("objects") == "gaussians":  # the default: datasets made before the option keep their key
             del out["hybrid"]["objects"]
+        if out["hybrid"]["splat"].get("supersample") == 1:  # likewise
+            del out["hybrid"]["splat"]["supersample"]
         for key in ("object_shrink", "table_texture"):  # likewise
             if not out["randomization"].get(key):
                 del out["randomization"][key]

@@ -48,12 +48,12 @@ def world_fingerprint(world: WorldConfig) -> dict[str, Any]:
 
 
 def _source(world: WorldConfig, task: Task, cfg: GenerateConfig):
-    from ..env.config import HybridOptions
+    from ..env.config import hybrid_options
     from .sim_source import SimSourceConfig
 
     return SimSourceConfig(
         world=world, task=task, size=tuple(cfg.size), fps=cfg.fps, cameras=tuple(cfg.cameras),
-        randomization=cfg.randomization, hybrid=HybridOptions(objects=cfg.objects),
+        randomization=cfg.randomization, hybrid=hybrid_options(cfg.objects, cfg.supersample),
     )  # fmt: skip
 
 

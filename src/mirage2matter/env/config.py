@@ -70,6 +70,14 @@ def _fast_splats() -> SplatRenderOptions:
     return SplatRenderOptions(sh_degree=1, min_opacity=0.02)
 
 
+def hybrid_options(objects: str = "gaussians", supersample: int = 1) -> HybridOptions:
+    """The hybrid renderer's settings with generation's splat settings, objects drawn as ``objects``, the splat layer
+    supersampled ``supersample`` x (what ``generate`` and ``eval-policy`` expose)."""
+    from dataclasses import replace
+
+    return HybridOptions(splat=replace(_fast_splats(), supersample=int(supersample)), objects=objects)
+
+
 @dataclass(frozen=True)
 class HybridOptions:
     """The hybrid renderer: the Gaussian world posed by physics, the Genesis robot composited over it.

@@ -56,6 +56,8 @@ class Config:
                     temporal ensembling (1 <= n <= its chunk length)
     objects         how the hybrid renderer draws objects: gaussians (the method) or meshes (the world a mesh-only
                     ablation policy was trained in, ``generate --objects meshes``)
+    supersample     the hybrid renderer's splat layer drawn at s x the frame size and box-averaged down (the world of
+                    a policy trained on ``generate --supersample s`` demos)
     """
 
     policy: str = "policy"
@@ -73,6 +75,7 @@ class Config:
     ensemble_decay: float | None = None
     replan_every: int | None = None
     objects: Literal["gaussians", "meshes"] = "gaussians"
+    supersample: int = 1
 
     def validate(self) -> None:
         bad = []
@@ -92,6 +95,11 @@ class Config:
             bad.append(f"objects={self.objects} is how the hybrid renderer draws them; the {self.renderer} renderer "
                        "draws its own world: add --objects gaussians (a setting given once stays in the workspace's "
                        "m2m.yaml)")  # fmt: skip
+        if not 1 <= self.supersample <= 8:
+            bad.append(f"supersample must be from 1 (off) to 8, got {self.supersample}")
+        if self.supersample != 1 and self.renderer != "hybrid":
+            bad.append(f"supersample={self.supersample} is how the hybrid renderer draws its splats; the "
+                       f"{self.renderer} renderer draws its own world: add --supersample 1")  # fmt: skip
         if self.video_episodes < 0:
             bad.append(f"video_episodes must be >= 0, got {self.video_episodes}")
         if self.name is not None and (not self.name or Path(self.name).name != self.name):
@@ -203,6 +211,7 @@ def report_name(ws: Workspace, cfg: Config) -> str:
     paths = policy_paths(ws, cfg)
     who = "+".join(p.name for p in paths) if paths else task_slug(cfg.policy)
     world = cfg.renderer + ("-mesh_objects" if cfg.objects == "meshes" else "")
+    world += f"-ss{cfg.supersample}" if cfg.supersample != 1 else ""
     return f"{who}-{world}-{task_slug(task_of(ws, cfg))}"
 
 
@@ -239,7 +248,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     import time
 
     from ..atomic import atomic_write
-    from ..env.config import HybridOptions
+    from ..env.config import hybrid_options
     from ..env.twin_env import TwinEnv, make_config
     from ..evaluation import contact_sheet, evaluate_policy
     from ..video import write_video
@@ -249,7 +258,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     gt = ground_truth_dir(ws, cfg) if cfg.renderer == "ground_truth" else None
     # every check (the task, the renderer's ground truth, the policy against the robot) before the twin's build
     env_cfg = make_config(ws.committed.world_dir, task, renderer=cfg.renderer, size=size, horizon=cfg.horizon,
-                          ground_truth=gt, hybrid=HybridOptions(objects=cfg.objects))  # fmt: skip
+                          ground_truth=gt, hybrid=hybrid_options(cfg.objects, cfg.supersample))  # fmt: skip
     policy = open_policy(ws, cfg, env_cfg.world)
     out = ws.eval_dir(report_name(ws, cfg))
     out.mkdir(parents=True, exist_ok=True)
@@ -289,6 +298,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         "task": task,
         "renderer": cfg.renderer,
         **({"objects": cfg.objects} if cfg.objects != "gaussians" else {}),
+        **({"supersample": cfg.supersample} if cfg.supersample != 1 else {}),
         "policy": cfg.policy,
         "size": size,
         "seeds": [cfg.seed, cfg.seed + cfg.episodes - 1],

@@ -38,6 +38,10 @@ class Config:
                  wood grain as a landmark (0: off)
     splat_server  draw every worker's splat layer in one process, batched: for a GPU, where one gsplat call serves
                  all the workers' episodes (the same episodes; every camera drawn whole; not with ray_address)
+    supersample  draw the splat layer at s x the frame size and average each s x s block: Gaussians much smaller
+                 than a pixel then add their area instead of swelling to the rasterizer's minimum footprint (at
+                 128 px the reconstructed banana covers 1.8x its true area in the head camera, 1.2x with 4); the
+                 splat time grows ~s^2 (1: off)
     """
 
     task: tuple[str, ...] = ()
@@ -53,6 +57,7 @@ class Config:
     object_shrink: float = 0.0
     table_texture: float = 0.0
     splat_server: bool = False
+    supersample: int = 1
 
     def validate(self) -> None:
         if not self.task:
@@ -65,12 +70,14 @@ class Config:
             raise GenerateError(f"generate: object_shrink must be in [0, 1), got {self.object_shrink}")
         if not 0.0 <= self.table_texture < 1.0:
             raise GenerateError(f"generate: table_texture must be in [0, 1), got {self.table_texture}")
+        if not 1 <= self.supersample <= 8:
+            raise GenerateError(f"generate: supersample must be from 1 (off) to 8, got {self.supersample}")
 
     def generation(self) -> GenerateConfig:
         return GenerateConfig(
             episodes=self.episodes, workers=self.workers, ray_address=self.ray_address, format=self.format,
             seed=self.seed, size=(self.size, self.size), fps=self.fps, objects=self.objects,
-            splat_server=self.splat_server,
+            splat_server=self.splat_server, supersample=self.supersample,
             randomization=Randomization(object_shrink=self.object_shrink, table_texture=self.table_texture),
         )  # fmt: skip
 
