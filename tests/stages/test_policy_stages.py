@@ -180,10 +180,10 @@ def test_bad_input_is_a_clear_error_and_leaves_no_report(ws: Path, tmp_path: Pat
                                                    "--replan-every", "99")  # fmt: skip
     assert "the ground_truth renderer draws its own world" in _error(
         capsys, "eval-policy", "-w", w, "--policy", "tiny", "--renderer", "ground_truth", "--objects", "meshes")
-    assert "add --supersample 1" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny", "--renderer",
+    assert "add --supersample 0" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny", "--renderer",
                                            "ground_truth", "--supersample", "2")  # fmt: skip
-    assert "supersample must be from 1" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",
-                                                  "--supersample", "0")  # fmt: skip
+    assert "supersample must be from 0" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",
+                                                  "--supersample", "9")  # fmt: skip
     # an unknown policy name
     assert "neither a policy in" in _error(capsys, "eval-policy", "-w", w, "--policy", "nope", "--task", TASK)
     assert "neither a policy in" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny,nope", "--task", TASK)
@@ -202,6 +202,33 @@ def test_bad_input_is_a_clear_error_and_leaves_no_report(ws: Path, tmp_path: Pat
     assert "fewer than the 5 asked for" in err
     assert "dataset 'push kiwi'" in _error(capsys, "train-policy", "-w", w, "--datasets", "push kiwi", "--name", "x")
     assert not (ws / "policies" / "x").exists()
+
+
+def test_eval_supersamples_as_the_policys_datasets_were_generated(tmp_path: Path) -> None:
+    """eval-policy's hybrid world by default draws its splats as the policy's training demos were drawn (their
+    dataset fingerprint's ``supersample``), so a policy trained on ``generate --supersample 4`` is evaluated in
+    that world, not the classic one; an explicit setting wins; the ground_truth renderer draws its own."""
+    from mirage2matter.stages.eval_policy import Config, supersample_of
+    from mirage2matter.workspace import Workspace
+
+    ws = Workspace(tmp_path / "ws")
+    datasets = {}
+    for name, splat in [("ss4", {"sh_degree": 1, "supersample": 4}), ("classic", {"sh_degree": 1})]:
+        d = datasets[name] = tmp_path / name
+        d.mkdir()
+        (d / "summary.json").write_text(json.dumps({"fingerprint": {"source": {"hybrid": {"splat": splat}}}}))
+    policies = {}
+    for name, ds in [("a", "ss4"), ("b", "classic"), ("c", "gone")]:
+        p = policies[name] = tmp_path / "policies" / name
+        p.mkdir(parents=True)
+        (p / "policy.pt").write_bytes(b"")
+        (p / "summary.json").write_text(json.dumps({"datasets": [str(tmp_path / ds)]}))
+    assert supersample_of(ws, Config(policy=str(policies["a"]))) == 4
+    assert supersample_of(ws, Config(policy=str(policies["b"]))) == 1
+    assert supersample_of(ws, Config(policy=str(policies["c"]))) == 1  # its datasets are gone: unknown, classic
+    assert supersample_of(ws, Config(policy=str(policies["a"]), supersample=2)) == 2
+    assert supersample_of(ws, Config(policy=str(policies["a"]), renderer="ground_truth")) == 1
+    assert supersample_of(ws, Config(policy="my_pkg.glue:act")) == 1  # a user's callable
 
 
 def test_policy_stages_are_not_part_of_a_pipeline_run() -> None:

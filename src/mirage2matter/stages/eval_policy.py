@@ -56,8 +56,8 @@ class Config:
                     temporal ensembling (1 <= n <= its chunk length)
     objects         how the hybrid renderer draws objects: gaussians (the method) or meshes (the world a mesh-only
                     ablation policy was trained in, ``generate --objects meshes``)
-    supersample     the hybrid renderer's splat layer drawn at s x the frame size and box-averaged down (the world of
-                    a policy trained on ``generate --supersample s`` demos)
+    supersample     the hybrid renderer's splat layer drawn at s x the frame size and box-averaged down (0: as the
+                    datasets the policy was trained on were generated, ``generate --supersample``; 1 when unknown)
     """
 
     policy: str = "policy"
@@ -75,7 +75,7 @@ class Config:
     ensemble_decay: float | None = None
     replan_every: int | None = None
     objects: Literal["gaussians", "meshes"] = "gaussians"
-    supersample: int = 1
+    supersample: int = 0
 
     def validate(self) -> None:
         bad = []
@@ -95,11 +95,11 @@ class Config:
             bad.append(f"objects={self.objects} is how the hybrid renderer draws them; the {self.renderer} renderer "
                        "draws its own world: add --objects gaussians (a setting given once stays in the workspace's "
                        "m2m.yaml)")  # fmt: skip
-        if not 1 <= self.supersample <= 8:
-            bad.append(f"supersample must be from 1 (off) to 8, got {self.supersample}")
-        if self.supersample != 1 and self.renderer != "hybrid":
+        if not 0 <= self.supersample <= 8:
+            bad.append(f"supersample must be from 0 (the datasets') or 1 (off) to 8, got {self.supersample}")
+        if self.supersample > 1 and self.renderer != "hybrid":
             bad.append(f"supersample={self.supersample} is how the hybrid renderer draws its splats; the "
-                       f"{self.renderer} renderer draws its own world: add --supersample 1")  # fmt: skip
+                       f"{self.renderer} renderer draws its own world: add --supersample 0")  # fmt: skip
         if self.video_episodes < 0:
             bad.append(f"video_episodes must be >= 0, got {self.video_episodes}")
         if self.name is not None and (not self.name or Path(self.name).name != self.name):
@@ -177,6 +177,22 @@ def _size_of(ws: Workspace, cfg: Config) -> int:
     return 224
 
 
+def supersample_of(ws: Workspace, cfg: Config) -> int:
+    """The hybrid renderer's splat supersampling: the config's, else the one the policy's training datasets were
+    generated with (their fingerprint), else 1; 1 for the ground_truth renderer (it draws its own world)."""
+    if cfg.renderer != "hybrid":
+        return 1
+    if cfg.supersample:
+        return cfg.supersample
+    for d in _trained_on(policy_paths(ws, cfg)):
+        try:
+            splat = json.loads((d / "summary.json").read_text())["fingerprint"]["source"]["hybrid"]["splat"]
+            return int(splat.get("supersample", 1))
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            continue
+    return 1
+
+
 def ground_truth_dir(ws: Workspace, cfg: Config) -> Path:
     """The sample folder the ground_truth renderer draws; PolicyError when the workspace has none."""
     if cfg.ground_truth is not None:
@@ -211,7 +227,8 @@ def report_name(ws: Workspace, cfg: Config) -> str:
     paths = policy_paths(ws, cfg)
     who = "+".join(p.name for p in paths) if paths else task_slug(cfg.policy)
     world = cfg.renderer + ("-mesh_objects" if cfg.objects == "meshes" else "")
-    world += f"-ss{cfg.supersample}" if cfg.supersample != 1 else ""
+    ss = supersample_of(ws, cfg)
+    world += f"-ss{ss}" if ss != 1 else ""
     return f"{who}-{world}-{task_slug(task_of(ws, cfg))}"
 
 
@@ -255,10 +272,11 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
 
     task = task_of(ws, cfg)
     size = _size_of(ws, cfg)
+    supersample = supersample_of(ws, cfg)
     gt = ground_truth_dir(ws, cfg) if cfg.renderer == "ground_truth" else None
     # every check (the task, the renderer's ground truth, the policy against the robot) before the twin's build
     env_cfg = make_config(ws.committed.world_dir, task, renderer=cfg.renderer, size=size, horizon=cfg.horizon,
-                          ground_truth=gt, hybrid=hybrid_options(cfg.objects, cfg.supersample))  # fmt: skip
+                          ground_truth=gt, hybrid=hybrid_options(cfg.objects, supersample))  # fmt: skip
     policy = open_policy(ws, cfg, env_cfg.world)
     out = ws.eval_dir(report_name(ws, cfg))
     out.mkdir(parents=True, exist_ok=True)
@@ -298,7 +316,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         "task": task,
         "renderer": cfg.renderer,
         **({"objects": cfg.objects} if cfg.objects != "gaussians" else {}),
-        **({"supersample": cfg.supersample} if cfg.supersample != 1 else {}),
+        **({"supersample": supersample} if supersample != 1 else {}),
         "policy": cfg.policy,
         "size": size,
         "seeds": [cfg.seed, cfg.seed + cfg.episodes - 1],
