@@ -389,8 +389,8 @@ class SplatWorldBatch:
             out = render_gsplat_batch(stack, self.sh_degree, f32(viewmats), f32(supersampled_K(Ks, s)), int(width) * s,
                                       int(height) * s, f32(background), self.options.antialias)  # fmt: skip
         except torch.cuda.OutOfMemoryError as e:
-            lower = "the episodes per batch, the image size or the Gaussians (min_opacity)"
+            lower = "the episodes per batch, the image size, the supersampling or the Gaussians (min_opacity)"
             raise gpu_out_of_memory(f"rendering {B}x{viewmats.shape[1]} cameras of", self.stack["means"].shape[1],
-                                    width, height, lower) from e  # fmt: skip
+                                    width * s, height * s, lower) from e  # fmt: skip
         as_np = lambda t: t.to("cpu").numpy()
         return box_down(as_np(out.rgb.clamp(0.0, 1.0)), as_np(out.alpha), as_np(out.depth), s)
