@@ -71,20 +71,12 @@ def test_train_then_eval_in_the_hybrid_world(ws: Path, capsys) -> None:
     assert json.loads((ws / "evals" / "replan" / "summary.json").read_text())["inference"]["replan_every"] == 2
 
     # the mesh-only ablation's world (its objects drawn from their meshes), where such a policy was trained
-    try:
-        assert main(["eval-policy", "-w", str(ws), "--policy", "tiny", "--episodes", "1", "--horizon", "2",
-                     "--video-episodes", "0", "--objects", "meshes"]) == 0  # fmt: skip
-    finally:
-        (ws / "m2m.yaml").write_bytes(settings)
+    _eval_once(ws, settings, "--objects", "meshes")
     meshes = json.loads((ws / "evals" / "tiny-hybrid-mesh_objects-grasp_banana" / "summary.json").read_text())
     assert meshes["objects"] == "meshes" and meshes["episodes"] == 1
 
     # the world of a policy trained on supersampled demos (generate --supersample 2)
-    try:
-        assert main(["eval-policy", "-w", str(ws), "--policy", "tiny", "--episodes", "1", "--horizon", "2",
-                     "--video-episodes", "0", "--supersample", "2"]) == 0  # fmt: skip
-    finally:
-        (ws / "m2m.yaml").write_bytes(settings)
+    _eval_once(ws, settings, "--supersample", "2")
     ss = json.loads((ws / "evals" / "tiny-hybrid-ss2-grasp_banana" / "summary.json").read_text())
     assert ss["supersample"] == 2 and ss["episodes"] == 1
 
@@ -99,6 +91,16 @@ def test_train_then_eval_in_the_hybrid_world(ws: Path, capsys) -> None:
     ens = json.loads((ws / "evals" / "tiny+tiny1-hybrid-grasp_banana" / "summary.json").read_text())
     assert ens["policy"] == "tiny,tiny1" and ens["episodes"] == 1 and ens["size"] == 48
     assert ens["inference"] == {"ensemble_decay": 0.1, "replan_every": None}
+
+
+def _eval_once(ws: Path, settings: bytes, *flags: str) -> None:
+    """One 2-step hybrid episode of the tiny policy with ``flags``; the workspace's settings put back after (flags
+    persist in m2m.yaml)."""
+    try:
+        assert main(["eval-policy", "-w", str(ws), "--policy", "tiny", "--episodes", "1", "--horizon", "2",
+                     "--video-episodes", "0", *flags]) == 0  # fmt: skip
+    finally:
+        (ws / "m2m.yaml").write_bytes(settings)
 
 
 @pytest.mark.slow
