@@ -33,6 +33,9 @@ class MovablePart:
     scale: float = 1.0
 
 
+MAX_SUPERSAMPLE = 8  # a bound on the splat layer's size: 8x a 224-px frame is already 1792 px a side
+
+
 @dataclass(frozen=True)
 class SplatRenderOptions:
     """Speed / quality knobs of the per-frame splat renders.
@@ -59,8 +62,8 @@ class SplatRenderOptions:
     supersample: int = 1
 
     def __post_init__(self) -> None:
-        if int(self.supersample) != self.supersample or not 1 <= self.supersample <= 8:
-            raise ValueError(f"supersample must be an integer from 1 to 8, got {self.supersample}")
+        if int(self.supersample) != self.supersample or not 1 <= self.supersample <= MAX_SUPERSAMPLE:
+            raise ValueError(f"supersample must be an integer from 1 to {MAX_SUPERSAMPLE}, got {self.supersample}")
 
 
 def supersampled_K(K: np.ndarray, s: int) -> np.ndarray:

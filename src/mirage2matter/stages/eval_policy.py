@@ -95,8 +95,11 @@ class Config:
             bad.append(f"objects={self.objects} is how the hybrid renderer draws them; the {self.renderer} renderer "
                        "draws its own world: add --objects gaussians (a setting given once stays in the workspace's "
                        "m2m.yaml)")  # fmt: skip
-        if not 0 <= self.supersample <= 8:
-            bad.append(f"supersample must be from 0 (the datasets') or 1 (off) to 8, got {self.supersample}")
+        from ..render.splat_world import MAX_SUPERSAMPLE
+
+        if not 0 <= self.supersample <= MAX_SUPERSAMPLE:
+            bad.append(f"supersample must be from 0 (the datasets') or 1 (off) to {MAX_SUPERSAMPLE}, got "
+                       f"{self.supersample}")  # fmt: skip
         if self.supersample > 1 and self.renderer != "hybrid":
             bad.append(f"supersample={self.supersample} is how the hybrid renderer draws its splats; the "
                        f"{self.renderer} renderer draws its own world: add --supersample 0")  # fmt: skip

@@ -70,8 +70,11 @@ class Config:
             raise GenerateError(f"generate: object_shrink must be in [0, 1), got {self.object_shrink}")
         if not 0.0 <= self.table_texture < 1.0:
             raise GenerateError(f"generate: table_texture must be in [0, 1), got {self.table_texture}")
-        if not 1 <= self.supersample <= 8:
-            raise GenerateError(f"generate: supersample must be from 1 (off) to 8, got {self.supersample}")
+        from ..render.splat_world import MAX_SUPERSAMPLE
+
+        if not 1 <= self.supersample <= MAX_SUPERSAMPLE:
+            raise GenerateError(f"generate: supersample must be from 1 (off) to {MAX_SUPERSAMPLE}, got "
+                                f"{self.supersample}")  # fmt: skip
 
     def generation(self) -> GenerateConfig:
         return GenerateConfig(
