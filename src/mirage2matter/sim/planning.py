@@ -128,8 +128,14 @@ def _ik(twin, pos, quat, q_init, pos_tol, rot_tol_deg, attempts, check_collision
     )
 
 
-def _shortcut(twin: Twin, path: list[np.ndarray], fingers: np.ndarray, allow: tuple, rng: np.random.Generator):
-    """Random shortcutting: join two waypoints directly when the segment between them is free."""
+def _shortcut(
+    twin: Twin, path: list[np.ndarray], fingers: np.ndarray, allow: tuple, rng: np.random.Generator
+) -> tuple[list[np.ndarray], list[bool]]:
+    """Random shortcutting: join two waypoints directly when the segment between them is free.
+
+    Returns the path and, per segment, whether it is already verified at ``DENSE_CHECK_STEP`` (the shortcuts are;
+    OMPL's own segments are not), so the final check does not walk a shortcut twice."""
+    verified = [False] * (len(path) - 1)
     for _ in range(30):
         if len(path) <= 2:
             break
@@ -141,7 +147,8 @@ def _shortcut(twin: Twin, path: list[np.ndarray], fingers: np.ndarray, allow: tu
             twin, path[i], path[j], fingers, allow, step=DENSE_CHECK_STEP
         ):
             path = path[: i + 1] + path[j:]
-    return path
+            verified = verified[:i] + [True] + verified[j:]
+    return path, verified
 
 
 def plan(
@@ -226,12 +233,12 @@ def _plan(twin: Twin, a: np.ndarray, b: np.ndarray, fingers: np.ndarray, timeout
     ss.simplifySolution(0.5)
     p = ss.getSolutionPath()
     path = [np.array([p.getState(k)[i] for i in range(n_arm)]) for k in range(p.getStateCount())]
-    path = _shortcut(twin, path, fingers, allow, np.random.default_rng(seed))
+    path, verified = _shortcut(twin, path, fingers, allow, np.random.default_rng(seed))
     # OMPL checks edges at its own resolution; accept the path only if every segment is free at ours
     bad = [
         k
         for k in range(len(path) - 1)
-        if not segment_free(twin, path[k], path[k + 1], fingers, allow, step=DENSE_CHECK_STEP)
+        if not verified[k] and not segment_free(twin, path[k], path[k + 1], fingers, allow, step=DENSE_CHECK_STEP)
     ]
     if bad:
         raise _CoarsePath(f"the planned path's segment {bad[0]} collides when checked densely; try a longer timeout")
