@@ -235,13 +235,17 @@ def _plan(twin: Twin, a: np.ndarray, b: np.ndarray, fingers: np.ndarray, timeout
     path = [np.array([p.getState(k)[i] for i in range(n_arm)]) for k in range(p.getStateCount())]
     path, verified = _shortcut(twin, path, fingers, allow, np.random.default_rng(seed))
     # OMPL checks edges at its own resolution; accept the path only if every segment is free at ours
-    bad = [
-        k
-        for k in range(len(path) - 1)
-        if not verified[k] and not segment_free(twin, path[k], path[k + 1], fingers, allow, step=DENSE_CHECK_STEP)
-    ]
-    if bad:
-        raise _CoarsePath(f"the planned path's segment {bad[0]} collides when checked densely; try a longer timeout")
+    # the first colliding segment is enough to refuse the path (each dense check walks its segment at 0.001 rad)
+    bad = next(
+        (
+            k
+            for k in range(len(path) - 1)
+            if not verified[k] and not segment_free(twin, path[k], path[k + 1], fingers, allow, step=DENSE_CHECK_STEP)
+        ),
+        None,
+    )
+    if bad is not None:
+        raise _CoarsePath(f"the planned path's segment {bad} collides when checked densely; try a longer timeout")
     return np.stack(path)
 
 
