@@ -104,3 +104,35 @@ def test_supersample_enters_the_fingerprint_only_when_used(tmp_path):
     assert Config(task=("grasp banana",), supersample=3).generation().supersample == 3
     with pytest.raises(GenerateError, match="supersample must be from 1"):
         Config(task=("grasp banana",), supersample=0).validate()
+
+
+def test_start_regions_are_checked_and_enter_the_fingerprint_only_when_used(tmp_path):
+    """--start-region (targeted demonstrations): parsed and checked against the world before any worker starts;
+    datasets made before the option keep their fingerprint, one made with it differs."""
+    from mirage2matter.datagen import dataset_fingerprint
+    from mirage2matter.datagen.simulated import _source
+    from mirage2matter.env.config import Randomization
+    from mirage2matter.stages.generate import Config
+
+    world, task = _world(tmp_path), GraspTask("banana")
+    cfg = Config(task=("grasp banana",), start_region=("banana:0.55,0.62,-0.3,-0.2", " banana : 0.35,0.4,0.2,0.3"))
+    rand = cfg.generation().randomization
+    assert rand.start_regions == (("banana", 0.55, 0.62, -0.3, -0.2), ("banana", 0.35, 0.4, 0.2, 0.3))
+    assert rand.regions() == {"banana": [(0.55, 0.62, -0.3, -0.2), (0.35, 0.4, 0.2, 0.3)]}
+    plain = GenerateConfig(episodes=1)
+    aimed = GenerateConfig(episodes=1, randomization=rand)
+    assert "start_regions" not in _source(world, task, plain).to_json()["randomization"]
+    assert dataset_fingerprint(world, task, plain) != dataset_fingerprint(world, task, aimed)
+    for text in ("banana", "banana:0.5,0.6,0.1", "banana:a,b,c,d", ":0.5,0.6,0.1,0.2"):
+        with pytest.raises(GenerateError, match="object:x_min,x_max,y_min,y_max"):
+            Config(task=("grasp banana",), start_region=(text,)).validate()
+    bad = {
+        "kiwi": (("kiwi", 0.4, 0.5, 0.0, 0.1), "no object of that name"),
+        "reversed": (("banana", 0.5, 0.4, 0.0, 0.1), "must be x_min <= x_max"),
+        "outside": (("banana", 0.9, 1.0, 0.0, 0.1), "outside the world's randomize region"),
+    }
+    for region, message in bad.values():
+        with pytest.raises(GenerateError, match=message):
+            generate(world, task, tmp_path / "ds", GenerateConfig(episodes=1,
+                     randomization=Randomization(start_regions=(region,))), progress=False)  # fmt: skip
+    assert not (tmp_path / "ds").exists()

@@ -63,6 +63,33 @@ def test_randomised_resets(twin):
                 assert np.linalg.norm(ci - cj) >= ri + rj  # footprints apart (objects may roll a little)
 
 
+def test_start_regions_put_the_object_in_its_boxes(twin):
+    """Targeted resets: the banana's centre lands in one of its boxes (two far-apart corners), the rest of the layout
+    is drawn as usual (the others apart from it, and spread), and a seed still gives one layout."""
+    boxes = [(0.55, 0.62, -0.3, -0.2), (0.35, 0.40, 0.22, 0.3)]
+    seen = set()
+    others = []
+    for seed in range(6):
+        poses = twin.reset(seed=seed, regions={"banana": boxes})
+        body = twin.bodies["banana"]
+        x, y = (poses["banana"][:3, :3] @ body.centre_obj + poses["banana"][:3, 3])[:2]
+        inside = [
+            i for i, (x0, x1, y0, y1) in enumerate(boxes) if x0 - 0.02 <= x <= x1 + 0.02 and y0 - 0.02 <= y <= y1 + 0.02
+        ]
+        assert inside, f"seed {seed}: banana at ({x:.3f}, {y:.3f}), outside {boxes}"
+        seen.update(inside)
+        others.append(poses["croissant"][:2, 3])
+    assert seen == {0, 1}  # both boxes are used
+    assert np.ptp(np.array(others), axis=0).max() > 0.1  # the croissant is not dragged along
+    a = twin.reset(seed=9, regions={"banana": boxes})
+    b = twin.reset(seed=9, regions={"banana": boxes})
+    assert np.allclose(a["banana"], b["banana"], atol=1e-4)
+    with pytest.raises(ValueError, match="kiwi"):
+        twin.sample_poses(np.random.default_rng(0), regions={"kiwi": boxes})
+    with pytest.raises(RuntimeError, match="start regions"):  # a box no layout can reach: a clear error, not a hang
+        twin.sample_poses(np.random.default_rng(0), regions={"banana": [(0.9, 1.0, 0.9, 1.0)]})
+
+
 def test_twin_gaussians_follow_physics_bodies(twin):
     """The visual (Gaussians at the physics poses) and the physical body (Genesis collision geometry) agree."""
     twin.reset(seed=2)

@@ -80,6 +80,13 @@ def test_train_then_eval_in_the_hybrid_world(ws: Path, capsys) -> None:
     ss = json.loads((ws / "evals" / "tiny-hybrid-ss2-grasp_banana" / "summary.json").read_text())
     assert ss["supersample"] == 2 and ss["episodes"] == 1
 
+    # episodes aimed at a corner of the placement region (--start-region): the banana starts in the box
+    _eval_once(ws, settings, "--start-region", "banana:0.55,0.62,-0.3,-0.2")
+    aimed = ws / "evals" / "tiny-hybrid-in-banana_0_55_0_62_0_3_0_2-grasp_banana"
+    assert json.loads((aimed / "summary.json").read_text())["start_regions"] == ["banana:0.55,0.62,-0.3,-0.2"]
+    x, y = json.loads((aimed / "episodes.jsonl").read_text().splitlines()[0])["start_xy"]["banana"]
+    assert 0.53 <= x <= 0.64 and -0.32 <= y <= -0.18  # the body's origin, ~1 cm off its footprint's centre
+
     # an ensemble of two trained policies (their chunks averaged), its report named by its members
     try:
         assert main(["train-policy", "-w", str(ws), "--steps", "6", "--batch-size", "8", "--image-size", "32",
@@ -186,6 +193,10 @@ def test_bad_input_is_a_clear_error_and_leaves_no_report(ws: Path, tmp_path: Pat
                                            "ground_truth", "--supersample", "2")  # fmt: skip
     assert "supersample must be from 0" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",
                                                   "--supersample", "9")  # fmt: skip
+    assert "object:x_min,x_max,y_min,y_max" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",
+                                                      "--start-region", "banana:0.5")  # fmt: skip
+    assert "outside the world's randomize region" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",
+                                                            "--start-region", "banana:1,2,0,0.1")  # fmt: skip
     # an unknown policy name
     assert "neither a policy in" in _error(capsys, "eval-policy", "-w", w, "--policy", "nope", "--task", TASK)
     assert "neither a policy in" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny,nope", "--task", TASK)

@@ -77,7 +77,7 @@ class SimSourceConfig:
             del out["hybrid"]["objects"]
         if out["hybrid"]["splat"].get("supersample") == 1:  # likewise
             del out["hybrid"]["splat"]["supersample"]
-        for key in ("object_shrink", "table_texture"):  # likewise
+        for key in ("object_shrink", "table_texture", "start_regions"):  # likewise
             if not out["randomization"].get(key):
                 del out["randomization"][key]
         return {**out, "size": list(self.size), "cameras": list(self.cameras)}

@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from ..sim.tasks import Task
     from ..world.config import WorldConfig
 
-__all__ = ["CAMERAS", "EnvConfig", "EnvError", "HybridOptions", "Randomization", "check_config"]
+__all__ = ["CAMERAS", "EnvConfig", "EnvError", "HybridOptions", "Randomization", "check_config", "parse_start_region"]
 
 CAMERAS = ("head", "wrist")
 
@@ -46,6 +46,10 @@ class Randomization:
     table_texture  the table's Gaussians re-coloured per episode: evened out towards their mean colour (up to 2t), a
                 per-channel gain in [1 - t, 1 + t] and a random grain field of amplitude up to t
                 (``env.table_texture``; 0: the reconstruction's own table)
+    start_regions  boxes (name, x_min, x_max, y_min, y_max), base frame, m: each named object starts with its centre
+                inside one of its boxes - the layout is drawn as usual and redrawn until it does, so the other objects
+                keep their usual spread around it. Targeted data where a policy fails (the corners of the region);
+                () : the whole world ``randomize`` region
     """
 
     camera_deg: float = 0.5
@@ -56,6 +60,27 @@ class Randomization:
     objects: bool = True
     object_shrink: float = 0.0
     table_texture: float = 0.0
+    start_regions: tuple[tuple[str, float, float, float, float], ...] = ()
+
+    def regions(self) -> dict[str, list[tuple[float, float, float, float]]]:
+        """``start_regions`` by object: {name: [(x_min, x_max, y_min, y_max), ...]}."""
+        out: dict[str, list[tuple[float, float, float, float]]] = {}
+        for name, *box in self.start_regions:
+            out.setdefault(name, []).append(tuple(float(v) for v in box))
+        return out
+
+
+def parse_start_region(text: str) -> tuple[str, float, float, float, float]:
+    """``"banana:0.55,0.62,-0.3,-0.2"`` -> ("banana", 0.55, 0.62, -0.3, -0.2) (x_min, x_max, y_min, y_max in m)."""
+    name, sep, rest = str(text).partition(":")
+    try:
+        box = [float(v) for v in rest.split(",")]
+    except ValueError:
+        box = []
+    if not sep or not name.strip() or len(box) != 4:
+        raise EnvError(f"start region {text!r}: write it as object:x_min,x_max,y_min,y_max in metres (base frame), "
+                       'e.g. "banana:0.55,0.62,-0.3,-0.2"')  # fmt: skip
+    return (name.strip(), *box)
 
 
 def _fast_splats() -> SplatRenderOptions:
@@ -167,5 +192,27 @@ def check_config(cfg: EnvConfig, dt: float = 0.01) -> None:
         raise EnvError(f"fps must be a positive integer dividing the physics rate ({1 / dt:g} Hz), got {cfg.fps!r}")
     if cfg.hybrid.objects not in ("gaussians", "meshes"):
         raise EnvError(f"hybrid objects must be 'gaussians' or 'meshes', got {cfg.hybrid.objects!r}")
+    _check_start_regions(cfg.randomization, world)
     if cfg.horizon is not None and (not isinstance(cfg.horizon, int) or cfg.horizon < 1):
         raise EnvError(f"horizon must be a positive number of steps (or None), got {cfg.horizon!r}")
+
+
+def _check_start_regions(rand: Randomization, world: WorldConfig) -> None:
+    """Each box names a free object, is ordered, and overlaps the world's ``randomize`` region."""
+    r = world.randomize
+    free = [o.name for o in world.objects] + ([a.name for a in world.articulated] if r.articulated else [])
+    for name, boxes in rand.regions().items():
+        if name not in free:
+            raise EnvError(f"start region for {name!r}: the world has no object of that name that moves at reset "
+                           f"(they are: {', '.join(free) or 'none'})")  # fmt: skip
+        if not rand.objects:
+            raise EnvError("start regions need random object start poses (randomization objects=True)")
+        for x0, x1, y0, y1 in boxes:
+            if not (x0 <= x1 and y0 <= y1):
+                raise EnvError(f"start region for {name!r}: ({x0}, {x1}, {y0}, {y1}) must be x_min <= x_max, "
+                               "y_min <= y_max")  # fmt: skip
+            if x1 < r.x[0] or x0 > r.x[1] or y1 < r.y[0] or y0 > r.y[1]:
+                raise EnvError(
+                    f"start region for {name!r}: x [{x0}, {x1}], y [{y0}, {y1}] lies outside the world's randomize "
+                    f"region x [{r.x[0]}, {r.x[1]}], y [{r.y[0]}, {r.y[1]}] (world.yaml): no start could land in it"
+                )

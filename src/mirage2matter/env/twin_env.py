@@ -173,7 +173,8 @@ class TwinEnv(gymnasium.Env):
         self.draw = draw = draw_episode(episode_seed, cfg.randomization, cfg.cameras)
         for c in cfg.cameras:
             twin.cfg.cameras[c].T_mount_cam = self._mounts[c] @ draw.T_cam_camj[c]
-        self.start_poses = twin.reset(draw.reset_seed, randomize=cfg.randomization.objects)
+        self.start_poses = twin.reset(draw.reset_seed, randomize=cfg.randomization.objects,
+                                       regions=cfg.randomization.regions())
         self.renderer.start_episode(draw)
         self._monitor = self.task.monitor(twin, self.tick_s)
         self._t = 0

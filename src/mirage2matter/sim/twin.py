@@ -386,10 +386,23 @@ class Twin:
         return _pose_of(lk.get_pos(), lk.get_quat())
 
     # ---- reset -----------------------------------------------------------------------------------
-    def sample_poses(self, rng: np.random.Generator, max_tries: int = 500) -> dict[str, np.ndarray]:
-        """Random start poses in the configured region (yaw about z, footprints apart by ``min_gap``)."""
+    def sample_poses(
+        self,
+        rng: np.random.Generator,
+        max_tries: int = 500,
+        regions: dict[str, list[tuple[float, float, float, float]]] | None = None,
+    ) -> dict[str, np.ndarray]:
+        """Random start poses in the configured region (yaw about z, footprints apart by ``min_gap``).
+        ``regions``: {name: [(x_min, x_max, y_min, y_max), ...]}: whole layouts are redrawn until each named
+        object's centre lies in one of its boxes (so the others keep their usual spread around it)."""
         r = self.cfg.randomize
         names = [n for n, b in self.bodies.items() if b.kind == "object" or r.articulated]
+        regions = regions or {}
+        unknown = sorted(set(regions) - set(names))
+        if unknown:
+            raise ValueError(f"start regions for {unknown}: not objects placed at reset ({names})")
+        if regions:  # a box a few % of the region needs ~1/fraction redraws
+            max_tries = max(max_tries, 20000)
         for _ in range(max_tries):
             placed: list[tuple[np.ndarray, float]] = []
             poses = {}
@@ -400,6 +413,9 @@ class Twin:
                 x, y = rng.uniform(*r.x), rng.uniform(*r.y)
                 yaw = math.radians(rng.uniform(*r.yaw_deg)) if b.kind == "object" else 0.0
                 c = np.array([x, y])
+                if name in regions and not any(a <= x <= b_ and lo <= y <= hi for a, b_, lo, hi in regions[name]):
+                    ok = False
+                    break
                 if any(np.linalg.norm(c - pc) < b.footprint_radius + pr + r.min_gap for pc, pr in placed):
                     ok = False
                     break
@@ -411,12 +427,20 @@ class Twin:
                 placed.append((c, b.footprint_radius))
             if ok:
                 return poses
-        raise RuntimeError(f"no non-overlapping placement of {names} in the randomize region after {max_tries} tries")
+        where = f" with {regions} inside their start regions" if regions else ""
+        raise RuntimeError(f"no non-overlapping placement of {names}{where} in the randomize region after "
+                           f"{max_tries} tries")  # fmt: skip
 
-    def reset(self, seed: int = 0, randomize: bool = True) -> dict[str, np.ndarray]:
+    def reset(
+        self,
+        seed: int = 0,
+        randomize: bool = True,
+        regions: dict[str, list[tuple[float, float, float, float]]] | None = None,
+    ) -> dict[str, np.ndarray]:
         """Robot home, gripper open, button released; objects at the world's placements, or (``randomize``)
-        at random poses drawn from ``seed``. Lets the objects settle; returns and records the start poses."""
-        poses = self.sample_poses(np.random.default_rng(seed)) if randomize else dict(self._initial)
+        at random poses drawn from ``seed`` (``regions``: see :meth:`sample_poses`). Lets the objects settle;
+        returns and records the start poses."""
+        poses = self.sample_poses(np.random.default_rng(seed), regions=regions) if randomize else dict(self._initial)
         self.scene.reset()
         self.set_robot_state(self.home)
         for name, b in self.bodies.items():

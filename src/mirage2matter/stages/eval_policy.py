@@ -58,6 +58,9 @@ class Config:
                     ablation policy was trained in, ``generate --objects meshes``)
     supersample     the hybrid renderer's splat layer drawn at s x the frame size and box-averaged down (0: as the
                     datasets the policy was trained on were generated, ``generate --supersample``; 1 when unknown)
+    start_region    boxes "object:x_min,x_max,y_min,y_max" (m, robot-base frame): every episode starts with that object
+                    inside one of its boxes, as ``generate --start-region``: how a policy does where it used to fail
+                    (the report's default name then ends in the boxes)
     """
 
     policy: str = "policy"
@@ -76,9 +79,23 @@ class Config:
     replan_every: int | None = None
     objects: Literal["gaussians", "meshes"] = "gaussians"
     supersample: int = 0
+    start_region: tuple[str, ...] = ()
+
+    def randomization(self):
+        """The episodes' randomisation: generation's defaults, with the start regions."""
+        from ..env.config import EnvError, Randomization, parse_start_region
+
+        try:
+            return Randomization(start_regions=tuple(parse_start_region(t) for t in self.start_region))
+        except EnvError as e:
+            raise PolicyError(str(e)) from None
 
     def validate(self) -> None:
         bad = []
+        try:
+            self.randomization()
+        except PolicyError as e:
+            bad.append(str(e))
         if self.ensemble_decay is not None and not self.ensemble_decay >= 0:
             bad.append(f"ensemble_decay must be >= 0, got {self.ensemble_decay}")
         if self.replan_every is not None and self.replan_every < 1:
@@ -232,6 +249,7 @@ def report_name(ws: Workspace, cfg: Config) -> str:
     world = cfg.renderer + ("-mesh_objects" if cfg.objects == "meshes" else "")
     ss = supersample_of(ws, cfg)
     world += f"-ss{ss}" if ss != 1 else ""
+    world += f"-in-{task_slug(' '.join(cfg.start_region))}" if cfg.start_region else ""
     return f"{who}-{world}-{task_slug(task_of(ws, cfg))}"
 
 
@@ -279,7 +297,8 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     gt = ground_truth_dir(ws, cfg) if cfg.renderer == "ground_truth" else None
     # every check (the task, the renderer's ground truth, the policy against the robot) before the twin's build
     env_cfg = make_config(ws.committed.world_dir, task, renderer=cfg.renderer, size=size, horizon=cfg.horizon,
-                          ground_truth=gt, hybrid=hybrid_options(cfg.objects, supersample))  # fmt: skip
+                          ground_truth=gt, hybrid=hybrid_options(cfg.objects, supersample),
+                          randomization=cfg.randomization())  # fmt: skip
     policy = open_policy(ws, cfg, env_cfg.world)
     out = ws.eval_dir(report_name(ws, cfg))
     out.mkdir(parents=True, exist_ok=True)
@@ -323,6 +342,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         "policy": cfg.policy,
         "size": size,
         "seeds": [cfg.seed, cfg.seed + cfg.episodes - 1],
+        **({"start_regions": list(cfg.start_region)} if cfg.start_region else {}),
         **({"inference": {"ensemble_decay": policy.ensemble_decay, "replan_every": policy.replan_every}}
            if hasattr(policy, "ensemble_decay") else {}),  # fmt: skip
         "seconds": {"build": round(build_s, 1), "episodes": round(eval_s, 1),

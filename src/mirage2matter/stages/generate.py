@@ -42,6 +42,9 @@ class Config:
                  than a pixel then add their area instead of swelling to the rasterizer's minimum footprint (at
                  128 px the reconstructed banana covers 1.8x its true area in the head camera, 1.2x with 4); the
                  splat time grows ~s^2 (1: off)
+    start_region  one or more boxes "object:x_min,x_max,y_min,y_max" (m, robot-base frame): every episode starts with
+                 that object's centre inside one of its boxes (the rest of the layout as usual) - more demonstrations
+                 where a policy fails, e.g. "banana:0.55,0.62,-0.3,-0.2"
     """
 
     task: tuple[str, ...] = ()
@@ -58,6 +61,7 @@ class Config:
     table_texture: float = 0.0
     splat_server: bool = False
     supersample: int = 1
+    start_region: tuple[str, ...] = ()
 
     def validate(self) -> None:
         if not self.task:
@@ -75,13 +79,23 @@ class Config:
         if not 1 <= self.supersample <= MAX_SUPERSAMPLE:
             raise GenerateError(f"generate: supersample must be from 1 (off) to {MAX_SUPERSAMPLE}, got "
                                 f"{self.supersample}")  # fmt: skip
+        self.start_regions()
+
+    def start_regions(self) -> tuple[tuple[str, float, float, float, float], ...]:
+        from ..env.config import EnvError, parse_start_region
+
+        try:
+            return tuple(parse_start_region(t) for t in self.start_region)
+        except EnvError as e:
+            raise GenerateError(f"generate: {e}") from None
 
     def generation(self) -> GenerateConfig:
         return GenerateConfig(
             episodes=self.episodes, workers=self.workers, ray_address=self.ray_address, format=self.format,
             seed=self.seed, size=(self.size, self.size), fps=self.fps, objects=self.objects,
             splat_server=self.splat_server, supersample=self.supersample,
-            randomization=Randomization(object_shrink=self.object_shrink, table_texture=self.table_texture),
+            randomization=Randomization(object_shrink=self.object_shrink, table_texture=self.table_texture,
+                                        start_regions=self.start_regions()),
         )  # fmt: skip
 
 
