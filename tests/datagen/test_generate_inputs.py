@@ -128,7 +128,8 @@ def test_start_regions_are_checked_and_enter_the_fingerprint_only_when_used(tmp_
             Config(task=("grasp banana",), start_region=(text,)).validate()
     bad = {
         "kiwi": (("kiwi", 0.4, 0.5, 0.0, 0.1), "no object of that name"),
-        "reversed": (("banana", 0.5, 0.4, 0.0, 0.1), "must be x_min <= x_max"),
+        "reversed": (("banana", 0.5, 0.4, 0.0, 0.1), "must be x_min < x_max"),
+        "empty": (("banana", 0.5, 0.6, 0.1, 0.1), "must be x_min < x_max"),
         "outside": (("banana", 0.9, 1.0, 0.0, 0.1), "outside the world's randomize region"),
     }
     for region, message in bad.values():

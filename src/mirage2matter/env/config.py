@@ -208,9 +208,9 @@ def _check_start_regions(rand: Randomization, world: WorldConfig) -> None:
         if not rand.objects:
             raise EnvError("start regions need random object start poses (randomization objects=True)")
         for x0, x1, y0, y1 in boxes:
-            if not (x0 <= x1 and y0 <= y1):
-                raise EnvError(f"start region for {name!r}: ({x0}, {x1}, {y0}, {y1}) must be x_min <= x_max, "
-                               "y_min <= y_max")  # fmt: skip
+            if not (x0 < x1 and y0 < y1):  # an empty box would only be found out after every redraw
+                raise EnvError(f"start region for {name!r}: ({x0}, {x1}, {y0}, {y1}) must be x_min < x_max, "
+                               "y_min < y_max")  # fmt: skip
             if x1 < r.x[0] or x0 > r.x[1] or y1 < r.y[0] or y0 > r.y[1]:
                 raise EnvError(
                     f"start region for {name!r}: x [{x0}, {x1}], y [{y0}, {y1}] lies outside the world's randomize "
