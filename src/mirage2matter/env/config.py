@@ -201,12 +201,12 @@ def _check_start_regions(rand: Randomization, world: WorldConfig) -> None:
     """Each box names a free object, is ordered, and overlaps the world's ``randomize`` region."""
     r = world.randomize
     free = [o.name for o in world.objects] + ([a.name for a in world.articulated] if r.articulated else [])
+    if rand.start_regions and not rand.objects:
+        raise EnvError("start regions need random object start poses (randomization objects=True)")
     for name, boxes in rand.regions().items():
         if name not in free:
             raise EnvError(f"start region for {name!r}: the world has no object of that name that moves at reset "
                            f"(they are: {', '.join(free) or 'none'})")  # fmt: skip
-        if not rand.objects:
-            raise EnvError("start regions need random object start poses (randomization objects=True)")
         for x0, x1, y0, y1 in boxes:
             if not (x0 < x1 and y0 < y1):  # an empty box would only be found out after every redraw
                 raise EnvError(f"start region for {name!r}: ({x0}, {x1}, {y0}, {y1}) must be x_min < x_max, "
