@@ -82,7 +82,7 @@ def test_train_then_eval_in_the_hybrid_world(ws: Path, capsys) -> None:
 
     # episodes aimed at a corner of the placement region (--start-region): the banana starts in the box
     _eval_once(ws, settings, "--start-region", "banana:0.55,0.62,-0.3,-0.2")
-    aimed = ws / "evals" / "tiny-hybrid-in-banana_0_55_0_62_0_3_0_2-grasp_banana"
+    aimed = ws / "evals" / "tiny-hybrid-in-banana_0_55_0_62_m0_3_m0_2-grasp_banana"
     assert json.loads((aimed / "summary.json").read_text())["start_regions"] == ["banana:0.55,0.62,-0.3,-0.2"]
     x, y = json.loads((aimed / "episodes.jsonl").read_text().splitlines()[0])["start_xy"]["banana"]
     assert 0.53 <= x <= 0.64 and -0.32 <= y <= -0.18  # the body's origin, ~1 cm off its footprint's centre
@@ -242,6 +242,17 @@ def test_eval_supersamples_as_the_policys_datasets_were_generated(tmp_path: Path
     assert supersample_of(ws, Config(policy=str(policies["a"]), supersample=2)) == 2
     assert supersample_of(ws, Config(policy=str(policies["a"]), renderer="ground_truth")) == 1
     assert supersample_of(ws, Config(policy="my_pkg.glue:act")) == 1  # a user's callable
+
+
+def test_aimed_reports_are_named_by_their_boxes_with_signs(tmp_path: Path) -> None:
+    from mirage2matter.stages.eval_policy import Config, report_name
+    from mirage2matter.workspace import Workspace
+
+    ws = Workspace(tmp_path / "ws")
+    name = lambda *boxes: report_name(ws, Config(policy="my_pkg.glue:act", task="grasp banana", start_region=boxes))
+    assert name("banana:0.4,0.5,-0.2,0.1") != name("banana:0.4,0.5,-0.2,-0.1")
+    assert name("banana:0.4,0.5,-0.2,0.1") == "my_pkg_glue_act-hybrid-in-banana_0_4_0_5_m0_2_0_1-grasp_banana"
+    assert name() == "my_pkg_glue_act-hybrid-grasp_banana"  # unaimed: the name it always had
 
 
 def test_policy_stages_are_not_part_of_a_pipeline_run() -> None:

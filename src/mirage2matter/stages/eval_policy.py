@@ -249,7 +249,8 @@ def report_name(ws: Workspace, cfg: Config) -> str:
     world = cfg.renderer + ("-mesh_objects" if cfg.objects == "meshes" else "")
     ss = supersample_of(ws, cfg)
     world += f"-ss{ss}" if ss != 1 else ""
-    world += f"-in-{task_slug(' '.join(cfg.start_region))}" if cfg.start_region else ""
+    # minus signs kept as "m": boxes y [-0.2, 0.1] and [-0.2, -0.1] are different reports
+    world += f"-in-{task_slug(' '.join(cfg.start_region).replace('-', 'm'))}" if cfg.start_region else ""
     return f"{who}-{world}-{task_slug(task_of(ws, cfg))}"
 
 
