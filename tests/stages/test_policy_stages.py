@@ -100,6 +100,54 @@ def test_train_then_eval_in_the_hybrid_world(ws: Path, capsys) -> None:
     assert ens["inference"] == {"ensemble_decay": 0.1, "replan_every": None}
 
 
+def test_generate_with_a_takeover_records_from_where_the_policy_left_the_world(ws: Path, capsys) -> None:
+    """``generate --takeover tiny``: the policy acts first for its drawn number of ticks, the expert takes over and
+    lifts the banana from there, and the dataset starts at the state the policy reached (replayed here in an
+    environment of its own); the fingerprint holds the policy's content, and a missing policy is a clear error that
+    leaves no dataset."""
+    import hashlib
+
+    import pyarrow.parquet as pq
+
+    from mirage2matter.env import TwinEnv
+    from mirage2matter.policy import load_policy
+
+    out = ws / "datasets" / "takeover"
+    settings = (ws / "m2m.yaml").read_bytes()
+    try:
+        assert main(["generate", "-w", str(ws), "--task", TASK, "--episodes", "1", "--size", "48", "--workers", "1",
+                     "--takeover", "tiny", "--takeover-steps", "4,8", "--out", str(out)]) == 0  # fmt: skip
+        err = _error(capsys, "generate", "-w", str(ws), "--task", TASK, "--episodes", "1", "--size", "48",
+                     "--takeover", "nope", "--out", str(ws / "datasets" / "nope"))  # fmt: skip
+        assert "generate --takeover" in err and "neither a policy in" in err
+        assert "takeover_steps must be lo,hi" in _error(capsys, "generate", "-w", str(ws), "--task", TASK,
+                                                        "--takeover", "tiny", "--takeover-steps", "9,3")  # fmt: skip
+    finally:
+        (ws / "m2m.yaml").write_bytes(settings)
+    assert not (ws / "datasets" / "nope").exists()
+
+    summary = json.loads((out / "summary.json").read_text())
+    sha1 = hashlib.sha1((ws / "policies" / "tiny" / "policy.pt").read_bytes()).hexdigest()
+    assert summary["fingerprint"]["source"]["takeover"] == {"steps": [4, 8], "sha1": [sha1]}
+    (row,) = [json.loads(x) for x in (out / "meta" / "m2m_episodes.jsonl").read_text().splitlines()]
+    took = row["record"]["takeover"]["step"]
+    assert 4 <= took <= 8
+    state = np.asarray(pq.read_table(next((out / "data").rglob("*.parquet"))).to_pydict()["observation.state"])
+    assert state.shape[0] == row["length"]
+
+    env = TwinEnv(ws, TASK, size=48, horizon=None)
+    try:
+        obs, _ = env.reset(seed=row["seed"])
+        start = obs["observation.state"].copy()
+        policy = load_policy(ws / "policies" / "tiny", device="cpu")
+        for _ in range(took):
+            obs, *_ = env.step(policy(obs))
+    finally:
+        env.close()
+    assert np.abs(state[0] - obs["observation.state"]).max() < 1e-3  # the recording starts where the policy left
+    assert np.abs(state[0] - start).max() > 1e-2  # and that is not the episode's start: the policy moved the arm
+
+
 def _eval_once(ws: Path, settings: bytes, *flags: str) -> None:
     """One 2-step hybrid episode of the tiny policy with ``flags``; the workspace's settings put back after (flags
     persist in m2m.yaml)."""

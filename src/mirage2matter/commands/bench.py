@@ -177,7 +177,7 @@ def _datagen(args: argparse.Namespace) -> int:
     with workspace_lock(ws, "m2m bench datagen"):  # it writes throw-away datasets into the workspace
         world = load_world(ws.require(ws.world_yaml, "compose"))
         task = parse_task(cfg.task[0], world)
-        result = bench_datagen(world, task, cfg.generation(), ws.datasets_dir, runs=cfg.runs, log=info)
+        result = bench_datagen(world, task, cfg.generation(ws), ws.datasets_dir, runs=cfg.runs, log=info)
     info(json.dumps(result))
     print(json.dumps({k: result[k] for k in BENCH_KEYS}))
     return 0

@@ -3,11 +3,64 @@ the stages read them before anything is built)."""
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 from ..env.config import Randomization  # the environment's: generation draws its episodes through it
 
-__all__ = ["GenerateConfig", "Randomization"]
+__all__ = ["GenerateConfig", "Randomization", "Takeover"]
+
+MAX_TAKEOVER_STEPS = 10_000
+
+
+@dataclass(frozen=True)
+class Takeover:
+    """A trained policy acts first in every episode, then the scripted expert takes over from wherever the policy
+    left the robot and the objects; the episode is recorded from the takeover on (the policy's own steps are not
+    demonstrations). The states a policy drives the world into, labelled by the expert: DAgger's data (Ross et
+    al. 2011) with the expert taking over rather than labelling every state, since ours plans whole motions.
+
+    policies  the trained policies' folders (two or more: run as one ensemble, their chunks averaged)
+    steps     (lo, hi): the policy acts for a number of control ticks drawn uniformly in [lo, hi] per episode (from
+              the episode's seed, so a seed is one episode)
+    sha1      the policies' ``policy.pt`` contents: the dataset's fingerprint (a retrained policy is another dataset,
+              a moved one the same)
+    """
+
+    policies: tuple[str, ...]
+    steps: tuple[int, int] = (10, 60)
+    sha1: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, policy_dirs: list[Path], steps: tuple[int, int]) -> Takeover:
+        """The takeover by the policies in ``policy_dirs`` (each holding a finished ``policy.pt``)."""
+        from ..policy.config import POLICY_FILE
+
+        sha = tuple(hashlib.sha1((Path(d) / POLICY_FILE).read_bytes()).hexdigest() for d in policy_dirs)
+        return cls(tuple(str(d) for d in policy_dirs), (int(steps[0]), int(steps[1])), sha)
+
+    def problems(self) -> list[str]:
+        lo, hi = self.steps
+        if not self.policies:
+            return ["takeover names no policy"]
+        if not 0 <= lo <= hi <= MAX_TAKEOVER_STEPS:
+            return [f"takeover_steps must be two step counts lo,hi with 0 <= lo <= hi <= {MAX_TAKEOVER_STEPS}, got "
+                    f"{lo},{hi}"]  # fmt: skip
+        return []
+
+    def open(self, device: str = "cpu") -> Any:
+        """The policy (an ensemble for several), on ``device``."""
+        from ..policy import load_ensemble, load_policy
+
+        if len(self.policies) == 1:
+            return load_policy(self.policies[0], device=device)
+        return load_ensemble(self.policies, device=device)
+
+    def to_json(self) -> dict[str, Any]:
+        """What the dataset depends on: the policies' contents and the steps (not where the policies lie)."""
+        return {"steps": list(self.steps), "sha1": list(self.sha1)}
 
 
 @dataclass(frozen=True)
@@ -32,6 +85,8 @@ class GenerateConfig:
                    drawn whole (not over a cached background); local worker processes only (not with Ray)
     supersample    the splat layer drawn at s x the frame size and box-averaged down (``SplatRenderOptions``):
                    objects far smaller than the frame's pixels keep their true area (~s^2 the splat time)
+    takeover       None: the expert acts from each episode's start; a :class:`Takeover`: a trained policy acts
+                   first and the expert takes over from where it left the world
     """
 
     episodes: int
@@ -48,3 +103,4 @@ class GenerateConfig:
     objects: str = "gaussians"
     splat_server: bool = False
     supersample: int = 1
+    takeover: Takeover | None = None

@@ -7,6 +7,10 @@ the task's script runs tick by tick at ``fps``, each tick's action going through
 ``Twin.act`` and the env's hybrid renderer: the splat world with every part at its physics pose, the Genesis
 robot composited over it, depth-aware). The episode records, per tick, the frames and state the env observed
 before the tick and the tick's action. Failed attempts return no frames.
+
+With a takeover (``SimSourceConfig.takeover``), a trained policy acts first, through the same ``env.step``, for a
+number of ticks drawn from the episode's seed; the expert's script then runs from that state and the episode is
+recorded from there (the policy's ticks are not recorded: their actions are not the expert's).
 """
 
 from __future__ import annotations
@@ -21,9 +25,12 @@ from ..env.config import CAMERAS, EnvConfig, HybridOptions, Randomization
 from ..export.spec import DatasetSpec, EpisodeData
 from ..sim.tasks import Task
 from ..world.config import WorldConfig
+from .config import Takeover
 from .runner import Attempt
 
 __all__ = ["SimEpisodeSource", "SimSourceConfig", "SimSourceFactory"]
+
+TAKEOVER_STREAM = 0x7A4E  # the takeover step's own random stream of an episode seed (no other draw moves)
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,6 +45,7 @@ class SimSourceConfig:
     cameras        which world cameras become videos
     randomization  per-episode jitter
     hybrid         the hybrid renderer's settings (splat quality, depth-aware compositing, render speed)
+    takeover       None, or a trained policy that acts first in every episode (:class:`~.config.Takeover`)
     """
 
     world: WorldConfig
@@ -47,6 +55,7 @@ class SimSourceConfig:
     cameras: tuple[str, ...] = CAMERAS
     randomization: Randomization = field(default_factory=Randomization)
     hybrid: HybridOptions = field(default_factory=HybridOptions)
+    takeover: Takeover | None = None
 
     def spec(self) -> DatasetSpec:
         """The dataset's spec: the frames, and the state / action names and type of the world's robot."""
@@ -71,8 +80,10 @@ class SimSourceConfig:
         out: dict[str, Any] = {"task": self.task.to_json()}
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name not in ("world", "task"):
+            if f.name not in ("world", "task", "takeover"):
                 out[f.name] = asdict(v) if is_dataclass(v) else v
+        if self.takeover is not None:  # absent without one: datasets made before the option keep their fingerprint
+            out["takeover"] = self.takeover.to_json()
         if out["hybrid"].get("objects") == "gaussians":  # the default: datasets made before the option keep their key
             del out["hybrid"]["objects"]
         if out["hybrid"]["splat"].get("supersample") == 1:  # likewise
@@ -98,7 +109,23 @@ class SimEpisodeSource:
         t0 = time.perf_counter()
         self.env = TwinEnv.from_config(replace(cfg.env_config(), splat_server=splat_server))
         self.twin = self.env.twin
+        # the policy of a takeover, on the CPU: a small network beside the worker's rendering, no GPU context per worker
+        self.policy = cfg.takeover.open("cpu") if cfg.takeover is not None else None
         self.build_s = time.perf_counter() - t0
+
+    def _policy_first(self, obs: dict, seed: int) -> tuple[dict, int, float, str]:
+        """The takeover's policy acts from the episode's first observation for its drawn number of ticks ->
+        (the observation there, the ticks, their seconds, why the attempt ends here: "" to go on)."""
+        lo, hi = self.cfg.takeover.steps
+        n = int(np.random.default_rng([int(seed), TAKEOVER_STREAM]).integers(lo, hi + 1))
+        t0 = time.perf_counter()
+        self.policy.reset()
+        for i in range(n):
+            obs, _, terminated, _, _ = self.env.step(self.policy(obs))
+            if terminated:  # the task is done: there is nothing for the expert to correct
+                return obs, i + 1, time.perf_counter() - t0, (f"the policy succeeded on its own at step {i + 1}, "
+                                                                f"before its takeover at step {n}")  # fmt: skip
+        return obs, n, time.perf_counter() - t0, ""
 
     def run(self, attempt: int, seed: int) -> Attempt:
         from ..env.twin_env import STATE_KEY, image_key
@@ -106,6 +133,17 @@ class SimEpisodeSource:
 
         cfg, env = self.cfg, self.env
         obs, _ = env.reset(seed=seed)
+        parts = ("splat_render", "robot_render", "composite", "pose_splats")
+        takeover: dict[str, Any] = {}
+        policy_frames = dict.fromkeys(parts, 0.0)  # rendering time of the policy's ticks, per part
+        if self.policy is not None:
+            before = {k: env.timings.get(k, 0.0) for k in parts}
+            obs, n_policy, policy_s, ended = self._policy_first(obs, seed)
+            takeover = {"step": n_policy, "seconds": round(policy_s, 3)}
+            policy_frames = {k: env.timings.get(k, 0.0) - before[k] for k in parts}
+            if ended:
+                record = {"reset_seed": env.draw.reset_seed, "takeover": takeover, "steps": 0}
+                return Attempt(False, ended, None, record, {"takeover": policy_s})
         frames: dict[str, list[np.ndarray]] = {c: [obs[image_key(c)]] for c in cfg.cameras}
         observed = [obs[STATE_KEY]]
         states, actions = [], []
@@ -120,8 +158,7 @@ class SimEpisodeSource:
             states.append(rec.state)
             actions.append(rec.action)
 
-        parts = ("splat_render", "robot_render", "composite", "pose_splats")
-        rendered0 = sum(env.timings.get(k, 0.0) for k in parts)  # the first frame's, in the reset
+        rendered0 = sum(env.timings.get(k, 0.0) for k in parts)  # the first frame's, in the reset (and the policy's)
         t = time.perf_counter()
         result = run_task(self.twin, self.task, np.random.default_rng(env.draw.task_seed), on_step=on_step,
                           control_hz=cfg.fps, act=act)  # fmt: skip
@@ -131,6 +168,10 @@ class SimEpisodeSource:
             raise RuntimeError("generation recorded other states than the environment observed")  # a bug, not input
         timings = {k: float(env.timings.get(k, 0.0)) for k in ("reset", *parts)}
         timings["physics_and_planning"] = total - (sum(timings[k] for k in parts) - rendered0)
+        if takeover:  # the policy's ticks (physics, rendering, network) apart: the parts are the reset's and expert's
+            timings["takeover"] = takeover["seconds"]
+            for k in parts:
+                timings[k] -= policy_frames[k]
         record = {
             "reset_seed": env.draw.reset_seed,
             "start_poses": {k: np.round(v, 6).tolist() for k, v in env.start_poses.items()},
@@ -140,6 +181,7 @@ class SimEpisodeSource:
             "task": self.task.to_json(),
             "task_info": {k: v for k, v in result.info.items() if isinstance(v, int | float | str | bool)},
             "steps": n,
+            **({"takeover": {**takeover, "state": np.round(observed[0], 6).tolist()}} if takeover else {}),
         }
         if not result.success:
             return Attempt(False, result.reason or "task failed", None, record, timings)

@@ -53,7 +53,7 @@ def _source(world: WorldConfig, task: Task, cfg: GenerateConfig):
 
     return SimSourceConfig(
         world=world, task=task, size=tuple(cfg.size), fps=cfg.fps, cameras=tuple(cfg.cameras),
-        randomization=cfg.randomization, hybrid=hybrid_options(cfg.objects, cfg.supersample),
+        randomization=cfg.randomization, hybrid=hybrid_options(cfg.objects, cfg.supersample), takeover=cfg.takeover,
     )  # fmt: skip
 
 
@@ -96,6 +96,25 @@ def _check(world: WorldConfig, task: Task, cfg: GenerateConfig) -> None:
         check_config(_source(world, task, cfg).env_config())
     except EnvError as e:
         raise GenerateError(str(e)) from None
+    if cfg.takeover is not None:
+        _check_takeover(world, cfg)
+
+
+def _check_takeover(world: WorldConfig, cfg: GenerateConfig) -> None:
+    """The takeover's policies open and were trained for this robot, rate and these cameras (PolicyError names the
+    file), before any worker builds a twin."""
+    from ..policy import PolicyError
+
+    problems = cfg.takeover.problems()
+    if problems:
+        raise GenerateError("generate: " + "; ".join(problems))
+    spec = world.robot.spec
+    try:
+        policy = cfg.takeover.open("cpu")
+        policy.check_matches(robot_type=spec.robot_type, state_names=spec.state_names, action_names=spec.action_names,
+                             fps=cfg.fps, cameras=cfg.cameras)  # fmt: skip
+    except PolicyError as e:
+        raise GenerateError(f"generate --takeover: {e}") from None
 
 
 def generate(

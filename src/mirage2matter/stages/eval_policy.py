@@ -152,10 +152,15 @@ def policy_paths(ws: Workspace, cfg: Config) -> list[Path]:
     """The trained policies' folders: one, several for an ensemble (``A,B,C``), none for a module:function."""
     if _is_callable_ref(cfg.policy):
         return []
-    refs = [r.strip() for r in cfg.policy.split(",")] if "," in cfg.policy and not Path(cfg.policy).exists() \
-        else [cfg.policy]  # fmt: skip
+    return trained_policy_dirs(ws, cfg.policy)
+
+
+def trained_policy_dirs(ws: Workspace, ref: str) -> list[Path]:
+    """The folders of the trained policies ``ref`` names: a name under the workspace's policies/ or a folder, or
+    several joined by commas (an ensemble). PolicyError names what is missing."""
+    refs = [r.strip() for r in ref.split(",")] if "," in ref and not Path(ref).exists() else [ref]
     if any(not r for r in refs) or len(set(refs)) != len(refs):
-        raise PolicyError(f"policy {cfg.policy!r}: an ensemble names each trained policy once, joined by commas "
+        raise PolicyError(f"policy {ref!r}: an ensemble names each trained policy once, joined by commas "
                           "(e.g. --policy A,B,C)")  # fmt: skip
     return [_policy_dir(ws, r) for r in refs]
 

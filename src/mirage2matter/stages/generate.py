@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from ..datagen import GenerateConfig, GenerateError, task_slug
-from ..datagen.config import Randomization
+from ..datagen.config import MAX_TAKEOVER_STEPS, Randomization, Takeover
 from ..workspace import Workspace
 from .base import Input, Log
 
@@ -45,6 +45,11 @@ class Config:
     start_region  one or more boxes "object:x_min,x_max,y_min,y_max" (m, robot-base frame): every episode starts with
                  that object's centre inside one of its boxes (the rest of the layout as usual) - more demonstrations
                  where a policy fails, e.g. "banana:0.55,0.62,-0.3,-0.2"
+    takeover     a trained policy (a name under policies/ or its folder; A,B: an ensemble) that acts first in every
+                 episode; the scripted expert then takes over from wherever the policy left the robot and the objects,
+                 and the episode is recorded from there: demonstrations of getting back on track from the states the
+                 policy itself reaches (DAgger's data; the policy's own steps are not recorded)
+    takeover_steps  lo,hi: the takeover's policy acts for a number of control ticks drawn in [lo, hi] per episode
     """
 
     task: tuple[str, ...] = ()
@@ -62,6 +67,8 @@ class Config:
     splat_server: bool = False
     supersample: int = 1
     start_region: tuple[str, ...] = ()
+    takeover: str | None = None
+    takeover_steps: tuple[int, int] = (10, 60)
 
     def validate(self) -> None:
         if not self.task:
@@ -80,6 +87,14 @@ class Config:
             raise GenerateError(f"generate: supersample must be from 1 (off) to {MAX_SUPERSAMPLE}, got "
                                 f"{self.supersample}")  # fmt: skip
         self.start_regions()
+        lo, hi = self.takeover_steps
+        if not 0 <= lo <= hi <= MAX_TAKEOVER_STEPS:
+            raise GenerateError(f"generate: takeover_steps must be lo,hi with 0 <= lo <= hi <= "
+                                f"{MAX_TAKEOVER_STEPS} (control ticks the policy acts before the expert takes over), "
+                                f"got {lo},{hi}")  # fmt: skip
+        if self.takeover is not None and not self.takeover.strip():
+            raise GenerateError("generate: takeover names no policy; give a trained policy (m2m train-policy), or "
+                                "leave it out")  # fmt: skip
 
     def start_regions(self) -> tuple[tuple[str, float, float, float, float], ...]:
         from ..env.config import EnvError, parse_start_region
@@ -89,18 +104,40 @@ class Config:
         except EnvError as e:
             raise GenerateError(f"generate: {e}") from None
 
-    def generation(self) -> GenerateConfig:
+    def takeover_dirs(self, ws: Workspace) -> list[Path]:
+        """The takeover's policy folders (none without one); GenerateError when a policy is missing."""
+        if self.takeover is None:
+            return []
+        from ..policy import PolicyError
+        from .eval_policy import trained_policy_dirs
+
+        try:
+            return trained_policy_dirs(ws, self.takeover)
+        except PolicyError as e:
+            raise GenerateError(f"generate --takeover: {e}") from None
+
+    def generation(self, ws: Workspace | None = None) -> GenerateConfig:
+        """The generation settings; ``ws`` resolves a takeover's policies (required with one)."""
+        takeover = None
+        if self.takeover is not None:
+            if ws is None:
+                raise GenerateError("generate: a takeover's policies are looked up in a workspace; none was given")
+            takeover = Takeover.of(self.takeover_dirs(ws), self.takeover_steps)
         return GenerateConfig(
             episodes=self.episodes, workers=self.workers, ray_address=self.ray_address, format=self.format,
             seed=self.seed, size=(self.size, self.size), fps=self.fps, objects=self.objects,
             splat_server=self.splat_server, supersample=self.supersample,
             randomization=Randomization(object_shrink=self.object_shrink, table_texture=self.table_texture,
                                         start_regions=self.start_regions()),
+            takeover=takeover,
         )  # fmt: skip
 
 
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
-    return [Input(ws.world_yaml, made_by="compose")]
+    from ..policy.config import POLICY_FILE
+
+    files = [Input(ws.world_yaml, made_by="compose")]
+    return files + [Input(p / POLICY_FILE, made_by="train-policy") for p in cfg.takeover_dirs(ws.committed)]
 
 
 def _dataset_dir(ws: Workspace, cfg: Config, task: str) -> Path:
@@ -128,12 +165,13 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     tasks = [parse_task(text, world) for text in cfg.task]  # every task checked before any generation
     per_task, lines = {}, []
     for text, task in zip(cfg.task, tasks, strict=True):
-        done = _finished(_dataset_dir(ws.committed, cfg, text), dataset_fingerprint(world, task, cfg.generation()))
+        fingerprint = dataset_fingerprint(world, task, cfg.generation(ws.committed))
+        done = _finished(_dataset_dir(ws.committed, cfg, text), fingerprint)
         if done is not None:  # the same dataset is already in the workspace: left in place, not rewritten
             log(f"{text!r}: {done['dataset']} already holds this dataset")
             s = done
         else:
-            s = generate(world, task, _dataset_dir(ws, cfg, text), cfg.generation(), log=log)
+            s = generate(world, task, _dataset_dir(ws, cfg, text), cfg.generation(ws.committed), log=log)
         problems = validate(s["dataset"])
         per_task[text] = {**s, "validation_problems": problems}
         rate = s.get("success_rate")
