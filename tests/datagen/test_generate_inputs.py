@@ -137,3 +137,48 @@ def test_start_regions_are_checked_and_enter_the_fingerprint_only_when_used(tmp_
             generate(world, task, tmp_path / "ds", GenerateConfig(episodes=1,
                      randomization=Randomization(start_regions=(region,))), progress=False)  # fmt: skip
     assert not (tmp_path / "ds").exists()
+
+
+def test_takeover_ticks_are_drawn_per_seed_and_a_policy_that_succeeds_first_ends_the_attempt():
+    """The takeover's policy acts for a number of ticks drawn from the episode's seed (in [lo, hi], the same for the
+    same seed); when the task succeeds under the policy before that, the attempt ends there (nothing for the expert
+    to correct) instead of the expert re-doing a finished task. A fake environment and policy: no simulator."""
+    from mirage2matter.datagen.config import Takeover
+    from mirage2matter.datagen.sim_source import SimEpisodeSource
+
+    class Env:
+        def __init__(self, succeed_at=None):
+            self.t, self.succeed_at = 0, succeed_at
+
+        def step(self, action):
+            self.t += 1
+            return {"t": self.t}, 0.0, self.t == self.succeed_at, False, {}
+
+    class Policy:
+        calls = resets = 0
+
+        def reset(self):
+            Policy.resets += 1
+
+        def __call__(self, obs):
+            Policy.calls += 1
+            return np.zeros(8, np.float32)
+
+    def source(env, steps):
+        src = SimEpisodeSource.__new__(SimEpisodeSource)  # no twin built: only the policy's half of an attempt
+        src.cfg = type("Cfg", (), {"takeover": Takeover(("p",), steps)})()
+        src.env, src.policy = env, Policy()
+        return src
+
+    draws = [source(Env(), (5, 9))._policy_first({"t": 0}, seed)[:2] for seed in range(40)]
+    assert all(obs["t"] == n and 5 <= n <= 9 for obs, n in draws)
+    assert len({n for _, n in draws}) == 5  # every count in the range is drawn
+    assert [source(Env(), (5, 9))._policy_first({"t": 0}, 7)[1] for _ in range(3)] == [draws[7][1]] * 3
+    assert source(Env(), (0, 0))._policy_first({"t": 0}, 3)[1] == 0  # lo = hi = 0: the expert from the start
+
+    obs, n, _, why = source(Env(succeed_at=3), (6, 6))._policy_first({"t": 0}, 1)
+    assert n == 3 and obs["t"] == 3 and "succeeded on its own at step 3, before its takeover at step 6" in why
+    assert source(Env(succeed_at=30), (6, 6))._policy_first({"t": 0}, 1)[3] == ""
+    assert Policy.resets == 46  # a fresh policy state (its chunks) every episode
+    assert Takeover(("p",), (9, 3)).problems() and Takeover((), (1, 2)).problems()
+    assert not Takeover(("p",), (0, 60)).problems()
