@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from mirage2matter.sim.planning import PlanningError, collision_free, ik, plan, segment_free, time_parameterize
-from mirage2matter.sim.tasks import GraspTask, TaskError, parse_task, run_task, topdown
+from mirage2matter.sim.tasks import GraspTask, TaskError, parse_task, run_task, steps_per_tick, topdown
 from mirage2matter.world import load_world
 from mirage2matter.world.compose import WorldGaussians
 
@@ -174,6 +174,34 @@ def test_grasp_detour_reaches_beside_the_object_then_grasps(twin):
     assert np.allclose(plain.info["grasp_tcp"], r.info["grasp_tcp"])
     with pytest.raises(TaskError, match=r"--detour 1.5 must be in \(0, 1\]$"):
         parse_task("grasp banana --detour 1.5")
+
+
+def test_grasp_from_a_start_touching_the_object(twin):
+    """A start the planner refuses - the fingers on the banana, where a policy can leave them (generate --takeover) -
+    is not a failed episode: the expert first lifts the hand straight up, opening, then grasps as usual."""
+    from mirage2matter.sim.tasks.motion import tcp_pose
+
+    class Touching(Exception):
+        pass
+
+    def act_until_touching(a):
+        twin.act(a, steps_per_tick(twin, 10.0))
+        with twin.restoring():
+            if not collision_free(twin, twin.robot_state()):
+                raise Touching
+
+    twin.reset(seed=1)
+    with pytest.raises(Touching):  # the expert stopped where its fingers first touch the banana
+        run_task(twin, parse_task("grasp banana", twin.cfg), act=act_until_touching)
+    with twin.restoring():
+        assert ("robot:left_finger", "banana") in twin.colliding_pairs(twin.robot_state()) or \
+            ("robot:right_finger", "banana") in twin.colliding_pairs(twin.robot_state())  # fmt: skip
+    z0 = twin.object_poses()["banana"][2, 3]
+    tcps = []
+    r = run_task(twin, parse_task("grasp banana", twin.cfg), on_step=lambda rec: tcps.append(tcp_pose(twin)[:3, 3]))
+    assert r.success, r.reason
+    assert tcps[6][2] - tcps[0][2] > 0.02  # up first, clear of the banana
+    assert twin.object_poses()["banana"][2, 3] - z0 > 0.05
 
 
 def test_press_button(twin):
