@@ -30,7 +30,7 @@ class Takeover:
     """
 
     policies: tuple[str, ...]
-    steps: tuple[int, int] = (10, 60)
+    steps: tuple[int, int] = (5, 35)
     sha1: tuple[str, ...] = ()
 
     @classmethod
