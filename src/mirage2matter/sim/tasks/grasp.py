@@ -50,7 +50,8 @@ class GraspTask(Task):
 
     The policy: a top-down antipodal grasp chosen on the object's mesh at its current pose
     (:func:`grasp_candidates`), pre-grasp 10 cm above, straight approach, close with the robot's grasp force,
-    lift 10 cm, hold 1 s.
+    lift 10 cm, hold 1 s. From a start where the robot touches something (a policy left its fingers on the object,
+    ``generate --takeover``) the hand first goes 6 cm straight up, opening: the planner needs a collision-free start.
 
     **Randomizations:** the start poses are the twin's reset (``twin.reset(seed)``). With ``--detour P``, a fraction
     P of the demonstrations first go to a pre-grasp 4-10 cm off the chosen one (random direction), pause 0.3 s
