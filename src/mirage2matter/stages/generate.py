@@ -165,15 +165,15 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
 
     world = load_world(ws.world_yaml)
     tasks = [parse_task(text, world) for text in cfg.task]  # every task checked before any generation
+    generation = cfg.generation(ws.committed)  # once: a takeover's policies are read and hashed here
     per_task, lines = {}, []
     for text, task in zip(cfg.task, tasks, strict=True):
-        fingerprint = dataset_fingerprint(world, task, cfg.generation(ws.committed))
-        done = _finished(_dataset_dir(ws.committed, cfg, text), fingerprint)
+        done = _finished(_dataset_dir(ws.committed, cfg, text), dataset_fingerprint(world, task, generation))
         if done is not None:  # the same dataset is already in the workspace: left in place, not rewritten
             log(f"{text!r}: {done['dataset']} already holds this dataset")
             s = done
         else:
-            s = generate(world, task, _dataset_dir(ws, cfg, text), cfg.generation(ws.committed), log=log)
+            s = generate(world, task, _dataset_dir(ws, cfg, text), generation, log=log)
         problems = validate(s["dataset"])
         per_task[text] = {**s, "validation_problems": problems}
         rate = s.get("success_rate")
