@@ -15,6 +15,15 @@ __all__ = ["GenerateConfig", "Randomization", "Takeover"]
 MAX_TAKEOVER_STEPS = 10_000
 
 
+def takeover_steps_problem(steps: tuple[int, int]) -> str | None:
+    """What is wrong with a takeover's (lo, hi) step range, or None (one check for the stage and the generator)."""
+    lo, hi = steps
+    if 0 <= lo <= hi <= MAX_TAKEOVER_STEPS:
+        return None
+    return (f"takeover_steps must be lo,hi with 0 <= lo <= hi <= {MAX_TAKEOVER_STEPS} (control ticks the policy acts "
+            f"before the expert takes over), got {lo},{hi}")  # fmt: skip
+
+
 @dataclass(frozen=True)
 class Takeover:
     """A trained policy acts first in every episode, then the scripted expert takes over from wherever the policy
@@ -42,13 +51,10 @@ class Takeover:
         return cls(tuple(str(d) for d in policy_dirs), (int(steps[0]), int(steps[1])), sha)
 
     def problems(self) -> list[str]:
-        lo, hi = self.steps
         if not self.policies:
             return ["takeover names no policy"]
-        if not 0 <= lo <= hi <= MAX_TAKEOVER_STEPS:
-            return [f"takeover_steps must be two step counts lo,hi with 0 <= lo <= hi <= {MAX_TAKEOVER_STEPS}, got "
-                    f"{lo},{hi}"]  # fmt: skip
-        return []
+        bad = takeover_steps_problem(self.steps)
+        return [bad] if bad else []
 
     def open(self, device: str = "cpu") -> Any:
         """The policy (an ensemble for several), on ``device``."""

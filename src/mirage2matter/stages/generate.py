@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from ..datagen import GenerateConfig, GenerateError, task_slug
-from ..datagen.config import MAX_TAKEOVER_STEPS, Randomization, Takeover
+from ..datagen.config import Randomization, Takeover, takeover_steps_problem
 from ..workspace import Workspace
 from .base import Input, Log
 
@@ -89,11 +89,9 @@ class Config:
             raise GenerateError(f"generate: supersample must be from 1 (off) to {MAX_SUPERSAMPLE}, got "
                                 f"{self.supersample}")  # fmt: skip
         self.start_regions()
-        lo, hi = self.takeover_steps
-        if not 0 <= lo <= hi <= MAX_TAKEOVER_STEPS:
-            raise GenerateError(f"generate: takeover_steps must be lo,hi with 0 <= lo <= hi <= "
-                                f"{MAX_TAKEOVER_STEPS} (control ticks the policy acts before the expert takes over), "
-                                f"got {lo},{hi}")  # fmt: skip
+        bad_steps = takeover_steps_problem(self.takeover_steps)
+        if bad_steps:
+            raise GenerateError(f"generate: {bad_steps}")
         if self.takeover is not None and not self.takeover.strip():
             raise GenerateError("generate: takeover names no policy; give a trained policy (m2m train-policy), or "
                                 "leave it out")  # fmt: skip
