@@ -11,7 +11,7 @@ import numpy as np
 from ..planning import PlanningError, cartesian_path, collision_free, ik, time_parameterize
 from ..twin import Twin
 from .base import SuccessMonitor, Task, option, register_task
-from .motion import Executor, line, move_to, placed, topdown
+from .motion import Executor, move_to, placed, topdown
 
 __all__ = ["GraspTask", "LiftMonitor", "grasp_candidates", "yaw_choices"]
 
@@ -50,8 +50,7 @@ class GraspTask(Task):
 
     The policy: a top-down antipodal grasp chosen on the object's mesh at its current pose
     (:func:`grasp_candidates`), pre-grasp 10 cm above, straight approach, close with the robot's grasp force,
-    lift 10 cm, hold 1 s. From a start where the robot touches something (a policy left its fingers on the object,
-    ``generate --takeover``) the hand first goes 6 cm straight up, opening: the planner needs a collision-free start.
+    lift 10 cm, hold 1 s. (From a start touching something, :func:`run_task` first lifts the hand clear.)
 
     **Randomizations:** the start poses are the twin's reset (``twin.reset(seed)``). With ``--detour P``, a fraction
     P of the demonstrations first go to a pre-grasp 4-10 cm off the chosen one (random direction), pause 0.3 s
@@ -75,13 +74,6 @@ class GraspTask(Task):
     def run(self, ex: Executor) -> tuple[str, dict[str, Any]]:
         twin, spec, name = ex.twin, ex.spec, self.target
         n_arm = spec.n_arm
-        with twin.restoring():
-            touching = not collision_free(twin, twin.robot_state())
-        if touching:  # a start the planner refuses (a policy left the fingers on the object: generate --takeover)
-            T_now = twin.T_base_link()
-            T_up = T_now.copy()
-            T_up[2, 3] += 0.06
-            line(ex, T_now, T_up, spec.gripper_open, 0.6)  # straight up, opening: clear of what it touched
         points, com = placed(twin, name)
         q_now = twin.robot_state()
         chosen = None

@@ -19,12 +19,12 @@ import numpy as np
 import trimesh
 
 from ...world.validate import load_mesh
-from ..planning import cartesian_path, plan, time_parameterize
+from ..planning import cartesian_path, collision_free, plan, time_parameterize
 from ..twin import Twin
 
 __all__ = [
-    "Executor", "StepRecord", "line", "move_to", "placed", "placed_com", "steps_per_tick", "surface_points",
-    "tcp_pose", "tick_ends", "topdown",
+    "Executor", "StepRecord", "clear_start", "line", "move_to", "placed", "placed_com", "steps_per_tick",
+    "surface_points", "tcp_pose", "tick_ends", "topdown",
 ]  # fmt: skip
 
 
@@ -207,6 +207,22 @@ def move_to(
     tw = ex.twin
     path = plan(tw, ex.q_now(), q_goal, timeout=timeout, allow=allow)
     ex.follow(time_parameterize(path, tw.dt, speed, robot=tw.spec), finger)
+
+
+def clear_start(ex: Executor, rise_m: float = 0.06, seconds: float = 0.6) -> bool:
+    """From a start the planner refuses - the robot touching something, where a policy can leave it (its fingers on
+    the object: ``generate --takeover``) - the hand ``rise_m`` straight up, opening, so every task's plans start
+    collision-free. True if it moved; a clear start (every reset) is left alone and costs one collision query."""
+    tw = ex.twin
+    with tw.restoring():
+        touching = not collision_free(tw, tw.robot_state())
+    if not touching:
+        return False
+    T_now = tw.T_base_link()
+    T_up = T_now.copy()
+    T_up[2, 3] += rise_m
+    line(ex, T_now, T_up, ex.spec.gripper_open, seconds)
+    return True
 
 
 def line(ex: Executor, T_from, T_to, finger, seconds, stop=None) -> bool:

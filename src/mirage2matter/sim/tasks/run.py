@@ -11,7 +11,7 @@ import numpy as np
 from ..planning import PlanningError
 from ..twin import Twin
 from .base import Task
-from .motion import Executor, StepRecord
+from .motion import Executor, StepRecord, clear_start
 
 __all__ = ["TaskResult", "evaluate", "run_task"]
 
@@ -38,13 +38,16 @@ def run_task(
     at ``control_hz`` at a time: ``on_step`` gets each tick's record before the tick runs (the twin is then in
     the record's state, so a caller can render), ``act`` executes the action (default ``twin.act``; it must end
     in that call). Success is the task's monitor (:meth:`Task.monitor`) at any tick. ``rng`` draws the task's own
-    random choices (e.g. a grasp's detour; None: a fixed seed, so a run is deterministic). Raises TaskError when
+    random choices (e.g. a grasp's detour; None: a fixed seed, so a run is deterministic). From a start where the
+    robot touches something (a policy left it there: ``generate --takeover``) the hand first rises clear
+    (:func:`clear_start`), since the planner refuses such a start; those ticks are recorded. Raises TaskError when
     the twin's world has no target for the task; planning failures end the script with the planner's message."""
     task.check(twin.cfg)
     ex = Executor(twin, on_step, control_hz, act=act, rng=rng)
     ex.monitor = monitor = task.monitor(twin, ex.tick_s)
     t0 = time.perf_counter()
     try:
+        clear_start(ex)
         note, info = task.run(ex)
     except PlanningError as e:
         note, info = f"planning failed: {e}", {}
