@@ -14,6 +14,7 @@ from mirage2matter.gaussians.dataset import (
     build_views,
     downscale_camera,
     downscale_image,
+    photo_view,
     points_for_known_poses,
     split_holdout,
     undistort_image,
@@ -164,3 +165,27 @@ def test_points_for_known_poses_tabletop(tmp_path):
     assert inside.mean() > 0.9
     on_table = (np.abs(points[:, 2]) < 0.02) & (np.abs(points[:, :2]) < 0.6).all(axis=1)
     assert on_table.mean() > 0.2
+
+
+def test_photo_view_takes_the_lens_out_of_the_photo_and_of_its_mask():
+    """A photo's view (the head photo of `train-scene --head-photo`): downscaled and undistorted like a keyframe,
+    and its mask of non-scene pixels goes through the same lens, so a masked object stays masked where the
+    pinhole view shows it."""
+    cam = _camera(320, 240, 200.0, k1=-0.25, k2=0.05)
+    photo = np.random.default_rng(0).random((240, 320, 3)).astype(np.float32)
+    keep = np.ones((240, 320), bool)
+    keep[30:42, 30:46] = False  # a small patch near a corner, where the lens moves pixels most
+    v = photo_view(cam, photo, downscale=2, keep=keep)
+    small = downscale_camera(cam, 2)
+    img, valid = undistort_image(downscale_image(photo, 2), small)
+    assert np.allclose(v.image.numpy(), img) and v.image.shape == (120, 160, 3)
+    mask = v.mask.numpy()
+    centre = small.undistort_pixels(np.array([[19.0, 18.0]]))[0]  # the patch's centre in the pinhole view
+    assert np.linalg.norm(centre - [19.0, 18.0]) > 6.0  # further than the patch's half size: the lens matters
+    assert not mask[int(centre[1]), int(centre[0])] and mask[18, 19]
+    assert mask[60:, 80:][valid[60:, 80:]].all()  # away from the patch every valid pixel is kept
+    assert not mask[~valid].any()
+    with pytest.raises(DatasetError, match="photo is 160x120 but its camera says 320x240"):
+        photo_view(cam, photo[::2, ::2], downscale=2)
+    with pytest.raises(DatasetError, match="no pixel of the photo is left"):
+        photo_view(cam, photo, downscale=2, keep=np.zeros((240, 320), bool))

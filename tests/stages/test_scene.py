@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,8 @@ import torch
 from PIL import Image
 
 from fixtures import SAMPLE
+from mirage2matter.configs import to_dict
+from mirage2matter.fingerprint import fingerprint
 from mirage2matter.gaussians.losses import psnr
 from mirage2matter.gaussians.ply import read_ply
 from mirage2matter.gaussians.render import render
@@ -23,7 +26,7 @@ from mirage2matter.sfm import SfMConfig
 from mirage2matter.sfm.importers import import_transforms
 from mirage2matter.stages import get_stage, run_stage
 from mirage2matter.stages.scene import Config as SceneConfig
-from mirage2matter.workspace import Workspace
+from mirage2matter.workspace import Workspace, WorkspaceError
 
 SCENE = get_stage("scene")
 
@@ -129,3 +132,97 @@ def test_train_scene_minutes_is_bench_trains_budget(imported, tmp_path):
     # a step stalled by another process on the machine can end past the budget: at most a step's worth
     assert 0.9 <= m["train_minutes"] / 0.15 <= 1.0 + 2 * 0.15 * 60 / max(m["iterations"], 1)
     assert m["iterations"] >= 20 and m["curve"][-1]["step"] == m["iterations"]
+
+
+@pytest.fixture(scope="module")
+def with_head_camera(imported, tmp_path_factory):
+    """The imported workspace (whose frame is the robot base: ground-truth poses) as align-scene and
+    calibrate-handeye leave it, with the sample's head camera at its true pose, and the head photo."""
+    _, ws_src = imported
+    ws = tmp_path_factory.mktemp("head") / "ws"
+    ws.mkdir()
+    for sub in ("capture", "sfm"):
+        os.symlink(ws_src / sub, ws / sub)
+    w = Workspace(ws)
+    posed = w.posed_capture()
+    w.cameras_base_file.parent.mkdir(parents=True, exist_ok=True)
+    w.cameras_base_file.write_text(json.dumps([c.to_json() for c in posed.cameras]))
+    np.save(w.points_base_file, posed.points)
+    head = json.loads((SAMPLE / "ground_truth.json").read_text())["head_camera"]
+    w.handeye_file.write_text(json.dumps({"mount": "head", **{k: head[k] for k in ("K", "T_base_headcam", "width",
+                                                                                     "height")}}))  # fmt: skip
+    return ws, head
+
+
+def test_train_scene_trains_on_the_head_photo_from_the_head_camera_without_its_masked_pixels(with_head_camera,
+                                                                                             tmp_path, monkeypatch):
+    """--head-photo adds the photo to the training views (repeated), seen from the calibrated head camera at the
+    training resolution, with the pixels its mask marks as not scene (a robot arm, here a painted patch) left out
+    of the loss; at the defaults the stage's fingerprint is what it was before the option existed."""
+    import mirage2matter.gaussians.train as gtrain
+
+    ws, head = with_head_camera
+    photo = np.asarray(Image.open(SAMPLE / head["image"]).convert("RGB"))
+    painted = photo.copy()
+    painted[200:320, 300:460] = (255, 0, 255)
+    keep = np.ones(photo.shape[:2], bool)
+    keep[200:321, 300:460] = False  # row 320 too: the half-size pixel of rows 320-321 is half masked
+    Image.fromarray(painted).save(tmp_path / "head.png")
+    Image.fromarray(keep.astype(np.uint8) * 255).save(tmp_path / "mask.png")
+
+    seen = {}
+    real_train = gtrain.train
+
+    def spy(views_train, views_eval, *args, **kwargs):
+        seen["views"] = list(views_train)
+        return real_train(views_train, views_eval, *args, **kwargs)
+
+    monkeypatch.setattr(gtrain, "train", spy)
+    base = SceneConfig(iterations=20, downscale=2, max_gaussians=30_000, checkpoint_every=0)
+    plain, _ = train_scene(ws, base)
+    assert plain["views"] == {"train": 14, "heldout": 2, "head_photo": 0} and len(seen["views"]) == 14
+    key = json.loads((ws / "pipeline.json").read_text())["scene"]["fingerprint"]
+    assert key == fingerprint("scene", {k: v for k, v in to_dict(base).items() if not k.startswith("head_photo")},
+                              *[i.path for i in SCENE.inputs(Workspace(ws), base)])  # fmt: skip
+
+    cfg = replace(base, head_photo=tmp_path / "head.png", head_photo_mask=tmp_path / "mask.png", head_photo_repeat=3)
+    m, skipped = train_scene(ws, cfg)
+    assert not skipped and m["views"] == {"train": 14, "heldout": 2, "head_photo": 3}
+    assert json.loads((ws / "pipeline.json").read_text())["scene"]["fingerprint"] != key
+    views = seen["views"]
+    assert len(views) == 17 and views[-1] is views[-2] is views[-3]
+    v = views[-1]
+    assert v.image.shape == (240, 320, 3)
+    small = painted.astype(np.float32).reshape(240, 2, 320, 2, 3).mean(axis=(1, 3)) / 255.0
+    assert np.allclose(v.image.numpy(), small, atol=1e-5)
+    np.testing.assert_allclose(v.viewmat.numpy(), np.linalg.inv(head["T_base_headcam"]), atol=1e-6)
+    np.testing.assert_allclose(v.K.numpy(), np.diag([0.5, 0.5, 1.0]) @ np.asarray(head["K"]), atol=1e-4)
+    mask = v.mask.numpy()
+    assert not mask[100:160, 150:230].any()  # the painted patch is out of the loss ...
+    assert mask[:100].all() and mask[161:].all() and mask[:, :150].all() and mask[:, 230:].all()  # ... the rest in
+    # head-view against the same photo says it measures a training view; against another photo, not
+    from mirage2matter.stages.head_view import _scene_trained_on
+
+    assert _scene_trained_on(Workspace(ws), tmp_path / "head.png")
+    assert not _scene_trained_on(Workspace(ws), SAMPLE / head["image"])
+
+
+def test_train_scene_head_photo_refusals(with_head_camera, imported, tmp_path):
+    ws, head = with_head_camera
+    wrong = tmp_path / "small.png"
+    Image.new("RGB", (320, 240)).save(wrong)
+    cfg = SceneConfig(iterations=5, downscale=2, max_gaussians=30_000, checkpoint_every=0)
+    with pytest.raises(WorkspaceError, match=r"small.png is 320x240 but the head camera is 640x480"):
+        train_scene(ws, replace(cfg, head_photo=wrong))
+    with pytest.raises(WorkspaceError, match="head_photo_mask is given without a head_photo"):
+        replace(cfg, head_photo_mask=wrong).validate()
+    unaligned = tmp_path / "unaligned"  # no align-scene: the head camera's pose has no frame to go in
+    (unaligned / "calib").mkdir(parents=True)
+    for sub in ("capture", "sfm"):
+        os.symlink(imported[1] / sub, unaligned / sub)
+    (unaligned / "calib" / "handeye.json").write_text((ws / "calib" / "handeye.json").read_text())
+    with pytest.raises(WorkspaceError, match="run align-scene first"):
+        train_scene(unaligned, replace(cfg, head_photo=SAMPLE / head["image"]))
+    (unaligned / "calib" / "handeye.json").unlink()
+    with pytest.raises(WorkspaceError, match="calibrate-handeye"):
+        train_scene(unaligned, replace(cfg, head_photo=SAMPLE / head["image"]))

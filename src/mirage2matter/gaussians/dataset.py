@@ -29,6 +29,7 @@ __all__ = [
     "downscale_image",
     "load_image",
     "make_view",
+    "photo_view",
     "points_for_known_poses",
     "split_holdout",
     "undistort_image",
@@ -122,6 +123,33 @@ def undistort_image(image: np.ndarray, camera: Camera, erode_px: int = 2) -> tup
         kernel = np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8)
         valid = cv2.erode(valid, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
     return out.reshape(image.shape).astype(np.float32, copy=False), valid.astype(bool)
+
+
+def photo_view(camera: Camera, photo: np.ndarray, downscale: int = 1, keep: np.ndarray | None = None,
+               erode_px: int = 2) -> View:
+    """A training view from one photo [H,W,3] (uint8 or float in [0, 1]) that ``camera`` took (its full-size
+    pinhole + lens): area-downscaled by ``downscale`` and undistorted like the keyframes. ``keep`` [H,W] bool marks
+    the pixels that show the scene (False: the robot, a person); a downscaled pixel is kept only when all of its
+    footprint is."""
+    import cv2
+
+    h, w = np.asarray(photo).shape[:2]
+    if (w, h) != (camera.width, camera.height):
+        raise DatasetError(f"{camera.name}: photo is {w}x{h} but its camera says {camera.width}x{camera.height}")
+    small = downscale_camera(camera, downscale)
+    img, valid = undistort_image(downscale_image(photo, downscale), small, erode_px)
+    if keep is not None:
+        if keep.shape != (h, w):
+            raise DatasetError(f"{camera.name}: mask is {keep.shape[1]}x{keep.shape[0]}, the photo {w}x{h}")
+        f = int(downscale)
+        frac = keep[: small.height * f, : small.width * f].astype(np.float32)
+        if f > 1:
+            frac = cv2.resize(frac, (small.width, small.height), interpolation=cv2.INTER_AREA)
+        frac, _ = undistort_image(frac[..., None], small, 0)  # the mask through the same lens as the photo
+        valid &= frac[..., 0] > 0.999
+    if not valid.any():
+        raise DatasetError(f"{camera.name}: no pixel of the photo is left to train on (check its mask)")
+    return make_view(small, img, None if valid.all() else valid)
 
 
 def split_holdout(n: int, every: int = 8) -> tuple[list[int], list[int]]:

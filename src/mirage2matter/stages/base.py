@@ -13,6 +13,7 @@ returned). Otherwise it runs and its record is written. Work inside a stage that
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import json
 import os
@@ -118,7 +119,20 @@ def stage_fingerprint(stage: Stage, ws: Workspace, cfg: Any) -> str:
     inputs = stage.inputs(ws, cfg)
     for i in inputs:
         i.check(ws)
-    return fingerprint(stage.name, to_dict(cfg), *[i.path for i in inputs])
+    return fingerprint(stage.name, _fingerprinted(cfg), *[i.path for i in inputs])
+
+
+ADDED_LATER = {"fingerprint": "when_set"}
+"""Field metadata of a setting added to a stage after workspaces were made: at its default it stays out of the
+stage's fingerprint, so a finished stage of an existing workspace is not rerun for a setting it never used."""
+
+
+def _fingerprinted(cfg: Any) -> dict[str, Any]:
+    d = to_dict(cfg)
+    for f in dataclasses.fields(cfg):
+        if f.metadata.get("fingerprint") == "when_set" and getattr(cfg, f.name) == f.default:
+            d.pop(f.name)
+    return d
 
 
 class StageRecord:

@@ -65,12 +65,28 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
                             np.asarray(al["T_base_board"]), backend=cfg.backend)  # fmt: skip
     save_head_view(ws.head_view_png, check, photo)
     known, seen = check.corners_vs_known_px, check.corners_vs_photo_px
-    parts = [] if check.psnr is None else [f"PSNR {check.psnr:.2f} dB vs the photo"]
+    trained_on = cfg.photo is not None and _scene_trained_on(ws, Path(cfg.photo))
+    parts = [] if check.psnr is None else [f"PSNR {check.psnr:.2f} dB vs the photo"
+                                           + (" (a training view: train-scene --head-photo)" if trained_on else "")]
     if known.get("n"):
         parts.append(f"board corners {known['median']:.2f} px (median, {known['n']}) from the board's known pose")
     if seen.get("n"):
         parts.append(f"{seen['median']:.2f} px from the photo's")
-    return {**check.to_json(), "line": "; ".join(parts) or "rendered (the board is not seen in the render)"}
+    return {**check.to_json(), "photo_trained_on": trained_on,
+            "line": "; ".join(parts) or "rendered (the board is not seen in the render)"}
+
+
+def _scene_trained_on(ws: Workspace, photo: Path) -> bool:
+    """Whether the scene was trained on this photo (``train-scene --head-photo``, the same file contents): the
+    check then measures a fit, not a new view."""
+    try:
+        used = json.loads(ws.scene_metrics.read_text())["config"].get("head_photo")
+    except (OSError, ValueError, KeyError, AttributeError):
+        return False
+    try:
+        return used is not None and Path(used).read_bytes() == photo.read_bytes()
+    except OSError:
+        return False
 
 
 def outputs(ws: Workspace, cfg: Config) -> list[Path]:

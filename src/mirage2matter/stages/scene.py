@@ -16,15 +16,16 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
 from ..atomic import atomic_write
+from ..configs import to_dict
 from ..workspace import Workspace, WorkspaceError
-from .base import Input, Log, stage_fingerprint
+from .base import ADDED_LATER, Input, Log, stage_fingerprint
 
 __all__ = ["Config", "inputs", "outputs", "run"]
 
@@ -43,6 +44,13 @@ class Config:
     backend         "auto" (cuda with gsplat, else the numba cpu rasterizer), "cpu", "cuda"
     seed            initialisation and sampling seed
     checkpoint_every  iterations between checkpoints a killed run resumes from (0: none)
+    head_photo      a photo the calibrated head camera took of the scene (e.g. head-view's): trained on as one more
+                    view, from the head camera's pose (calibrate-handeye), so the scene seen from the camera a
+                    policy looks through is fitted rather than extrapolated from the capture's viewpoints. The
+                    head-view check against the same photo then measures a training view
+    head_photo_mask  white where the head photo shows the scene, black where it shows what is not (the robot, a
+                    person): those pixels are not trained on (default: every pixel)
+    head_photo_repeat  times the head photo is trained on per pass over the keyframes (1: as one keyframe)
     """
 
     minutes: float = 10.0
@@ -54,6 +62,9 @@ class Config:
     backend: Literal["auto", "cpu", "cuda"] = "auto"
     seed: int = 0
     checkpoint_every: int = 200
+    head_photo: Path | None = field(default=None, metadata=ADDED_LATER)
+    head_photo_mask: Path | None = field(default=None, metadata=ADDED_LATER)
+    head_photo_repeat: int = field(default=4, metadata=ADDED_LATER)
 
     def validate(self) -> None:
         if self.iterations < 0 or (self.iterations == 0 and not self.minutes > 0):
@@ -65,6 +76,11 @@ class Config:
             )
         if not 0 <= self.sh_degree <= 3:
             raise WorkspaceError(f"train-scene: sh_degree must be 0..3, got {self.sh_degree}")
+        if self.head_photo_repeat < 1:
+            raise WorkspaceError(f"train-scene: head_photo_repeat must be >= 1, got {self.head_photo_repeat}")
+        if self.head_photo_mask is not None and self.head_photo is None:
+            raise WorkspaceError("train-scene: head_photo_mask is given without a head_photo; give the photo it "
+                                 "masks (--head-photo) or leave the mask out")  # fmt: skip
 
 
 def _heldout_sheet(g, views, config, backend: str, max_views: int = 4) -> np.ndarray:
@@ -88,7 +104,44 @@ def _heldout_sheet(g, views, config, backend: str, max_views: int = 4) -> np.nda
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
     # after align-scene the base-frame cameras; before it, the SfM frame
     out = [Input(ws.sfm_file, made_by="sfm")]
-    return out + [Input(p) for p in (ws.cameras_base_file, ws.points_base_file) if p.is_file()]
+    out += [Input(p) for p in (ws.cameras_base_file, ws.points_base_file) if p.is_file()]
+    if cfg.head_photo is not None:
+        out += [Input(ws.handeye_file, made_by="calibrate-handeye"),
+                Input(Path(cfg.head_photo), field="scene head_photo")]  # fmt: skip
+    if cfg.head_photo_mask is not None:
+        out.append(Input(Path(cfg.head_photo_mask), field="scene head_photo_mask"))
+    return out
+
+
+def head_photo_view(ws: Workspace, cfg: Config, frame: str):
+    """The head photo as a training view (``gaussians.train.View``) from the calibrated head camera."""
+    from ..gaussians.dataset import DatasetError, photo_view
+    from ..geometry.camera import Camera
+    from ..inputs import read_image_rgb
+
+    if frame != "base":
+        raise WorkspaceError("train-scene --head-photo: the head camera's pose is in the robot-base frame; run "
+                             "align-scene first (the scene is in the SfM frame)")  # fmt: skip
+    if not ws.handeye_file.is_file():
+        raise WorkspaceError(f"train-scene --head-photo: no {ws.handeye_file}; run `m2m calibrate-handeye --mount "
+                             "head` first (the photo is placed by the head camera's calibrated pose)")  # fmt: skip
+    he = json.loads(ws.handeye_file.read_text())
+    if he.get("mount") != "head":
+        raise WorkspaceError(f"train-scene --head-photo: {ws.handeye_file} calibrates a {he.get('mount')!r} camera; "
+                             "a head photo needs a head camera (`m2m calibrate-handeye --mount head`)")  # fmt: skip
+    photo = read_image_rgb(cfg.head_photo, "scene head photo")
+    height, width = photo.shape[:2]
+    if he.get("width") is not None and (he["width"], he["height"]) != (width, height):
+        raise WorkspaceError(f"{cfg.head_photo} is {width}x{height} but the head camera is {he['width']}x"
+                             f"{he['height']}; give a photo the head camera took")  # fmt: skip
+    keep = None
+    if cfg.head_photo_mask is not None:
+        keep = read_image_rgb(cfg.head_photo_mask, "scene head photo mask").mean(axis=2) > 127
+    cam = Camera(he["K"], he["T_base_headcam"], width, height, "head photo", he.get("distortion") or {})
+    try:
+        return photo_view(cam, photo, cfg.downscale, keep)
+    except DatasetError as e:
+        raise WorkspaceError(f"train-scene --head-photo {cfg.head_photo}: {e}") from None
 
 
 def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
@@ -116,6 +169,8 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
 
     t0 = time.perf_counter()
     views_train, views_eval = build_views(posed.cameras, posed.image_dir, config.downscale, config.holdout_every)
+    if config.head_photo is not None:
+        views_train = views_train + [head_photo_view(ws, config, posed.frame)] * config.head_photo_repeat
     init = init_gaussians_from_points(posed.points, posed.colors.astype(np.float64) / 255.0, config.sh_degree)
     base = TrainConfig(
         sh_degree=config.sh_degree, max_gaussians=config.max_gaussians, backend=backend, seed=config.seed,
@@ -141,8 +196,11 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
             json.dump(plan, f, indent=1)
     if resume:
         log(f"scene: resuming from {ckpt}")
+    n_photo = config.head_photo_repeat if config.head_photo is not None else 0
     log(
-        f"scene: {len(views_train)} training + {len(views_eval)} held-out keyframes at "
+        f"scene: {len(views_train) - n_photo} training + {len(views_eval)} held-out keyframes"
+        + (f" + the head photo (x{n_photo})" if n_photo else "")
+        + f" at "
         f"{views_train[0].width}x{views_train[0].height}, {len(init):,} initial Gaussians from SfM points, "
         f"{posed.frame} frame, "
         + (f"{train_cfg.iterations} iterations" if config.iterations else f"{config.minutes:g} minutes of training")
@@ -166,11 +224,11 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
         "train_minutes": metrics["seconds"] / 60.0,
         "wall_minutes": (time.perf_counter() - t0) / 60.0,
         "backend": metrics["backend"],
-        "views": {"train": len(views_train), "heldout": len(views_eval)},
+        "views": {"train": len(views_train) - n_photo, "heldout": len(views_eval), "head_photo": n_photo},
         "image_size": [views_train[0].width, views_train[0].height],
         "per_view": metrics["views"],
         "curve": metrics["curve"],
-        "config": asdict(config),
+        "config": to_dict(config),
     }
     with atomic_write(ws.scene_metrics, "w", encoding="utf-8") as f:
         json.dump(result, f, indent=1)
