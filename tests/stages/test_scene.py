@@ -54,7 +54,7 @@ def test_train_scene_learns_the_scene_in_the_given_frame_and_skips_when_done(imp
     cfg = SceneConfig(iterations=150, downscale=2, max_gaussians=30_000, checkpoint_every=0)
     logs = []
     m, skipped = train_scene(ws, cfg, log=logs.append)
-    assert not skipped and m["frame"] == "sfm" and m["views"] == {"train": 14, "heldout": 2}
+    assert not skipped and m["frame"] == "sfm" and m["views"] == {"train": 14, "heldout": 2, "head_photo": 0}
     assert m["iterations"] == 150
     # training improves held-out views well beyond the initial point cloud
     assert m["psnr_heldout"] > m["initial"]["psnr"] + 3.0, m
