@@ -131,8 +131,6 @@ def photo_view(camera: Camera, photo: np.ndarray, downscale: int = 1, keep: np.n
     pinhole + lens): area-downscaled by ``downscale`` and undistorted like the keyframes. ``keep`` [H,W] bool marks
     the pixels that show the scene (False: the robot, a person); a downscaled pixel is kept only when all of its
     footprint is."""
-    import cv2
-
     h, w = np.asarray(photo).shape[:2]
     if (w, h) != (camera.width, camera.height):
         raise DatasetError(f"{camera.name}: photo is {w}x{h} but its camera says {camera.width}x{camera.height}")
@@ -141,10 +139,7 @@ def photo_view(camera: Camera, photo: np.ndarray, downscale: int = 1, keep: np.n
     if keep is not None:
         if keep.shape != (h, w):
             raise DatasetError(f"{camera.name}: mask is {keep.shape[1]}x{keep.shape[0]}, the photo {w}x{h}")
-        f = int(downscale)
-        frac = keep[: small.height * f, : small.width * f].astype(np.float32)
-        if f > 1:
-            frac = cv2.resize(frac, (small.width, small.height), interpolation=cv2.INTER_AREA)
+        frac = downscale_image(keep.astype(np.float32), downscale)  # the kept fraction of each pixel's footprint
         frac, _ = undistort_image(frac[..., None], small, 0)  # the mask through the same lens as the photo
         valid &= frac[..., 0] > 0.999
     if not valid.any():

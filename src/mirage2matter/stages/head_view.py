@@ -4,6 +4,7 @@ alignment or hand-eye shows up as pixels of offset."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,30 +38,18 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     from ..calib.board import target_from_json
     from ..calib.headview import check_head_view, save_head_view
     from ..gaussians.ply import read_ply
-    from ..geometry.camera import Camera
     from ..inputs import read_image_rgb
 
-    he, al = json.loads(ws.handeye_file.read_text()), json.loads(ws.alignment_file.read_text())
-    if he.get("mount") != "head":
-        raise WorkspaceError(f"{ws.handeye_file}: mount is {he.get('mount')!r}; the head-view check needs a head "
-                             "camera (`m2m calibrate-handeye --mount head`)")  # fmt: skip
+    al = json.loads(ws.alignment_file.read_text())
     photo = read_image_rgb(cfg.photo, "head photo") if cfg.photo is not None else None
-    width, height = he.get("width"), he.get("height")
-    if width is None:
-        if photo is None:
-            raise WorkspaceError(f"{ws.handeye_file} has no image size; give a head-camera photo (--photo)")
-        height, width = photo.shape[:2]
-    if photo is not None and photo.shape[:2] != (height, width):
-        raise WorkspaceError(f"{cfg.photo} is {photo.shape[1]}x{photo.shape[0]} but the head camera is "
-                             f"{width}x{height}; give a photo the head camera took")  # fmt: skip
-    cam = Camera(he["K"], he["T_base_headcam"], width, height, "head")
-    if photo is not None and he.get("distortion"):
+    cam = head_camera(ws, "the head-view check", photo, cfg.photo)
+    if photo is not None and cam.has_distortion:
         # the render is an ideal pinhole with the same K: take the lens out of the photo before comparing
         from ..gaussians.dataset import undistort_image
 
-        lens = Camera(he["K"], np.eye(4), width, height, "head", he["distortion"])
-        ideal, _ = undistort_image(photo.astype(np.float32) / 255.0, lens)
+        ideal, _ = undistort_image(photo.astype(np.float32) / 255.0, cam)
         photo = np.clip(np.round(ideal * 255.0), 0, 255).astype(np.uint8)
+    cam = dataclasses.replace(cam, distortion={}, distortion_model="")
     check = check_head_view(read_ply(ws.scene_ply), cam, photo, target_from_json(al["board"]),
                             np.asarray(al["T_base_board"]), backend=cfg.backend)  # fmt: skip
     save_head_view(ws.head_view_png, check, photo)
@@ -74,6 +63,27 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         parts.append(f"{seen['median']:.2f} px from the photo's")
     return {**check.to_json(), "photo_trained_on": trained_on,
             "line": "; ".join(parts) or "rendered (the board is not seen in the render)"}
+
+
+def head_camera(ws: Workspace, who: str, photo: np.ndarray | None = None, photo_path: Path | None = None):
+    """The calibrated head camera (``geometry.camera.Camera``: K, T_base_headcam, image size, lens) from
+    calibrate-handeye's result. ``photo`` [H,W,3], one the camera took (``photo_path``), gives the size when the
+    calibration has none and must match it otherwise; ``who`` names the user in the errors."""
+    from ..geometry.camera import Camera
+
+    he = json.loads(ws.handeye_file.read_text())
+    if he.get("mount") != "head":
+        raise WorkspaceError(f"{ws.handeye_file}: mount is {he.get('mount')!r}; {who} needs a head camera (`m2m "
+                             "calibrate-handeye --mount head`)")  # fmt: skip
+    width, height = he.get("width"), he.get("height")
+    if width is None:
+        if photo is None:
+            raise WorkspaceError(f"{ws.handeye_file} has no image size; give a head-camera photo (--photo)")
+        height, width = photo.shape[:2]
+    if photo is not None and photo.shape[:2] != (height, width):
+        raise WorkspaceError(f"{photo_path} is {photo.shape[1]}x{photo.shape[0]} but the head camera is "
+                             f"{width}x{height}; give a photo the head camera took")  # fmt: skip
+    return Camera(he["K"], he["T_base_headcam"], width, height, "head", he.get("distortion") or {})
 
 
 def _scene_trained_on(ws: Workspace, photo: Path) -> bool:

@@ -116,28 +116,17 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
 def head_photo_view(ws: Workspace, cfg: Config, frame: str):
     """The head photo as a training view (``gaussians.train.View``) from the calibrated head camera."""
     from ..gaussians.dataset import DatasetError, photo_view
-    from ..geometry.camera import Camera
     from ..inputs import read_image_rgb
+    from .head_view import head_camera
 
     if frame != "base":
         raise WorkspaceError("train-scene --head-photo: the head camera's pose is in the robot-base frame; run "
                              "align-scene first (the scene is in the SfM frame)")  # fmt: skip
-    if not ws.handeye_file.is_file():
-        raise WorkspaceError(f"train-scene --head-photo: no {ws.handeye_file}; run `m2m calibrate-handeye --mount "
-                             "head` first (the photo is placed by the head camera's calibrated pose)")  # fmt: skip
-    he = json.loads(ws.handeye_file.read_text())
-    if he.get("mount") != "head":
-        raise WorkspaceError(f"train-scene --head-photo: {ws.handeye_file} calibrates a {he.get('mount')!r} camera; "
-                             "a head photo needs a head camera (`m2m calibrate-handeye --mount head`)")  # fmt: skip
     photo = read_image_rgb(cfg.head_photo, "scene head photo")
-    height, width = photo.shape[:2]
-    if he.get("width") is not None and (he["width"], he["height"]) != (width, height):
-        raise WorkspaceError(f"{cfg.head_photo} is {width}x{height} but the head camera is {he['width']}x"
-                             f"{he['height']}; give a photo the head camera took")  # fmt: skip
+    cam = head_camera(ws, "train-scene --head-photo", photo, cfg.head_photo)
     keep = None
     if cfg.head_photo_mask is not None:
         keep = read_image_rgb(cfg.head_photo_mask, "scene head photo mask").mean(axis=2) > 127
-    cam = Camera(he["K"], he["T_base_headcam"], width, height, "head photo", he.get("distortion") or {})
     try:
         return photo_view(cam, photo, cfg.downscale, keep)
     except DatasetError as e:
