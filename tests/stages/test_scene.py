@@ -205,6 +205,9 @@ def test_train_scene_trains_on_the_head_photo_from_the_head_camera_without_its_m
 
     assert _scene_trained_on(Workspace(ws), tmp_path / "head.png")
     assert not _scene_trained_on(Workspace(ws), SAMPLE / head["image"])
+    # by contents: the photo moved after training is still the photo trained on
+    (tmp_path / "head.png").rename(tmp_path / "moved.png")
+    assert _scene_trained_on(Workspace(ws), tmp_path / "moved.png")
 
 
 def test_train_scene_head_photo_refusals(with_head_camera, imported, tmp_path):

@@ -5,6 +5,7 @@ alignment or hand-eye shows up as pixels of offset."""
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -90,12 +91,12 @@ def _scene_trained_on(ws: Workspace, photo: Path) -> bool:
     """Whether the scene was trained on this photo (``train-scene --head-photo``, the same file contents): the
     check then measures a fit, not a new view."""
     try:
-        used = json.loads(ws.scene_metrics.read_text())["config"].get("head_photo")
-    except (OSError, ValueError, KeyError, AttributeError):
-        return False
-    try:
-        return used is not None and Path(used).read_bytes() == photo.read_bytes()
-    except OSError:
+        metrics = json.loads(ws.scene_metrics.read_text())
+        sha1 = metrics.get("head_photo_sha1")
+        if sha1 is None and metrics["config"].get("head_photo"):  # a scene trained before the sha1 was recorded
+            sha1 = hashlib.sha1(Path(metrics["config"]["head_photo"]).read_bytes()).hexdigest()
+        return sha1 is not None and hashlib.sha1(photo.read_bytes()).hexdigest() == sha1
+    except (OSError, ValueError, KeyError, AttributeError, TypeError):
         return False
 
 
