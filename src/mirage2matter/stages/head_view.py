@@ -5,7 +5,6 @@ alignment or hand-eye shows up as pixels of offset."""
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -90,12 +89,14 @@ def head_camera(ws: Workspace, who: str, photo: np.ndarray | None = None, photo_
 def _scene_trained_on(ws: Workspace, photo: Path) -> bool:
     """Whether the scene was trained on this photo (``train-scene --head-photo``, the same file contents): the
     check then measures a fit, not a new view."""
+    from ..fingerprint import fingerprint
+
     try:
         metrics = json.loads(ws.scene_metrics.read_text())
-        sha1 = metrics.get("head_photo_sha1")
-        if sha1 is None and metrics["config"].get("head_photo"):  # a scene trained before the sha1 was recorded
-            sha1 = hashlib.sha1(Path(metrics["config"]["head_photo"]).read_bytes()).hexdigest()
-        return sha1 is not None and hashlib.sha1(photo.read_bytes()).hexdigest() == sha1
+        key = metrics.get("head_photo_fingerprint")
+        if key is None and metrics["config"].get("head_photo"):  # a scene trained before the key was recorded
+            key = fingerprint(Path(metrics["config"]["head_photo"]))
+        return key is not None and fingerprint(photo) == key
     except (OSError, ValueError, KeyError, AttributeError, TypeError):
         return False
 

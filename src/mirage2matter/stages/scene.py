@@ -14,7 +14,6 @@ times: it trains until the minutes are spent, with every schedule a fraction of 
 
 from __future__ import annotations
 
-import hashlib
 import json
 import time
 from dataclasses import asdict, dataclass, field, replace
@@ -25,6 +24,7 @@ import numpy as np
 
 from ..atomic import atomic_write
 from ..configs import to_dict
+from ..fingerprint import fingerprint
 from ..workspace import Workspace, WorkspaceError
 from .base import ADDED_LATER, Input, Log, stage_fingerprint
 
@@ -159,10 +159,10 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
 
     t0 = time.perf_counter()
     views_train, views_eval = build_views(posed.cameras, posed.image_dir, config.downscale, config.holdout_every)
-    photo_sha1 = None
+    photo_key = None
     if config.head_photo is not None:
         views_train = views_train + [head_photo_view(ws, config, posed.frame)] * config.head_photo_repeat
-        photo_sha1 = hashlib.sha1(Path(config.head_photo).read_bytes()).hexdigest()
+        photo_key = fingerprint(Path(config.head_photo))
     init = init_gaussians_from_points(posed.points, posed.colors.astype(np.float64) / 255.0, config.sh_degree)
     base = TrainConfig(
         sh_degree=config.sh_degree, max_gaussians=config.max_gaussians, backend=backend, seed=config.seed,
@@ -222,7 +222,7 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
         "curve": metrics["curve"],
         "config": to_dict(config),
         # head-view reads it to tell a fit from a new view (survives a moved or deleted photo)
-        "head_photo_sha1": photo_sha1,
+        "head_photo_fingerprint": photo_key,
     }
     with atomic_write(ws.scene_metrics, "w", encoding="utf-8") as f:
         json.dump(result, f, indent=1)
