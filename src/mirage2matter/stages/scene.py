@@ -173,19 +173,7 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
         train_cfg = replace(base, iterations=config.iterations, eval_points=10)
     else:
         train_cfg = budget_config(config.minutes, base)
-    # A checkpoint is resumed only by the same stage fingerprint and the same training configuration
-    # (the schedule is a function of it and of the progress the checkpoint holds).
-    plan_path, ckpt = out / "plan.json", out / "checkpoint.pt"
-    plan = {"fingerprint": key, "train_config": json.loads(json.dumps(asdict(train_cfg)))}
-    try:
-        previous = json.loads(plan_path.read_text()) if plan_path.is_file() else None
-    except ValueError:
-        previous = None
-    resume = previous == plan and ckpt.is_file()
-    if previous != plan:
-        ckpt.unlink(missing_ok=True)
-        with atomic_write(plan_path, "w", encoding="utf-8") as f:
-            json.dump(plan, f, indent=1)
+    ckpt, resume = _checkpoint_plan(out, key, train_cfg)
     if resume:
         log(f"scene: resuming from {ckpt}")
     n_photo = config.head_photo_repeat if config.head_photo is not None else 0
@@ -238,6 +226,26 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
         f"({result['train_minutes']:.1f} min, {posed.frame} frame){'; ' + frame_note if frame_note else ''}; "
         f"{coverage.line}",
     }  # fmt: skip
+
+
+def _checkpoint_plan(out: Path, key: str, train_cfg) -> tuple[Path, bool]:
+    """The checkpoint path and whether to resume from it.
+
+    A checkpoint is resumed only by the same stage fingerprint and the same training configuration (the
+    schedule is a function of it and of the progress the checkpoint holds); otherwise it is dropped.
+    """
+    plan_path, ckpt = out / "plan.json", out / "checkpoint.pt"
+    plan = {"fingerprint": key, "train_config": json.loads(json.dumps(asdict(train_cfg)))}
+    try:
+        previous = json.loads(plan_path.read_text()) if plan_path.is_file() else None
+    except ValueError:
+        previous = None
+    if previous != plan:
+        ckpt.unlink(missing_ok=True)
+        with atomic_write(plan_path, "w", encoding="utf-8") as f:
+            json.dump(plan, f, indent=1)
+        return ckpt, False
+    return ckpt, ckpt.is_file()
 
 
 def _frame_note(ws: Workspace, frame: str) -> str:
