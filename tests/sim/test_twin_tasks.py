@@ -284,7 +284,7 @@ def test_ik_from_ik_start_turns_only_the_wrist_for_a_turned_grasp(twin):
     steps over +-80 deg of its home yaw, solved from ``ik_start``, differ in the wrist alone, by the turn. (From the
     home joints, at (0.4, 0.25) the solver's restarts moved other joints by up to 2 rad between neighbouring yaws.)"""
     twin.reset(seed=0, randomize=False)
-    spec, q0, command0 = twin.spec, twin.robot_state(), twin.command.copy()
+    spec, q0 = twin.spec, twin.robot_state()
     home = np.concatenate([np.asarray(spec.home), q0[spec.n_arm :]])
     for pos in ((0.5, -0.15, 0.12), (0.4, 0.25, 0.12), (0.6, 0.0, 0.15)):
         qs = []
@@ -296,8 +296,6 @@ def test_ik_from_ik_start_turns_only_the_wrist_for_a_turned_grasp(twin):
         assert steps[:, :-1].max() < 0.02, pos
         assert np.allclose(steps[:, -1], math.radians(10.0), atol=0.02), pos
     assert np.allclose(twin.robot_state(), q0, atol=1e-6)  # the queries leave the robot where it was
-    # and its control command: the next tick moves from it (a changed one jerked the arm, and a replay differed)
-    assert np.array_equal(twin.command, command0)
 
 
 def test_the_expert_grasps_a_turned_banana_at_the_same_place_on_it(twin):

@@ -118,8 +118,8 @@ def ik_start(twin: Twin, T_base_ee: np.ndarray, q_ref: np.ndarray) -> np.ndarray
     def wrap(a: float) -> float:
         return (a + math.pi) % (2 * math.pi) - math.pi
 
-    def pose(qq: np.ndarray) -> np.ndarray:  # joints only, as the collision queries do: the control command stays
-        twin.robot.set_qpos(qq, zero_velocity=True)
+    def pose(qq: np.ndarray) -> np.ndarray:
+        twin.set_robot_state(qq)
         return twin.T_base_link()
 
     def azimuth(P: np.ndarray) -> float:

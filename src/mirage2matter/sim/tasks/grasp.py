@@ -155,8 +155,8 @@ def grasp_candidates(
 
     The yaws are every 10 deg from ``yaw0`` (rad): pass the object's own heading, so a turned object gets the same
     grasp in its own frame. On a fixed grid the chosen grasp jumped with the heading between neighbouring yaws and
-    between two places on a banana 40 deg apart (15 of the sample's 150 grasp demos, mostly at the headings where
-    the policies trained on them failed): a policy learns one smooth choice, not such switches.
+    between two places on a banana 40 deg apart (a fifth of the sample's demos, where the policies trained on them
+    failed most): a policy learns one smooth choice, not such switches.
     """
     out = []
     rel = points[:, :2] - com[:2]
