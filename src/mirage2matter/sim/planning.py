@@ -25,7 +25,6 @@ __all__ = [
     "cartesian_path",
     "collision_free",
     "ik",
-    "ik_start",
     "plan",
     "segment_free",
     "time_parameterize",
@@ -98,48 +97,6 @@ def ik(
     with twin.restoring():
         return _ik(twin, pos, matrix_to_quat(np.ascontiguousarray(T_base_ee[:3, :3])), q_init, pos_tol, rot_tol_deg,
                    attempts, check_collision, allow, seed)  # fmt: skip
-
-
-def ik_start(twin: Twin, T_base_ee: np.ndarray, q_ref: np.ndarray) -> np.ndarray:
-    """An IK start [n_dofs] for ``T_base_ee`` [4,4] in ``q_ref``'s posture: ``q_ref`` with the first arm joint turned
-    to the target's azimuth and the last one by the turn about the vertical the end-effector still lacks.
-
-    Why: from the robot's home, a grasp needing the hand turned by ~90 deg does not converge in the solver's first
-    run and its random restarts land on any branch of a 7-joint arm's self-motion (measured on the sample's 150 grasp
-    demos: joint 7 spread over 0.9 rad (IQR) for the same hand yaw, the elbow flipped in a quarter of them). A
-    behaviour-cloning policy averages such branches into a pose that is neither; from this start the solver stays on
-    one branch, so the expert's joints are a smooth function of the object's pose. A joint that does not turn the
-    end-effector about the vertical (measured here by forward kinematics) is left as it is."""
-    T = np.asarray(T_base_ee, dtype=np.float64)
-    q = np.asarray(q_ref, dtype=np.float64).copy()
-    lim = twin.spec.limits_array()
-    last = twin.spec.n_arm - 1
-
-    def wrap(a: float) -> float:
-        return (a + math.pi) % (2 * math.pi) - math.pi
-
-    def pose(qq: np.ndarray) -> np.ndarray:
-        twin.set_robot_state(qq)
-        return twin.T_base_link()
-
-    def azimuth(P: np.ndarray) -> float:
-        return math.atan2(P[1, 3], P[0, 3])
-
-    def yaw_to_goal(P: np.ndarray) -> float:  # turn about the base z taking P's orientation to the target's
-        R = T[:3, :3] @ P[:3, :3].T
-        return math.atan2(R[1, 0] - R[0, 1], R[0, 0] + R[1, 1])
-
-    with twin.restoring():
-        for j, error in ((0, lambda P: wrap(azimuth(T) - azimuth(P))), (last, yaw_to_goal)):
-            P0 = pose(q)
-            e0 = error(P0)
-            probe = q.copy()
-            probe[j] += 0.05
-            gain = wrap(e0 - error(pose(probe))) / 0.05  # how much one radian of joint j reduces the error
-            if abs(gain) < 0.5:
-                continue
-            q[j] = float(np.clip(q[j] + e0 / gain, lim[j, 0], lim[j, 1]))
-    return q
 
 
 def _ik(twin, pos, quat, q_init, pos_tol, rot_tol_deg, attempts, check_collision, allow, seed) -> np.ndarray:

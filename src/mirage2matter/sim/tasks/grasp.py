@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from ..planning import PlanningError, cartesian_path, collision_free, ik, ik_start, time_parameterize
+from ..planning import PlanningError, cartesian_path, collision_free, ik, time_parameterize
 from ..twin import Twin
 from .base import SuccessMonitor, Task, option, register_task
 from .motion import Executor, move_to, placed, topdown
@@ -76,14 +76,10 @@ class GraspTask(Task):
         n_arm = spec.n_arm
         points, com = placed(twin, name)
         q_now = twin.robot_state()
-        # every IK starts from the home posture turned toward its target (planning.ik_start): one arm branch
-        q_home = np.concatenate([np.asarray(spec.home, np.float64), q_now[n_arm:]])
-        T_obj = twin.object_poses()[name]
         chosen = None
         tried = 0
         cands = grasp_candidates(points, com, twin.cfg.table_z, max_width=spec.max_grasp_width,
-                                 pad_half_width=spec.pad_half_width, min_height=spec.min_grasp_height,
-                                 yaw0=math.atan2(T_obj[1, 0], T_obj[0, 0]))  # fmt: skip
+                                 pad_half_width=spec.pad_half_width, min_height=spec.min_grasp_height)  # fmt: skip
         for _score, tcp, yaw in cands[:12]:
             for w in yaw_choices(yaw, spec.home_closing_yaw):
                 tried += 1
@@ -94,7 +90,7 @@ class GraspTask(Task):
                 T_lift = T_grasp.copy()
                 T_lift[2, 3] += 0.10
                 try:  # the whole approach and lift must be feasible, or the next candidate
-                    q_pre = ik(twin, T_pre, ik_start(twin, T_pre, q_home))
+                    q_pre = ik(twin, T_pre, q_now)
                     down = cartesian_path(twin, T_pre, T_grasp, np.concatenate([q_pre, q_now[n_arm:]]),
                                           check_collision=False)  # fmt: skip
                     up = cartesian_path(twin, T_grasp, T_lift, np.concatenate([down[-1], q_now[n_arm:]]),
@@ -119,7 +115,7 @@ class GraspTask(Task):
             T_off = T_pre.copy()
             T_off[:2, 3] += radius * np.array([math.cos(angle), math.sin(angle)])
             try:  # the plan fails before any tick; an unreachable detour leaves the plain approach
-                move_to(ex, ik(twin, T_off, ik_start(twin, T_off, q_home)), opened, speed=0.6)
+                move_to(ex, ik(twin, T_off, q_now), opened, speed=0.6)
                 ex.hold(0.3, opened)
                 info["detour_m"] = [round(radius * math.cos(angle), 4), round(radius * math.sin(angle), 4)]
             except PlanningError:
@@ -141,7 +137,6 @@ def grasp_candidates(
     max_width: float,
     pad_half_width: float,
     min_height: float,
-    yaw0: float = 0.0,
 ) -> list[tuple[float, np.ndarray, float]]:
     """Top-down antipodal grasps on a placed surface sample: [(score, tcp [3], yaw)], best (lowest) first.
 
@@ -152,15 +147,10 @@ def grasp_candidates(
     not squeeze the object out), the TCP at least ``min_height`` over the table. Score: the centre of mass's
     offset along v (it twists the object about the closing axis while lifting) dominates; the offset along u and
     a wide span count a little.
-
-    The yaws are every 10 deg from ``yaw0`` (rad): pass the object's own heading, so a turned object gets the same
-    grasp in its own frame. On a fixed grid the chosen grasp jumped with the heading between neighbouring yaws and
-    between two places on a banana 40 deg apart (a fifth of the sample's demos, where the policies trained on them
-    failed most): a policy learns one smooth choice, not such switches.
     """
     out = []
     rel = points[:, :2] - com[:2]
-    for yaw in yaw0 + np.radians(np.arange(0.0, 180.0, 10.0)):
+    for yaw in np.radians(np.arange(0.0, 180.0, 10.0)):
         u = np.array([math.cos(yaw), math.sin(yaw)])
         v = np.array([-u[1], u[0]])
         pu, pv = rel @ u, rel @ v
@@ -190,6 +180,6 @@ def grasp_candidates(
 def yaw_choices(yaw: float, home_yaw: float) -> list[float]:
     """The two hand yaws giving the same grasp (the fingers are symmetric), the one closer to ``home_yaw`` (the
     closing axis' yaw at home: the least wrist rotation) first."""
-    a, b = yaw % (2 * math.pi), (yaw + math.pi) % (2 * math.pi)
+    a, b = yaw, yaw + math.pi
     key = lambda w: abs((w - home_yaw + math.pi) % (2 * math.pi) - math.pi)
     return sorted([a, b], key=key)
