@@ -80,10 +80,10 @@ class Sim2RealConfig:
             bad.append(f"ablation_demos ({self.ablation_demos}) must be one of demos {self.demos} (its Gaussian twin)")
         if self.episodes < 1 or self.workers < 1 or self.size < 16 or self.minutes <= 0:
             bad.append("episodes and workers must be >= 1, size >= 16, minutes > 0")
-        from ..render.splat_world import MAX_SUPERSAMPLE  # generate's bound, checked before hours of work
+        from ..render.splat_world import supersample_problem  # generate's own check, before hours of work
 
-        if not 1 <= self.supersample <= MAX_SUPERSAMPLE:
-            bad.append(f"supersample must be from 1 (off) to {MAX_SUPERSAMPLE}, got {self.supersample}")
+        if problem := supersample_problem(self.supersample):
+            bad.append(problem)
         if not (Path(self.sample) / "ground_truth.json").is_file():
             bad.append(f"sample {self.sample}: no ground_truth.json (the bench needs a sample made by `m2m sample "
                        "make`, such as samples/tabletop)")  # fmt: skip

@@ -83,11 +83,11 @@ class Config:
             raise GenerateError(f"generate: object_shrink must be in [0, 1), got {self.object_shrink}")
         if not 0.0 <= self.table_texture < 1.0:
             raise GenerateError(f"generate: table_texture must be in [0, 1), got {self.table_texture}")
-        from ..render.splat_world import MAX_SUPERSAMPLE
+        from ..render.splat_world import supersample_problem
 
-        if not 1 <= self.supersample <= MAX_SUPERSAMPLE:
-            raise GenerateError(f"generate: supersample must be from 1 (off) to {MAX_SUPERSAMPLE}, got "
-                                f"{self.supersample}")  # fmt: skip
+        bad_supersample = supersample_problem(self.supersample)
+        if bad_supersample:
+            raise GenerateError(f"generate: {bad_supersample}")
         self.start_regions()
         bad_steps = takeover_steps_problem(self.takeover_steps)
         if bad_steps:
