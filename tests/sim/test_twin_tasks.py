@@ -176,6 +176,38 @@ def test_grasp_detour_reaches_beside_the_object_then_grasps(twin):
         parse_task("grasp banana --detour 1.5")
 
 
+def test_toward_home_turns_at_most_slack():
+    from mirage2matter.sim.tasks.grasp import toward_home
+
+    home = np.radians(275.0)  # within 45 deg: home itself; beyond: 45 deg nearer, by the shorter way round
+    cases = [(200.0, 245.0), (350.0, 305.0), (260.0, 275.0), (-80.0, 275.0), (96.0, 141.0), (94.0, 49.0)]
+    for yaw_deg, want_deg in cases:
+        got = np.degrees(toward_home(np.radians(yaw_deg), home, np.radians(45.0)))
+        assert (got - want_deg + 180.0) % 360.0 - 180.0 == pytest.approx(0.0, abs=1e-6), (yaw_deg, got)
+
+
+@pytest.mark.parametrize("seed", [0, 3])  # the plain grasp turns the wrist 60 deg and -40 deg
+def test_grasp_slack_turns_the_wrist_less(twin, seed):
+    """--slack 45: the same grasp spot with the hand turned 45 deg less towards its yaw at home (not at all when the
+    grasp asks less), and the closing fingers square the banana up: it is still lifted."""
+    from mirage2matter.sim.tasks.motion import tcp_pose
+
+    def turn(yaw_rad):  # the wrist's turn from home, degrees in [-180, 180)
+        return (np.degrees(yaw_rad - twin.spec.home_closing_yaw) + 180.0) % 360.0 - 180.0
+
+    runs = {}
+    for text in ("grasp banana", "grasp banana --slack 45"):
+        twin.reset(seed=seed)
+        r = run_task(twin, parse_task(text, twin.cfg), np.random.default_rng(7))
+        assert r.success, (text, r.reason)
+        T = tcp_pose(twin)  # the hand's closing axis (tool y) now, holding the banana
+        runs[text] = (turn(np.radians(r.info["grasp_yaw_deg"])), turn(np.arctan2(T[1, 1], T[0, 1])), r.info)
+    (plain, plain_now, plain_info), (slack, slack_now, slack_info) = runs.values()
+    assert np.allclose(plain_info["grasp_tcp"], slack_info["grasp_tcp"])
+    assert abs(slack) == pytest.approx(max(abs(plain) - 45.0, 0.0), abs=1e-6) and slack * plain >= 0
+    assert abs(plain_now - plain) < 5.0 and abs(slack_now - slack) < 5.0  # the arm really turned that far
+
+
 @pytest.mark.parametrize("text,seed,body", [("grasp banana", 1, "banana"), ("press button", 5, "button:cap"),
                                              ("push croissant --direction 0,1 --distance 0.1", 0, "croissant")])
 def test_a_task_from_a_start_touching_its_object(twin, text, seed, body):

@@ -13,7 +13,7 @@ from ..twin import Twin
 from .base import SuccessMonitor, Task, option, register_task
 from .motion import Executor, move_to, placed, topdown
 
-__all__ = ["GraspTask", "LiftMonitor", "grasp_candidates", "yaw_choices"]
+__all__ = ["GraspTask", "LiftMonitor", "grasp_candidates", "toward_home", "yaw_choices"]
 
 
 class LiftMonitor(SuccessMonitor):
@@ -56,6 +56,9 @@ class GraspTask(Task):
     P of the demonstrations first go to a pre-grasp 4-10 cm off the chosen one (random direction), pause 0.3 s
     there and then go on to the right one: recovery data, so a policy that reaches beside the object has seen
     how to correct from there (its cameras show the object off-centre), not only perfect approaches.
+    With ``--slack D`` the hand turns up to D degrees less than the chosen grasp asks (towards its closing yaw at
+    home, :func:`toward_home`), and the closing fingers square the object up: a smaller wrist turn whose
+    jump where the two symmetric grasps swap is 2D smaller (the best grasp's turn is tried next if that fails).
 
     **Success** (:class:`LiftMonitor`, at every control tick): the object has stayed >= 5 cm above its start
     height for 1 s.
@@ -63,6 +66,8 @@ class GraspTask(Task):
 
     verb = "grasp"
     detour: float | None = option(None, "a fraction of the demonstrations", range=(0.0, 1.0), unit="")
+    slack: float | None = option(None, "degrees the wrist turns less than the best grasp's yaw", range=(0.0, 60.0),
+                                 unit="deg")  # fmt: skip
 
     @property
     def instruction(self) -> str:
@@ -81,7 +86,10 @@ class GraspTask(Task):
         cands = grasp_candidates(points, com, twin.cfg.table_z, max_width=spec.max_grasp_width,
                                  pad_half_width=spec.pad_half_width, min_height=spec.min_grasp_height)  # fmt: skip
         for _score, tcp, yaw in cands[:12]:
-            for w in yaw_choices(yaw, spec.home_closing_yaw):
+            choices = yaw_choices(yaw, spec.home_closing_yaw)
+            if self.slack:
+                choices.insert(0, toward_home(choices[0], spec.home_closing_yaw, math.radians(self.slack)))
+            for w in choices:
                 tried += 1
                 axis = np.array([math.cos(w), math.sin(w)])
                 T_grasp = topdown(tcp, axis, spec.T_ee_tcp)
@@ -175,6 +183,12 @@ def grasp_candidates(
             out.append((float(score), np.array([centre[0], centre[1], z]), float(yaw)))
     out.sort(key=lambda c: c[0])
     return out
+
+
+def toward_home(yaw: float, home_yaw: float, slack: float) -> float:
+    """Hand yaw ``yaw`` (rad) turned towards ``home_yaw`` by at most ``slack`` (rad): no turn within ``slack`` of it."""
+    d = (home_yaw - yaw + math.pi) % (2 * math.pi) - math.pi
+    return yaw + max(-slack, min(slack, d))
 
 
 def yaw_choices(yaw: float, home_yaw: float) -> list[float]:
