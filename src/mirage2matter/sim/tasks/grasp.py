@@ -185,15 +185,17 @@ def grasp_candidates(
     return out
 
 
+def _turn(yaw: float, to_yaw: float) -> float:
+    """The shorter signed turn (rad, in [-pi, pi)) from ``yaw`` to ``to_yaw``."""
+    return (to_yaw - yaw + math.pi) % (2 * math.pi) - math.pi
+
+
 def toward_home(yaw: float, home_yaw: float, slack: float) -> float:
     """Hand yaw ``yaw`` (rad) turned towards ``home_yaw`` by at most ``slack`` (rad): no turn within ``slack`` of it."""
-    d = (home_yaw - yaw + math.pi) % (2 * math.pi) - math.pi
-    return yaw + max(-slack, min(slack, d))
+    return yaw + max(-slack, min(slack, _turn(yaw, home_yaw)))
 
 
 def yaw_choices(yaw: float, home_yaw: float) -> list[float]:
     """The two hand yaws giving the same grasp (the fingers are symmetric), the one closer to ``home_yaw`` (the
     closing axis' yaw at home: the least wrist rotation) first."""
-    a, b = yaw, yaw + math.pi
-    key = lambda w: abs((w - home_yaw + math.pi) % (2 * math.pi) - math.pi)
-    return sorted([a, b], key=key)
+    return sorted([yaw, yaw + math.pi], key=lambda w: abs(_turn(w, home_yaw)))
