@@ -186,6 +186,20 @@ def test_toward_home_turns_at_most_slack():
         assert (got - want_deg + 180.0) % 360.0 - 180.0 == pytest.approx(0.0, abs=1e-6), (yaw_deg, got)
 
 
+def test_least_turn_first_reorders_only_the_ties():
+    from mirage2matter.sim.tasks.grasp import least_turn_first
+
+    home = np.radians(270.0)
+    tcp = np.zeros(3)
+    # yaw 10 deg needs an 80 deg turn (190 or 10 -> 270), 80 deg 10 deg (260), 120 deg 30 deg (300); 90 deg none
+    cands = [(0.0007, tcp, np.radians(10.0)), (0.0009, tcp, np.radians(120.0)), (0.0010, tcp, np.radians(80.0)),
+             (0.0040, tcp, np.radians(90.0))]  # fmt: skip
+    got = [round(np.degrees(c[2])) for c in least_turn_first(cands, home, 0.002)]
+    assert got == [80, 120, 10, 90]  # the fourth is no tie: it stays behind them though it needs no turn
+    assert [round(np.degrees(c[2])) for c in least_turn_first(cands, home, 0.0001)] == [10, 120, 80, 90]
+    assert least_turn_first([], home, 0.002) == []
+
+
 @pytest.mark.parametrize("seed", [0, 3])  # the plain grasp turns the wrist 60 deg and -40 deg
 def test_grasp_slack_turns_the_wrist_less(twin, seed):
     """--slack 45: the same grasp spot with the hand turned 45 deg less towards its yaw at home (not at all when the
@@ -206,6 +220,35 @@ def test_grasp_slack_turns_the_wrist_less(twin, seed):
     assert np.allclose(plain_info["grasp_tcp"], slack_info["grasp_tcp"])
     assert abs(slack) == pytest.approx(max(abs(plain) - 45.0, 0.0), abs=1e-6) and slack * plain >= 0
     assert abs(plain_now - plain) < 5.0 and abs(slack_now - slack) < 5.0  # the arm really turned that far
+
+
+@pytest.mark.parametrize("seed", [0, 3])  # the plain grasp turns the wrist 60 deg and -40 deg
+def test_grasp_tie_takes_the_least_turn_among_equal_grasps(twin, seed):
+    """--tie 2: of the grasps scoring within 2 mm of the best (on the banana: the same spot, closing angles tens
+    of degrees apart) the one needing the least wrist turn; it still lifts the banana and the arm really turns so."""
+    from mirage2matter.sim.tasks.grasp import grasp_candidates
+    from mirage2matter.sim.tasks.motion import placed, tcp_pose
+
+    def turn(yaw_rad):  # the wrist's turn from home, degrees in [-180, 180)
+        return (np.degrees(yaw_rad - twin.spec.home_closing_yaw) + 180.0) % 360.0 - 180.0
+
+    twin.reset(seed=seed)
+    spec = twin.spec
+    cands = grasp_candidates(*placed(twin, "banana"), twin.cfg.table_z, max_width=spec.max_grasp_width,
+                             pad_half_width=spec.pad_half_width, min_height=spec.min_grasp_height)  # fmt: skip
+    ties = [c for c in cands if c[0] <= cands[0][0] + 0.002]
+    least = min(min(abs(turn(c[2])), abs(turn(c[2] + np.pi))) for c in ties)
+    runs = {}
+    for text in ("grasp banana", "grasp banana --tie 2"):
+        twin.reset(seed=seed)
+        r = run_task(twin, parse_task(text, twin.cfg), np.random.default_rng(7))
+        assert r.success, (text, r.reason)
+        T = tcp_pose(twin)
+        runs[text] = (turn(np.radians(r.info["grasp_yaw_deg"])), turn(np.arctan2(T[1, 1], T[0, 1])), r.info)
+    (plain, _, plain_info), (tie, tie_now, tie_info) = runs.values()
+    assert len(ties) >= 3 and abs(tie) == pytest.approx(least, abs=1e-6) and abs(tie) <= abs(plain) - 9.9
+    assert np.linalg.norm(np.subtract(plain_info["grasp_tcp"], tie_info["grasp_tcp"])) < 0.01  # the same spot
+    assert abs(tie_now - tie) < 5.0
 
 
 @pytest.mark.parametrize("text,seed,body", [("grasp banana", 1, "banana"), ("press button", 5, "button:cap"),

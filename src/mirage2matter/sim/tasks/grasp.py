@@ -13,7 +13,7 @@ from ..twin import Twin
 from .base import SuccessMonitor, Task, option, register_task
 from .motion import Executor, move_to, placed, topdown
 
-__all__ = ["GraspTask", "LiftMonitor", "grasp_candidates", "toward_home", "yaw_choices"]
+__all__ = ["GraspTask", "LiftMonitor", "grasp_candidates", "least_turn_first", "toward_home", "yaw_choices"]
 
 
 class LiftMonitor(SuccessMonitor):
@@ -59,6 +59,10 @@ class GraspTask(Task):
     With ``--slack D`` the hand turns up to D degrees less than the chosen grasp asks (towards its closing yaw at
     home, :func:`toward_home`), and the closing fingers square the object up: a smaller wrist turn whose
     jump where the two symmetric grasps swap is 2D smaller (the best grasp's turn is tried next if that fails).
+    With ``--tie T`` the grasps scoring within T mm of the best count as equally good and the one needing the least
+    wrist turn is tried first (:func:`least_turn_first`): on an elongated object many closing angles at the same
+    spot score within a fraction of a millimetre, so without it the angle is whichever wins by rounding, and
+    neighbouring start poses turn the hand up to 90 deg apart.
 
     **Success** (:class:`LiftMonitor`, at every control tick): the object has stayed >= 5 cm above its start
     height for 1 s.
@@ -68,6 +72,7 @@ class GraspTask(Task):
     detour: float | None = option(None, "a fraction of the demonstrations", range=(0.0, 1.0), unit="")
     slack: float | None = option(None, "degrees the wrist turns less than the best grasp's yaw", range=(0.0, 60.0),
                                  unit="deg")  # fmt: skip
+    tie: float | None = option(None, "millimetres of grasp score counted as a tie", range=(0.0, 10.0), unit="mm")
 
     @property
     def instruction(self) -> str:
@@ -85,6 +90,8 @@ class GraspTask(Task):
         tried = 0
         cands = grasp_candidates(points, com, twin.cfg.table_z, max_width=spec.max_grasp_width,
                                  pad_half_width=spec.pad_half_width, min_height=spec.min_grasp_height)  # fmt: skip
+        if self.tie:
+            cands = least_turn_first(cands, spec.home_closing_yaw, self.tie / 1000.0)
         for _score, tcp, yaw in cands[:12]:
             choices = yaw_choices(yaw, spec.home_closing_yaw)
             if self.slack:
@@ -193,6 +200,22 @@ def _turn(yaw: float, to_yaw: float) -> float:
 def toward_home(yaw: float, home_yaw: float, slack: float) -> float:
     """Hand yaw ``yaw`` (rad) turned towards ``home_yaw`` by at most ``slack`` (rad): no turn within ``slack`` of it."""
     return yaw + max(-slack, min(slack, _turn(yaw, home_yaw)))
+
+
+def least_turn_first(
+    cands: list[tuple[float, np.ndarray, float]], home_yaw: float, tie: float
+) -> list[tuple[float, np.ndarray, float]]:
+    """``cands`` (best score first, as :func:`grasp_candidates` returns them) with those scoring within ``tie`` of
+    the best ordered by the wrist turn from ``home_yaw`` (rad) their nearer symmetric yaw needs, least first; the
+    rest keep their order after them."""
+    if not cands:
+        return []
+    n = sum(1 for c in cands if c[0] <= cands[0][0] + tie)
+
+    def turn(c: tuple[float, np.ndarray, float]) -> float:
+        return abs(_turn(yaw_choices(c[2], home_yaw)[0], home_yaw))
+
+    return sorted(cands[:n], key=turn) + list(cands[n:])
 
 
 def yaw_choices(yaw: float, home_yaw: float) -> list[float]:
