@@ -62,7 +62,7 @@ class GraspTask(Task):
     With ``--tie T`` the grasps scoring within T mm of the best count as equally good and the one needing the least
     wrist turn is tried first (:func:`least_turn_first`): on an elongated object many closing angles at the same
     spot score within a fraction of a millimetre, so without it the angle is whichever wins by rounding, and
-    neighbouring start poses turn the hand up to 90 deg apart.
+    neighbouring start poses turned the hand up to 130 deg apart.
 
     **Success** (:class:`LiftMonitor`, at every control tick): the object has stayed >= 5 cm above its start
     height for 1 s.
