@@ -251,6 +251,31 @@ def test_grasp_tie_takes_the_least_turn_among_equal_grasps(twin, seed):
     assert abs(tie_now - tie) < 5.0
 
 
+def test_grasp_look_hovers_above_the_grasp_before_turning(twin):
+    """--look 0.5: the hand stops 10 cm over the chosen grasp at its start yaw for 0.5 s (5 ticks), then turns to
+    the grasp's yaw (seed 0: a 60 deg turn), and still lifts the banana."""
+    from mirage2matter.sim.tasks.motion import tcp_pose
+
+    twin.reset(seed=0)
+    T0 = tcp_pose(twin)
+    yaw0 = np.arctan2(T0[1, 1], T0[0, 1])
+    poses = []
+    r = run_task(twin, parse_task("grasp banana --look 0.5", twin.cfg), np.random.default_rng(7),
+                 on_step=lambda _rec: poses.append(tcp_pose(twin)))  # fmt: skip
+    assert r.success, r.reason
+    assert r.info["look_s"] == 0.5
+    above = np.asarray(r.info["grasp_tcp"]) + [0.0, 0.0, 0.10]
+
+    def wrap(a):
+        return (np.degrees(a) + 180.0) % 360.0 - 180.0
+
+    hovering = [np.linalg.norm(T[:3, 3] - above) < 0.015 and abs(wrap(np.arctan2(T[1, 1], T[0, 1]) - yaw0)) < 5.0
+                for T in poses]  # fmt: skip
+    run = max(len(k) for k in "".join("x" if h else " " for h in hovering).split(" "))
+    assert run >= 5
+    assert abs(wrap(np.radians(r.info["grasp_yaw_deg"]) - yaw0)) > 20.0  # and then it turned
+
+
 @pytest.mark.parametrize("text,seed,body", [("grasp banana", 1, "banana"), ("press button", 5, "button:cap"),
                                              ("push croissant --direction 0,1 --distance 0.1", 0, "croissant")])
 def test_a_task_from_a_start_touching_its_object(twin, text, seed, body):

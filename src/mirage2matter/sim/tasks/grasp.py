@@ -11,7 +11,7 @@ import numpy as np
 from ..planning import PlanningError, cartesian_path, collision_free, ik, time_parameterize
 from ..twin import Twin
 from .base import SuccessMonitor, Task, option, register_task
-from .motion import Executor, move_to, placed, topdown
+from .motion import Executor, move_to, placed, tcp_pose, topdown
 
 __all__ = ["GraspTask", "LiftMonitor", "grasp_candidates", "least_turn_first", "toward_home", "yaw_choices"]
 
@@ -63,6 +63,8 @@ class GraspTask(Task):
     wrist turn is tried first (:func:`least_turn_first`): on an elongated object many closing angles at the same
     spot score within a fraction of a millimetre, so without it the angle is whichever wins by rounding, and
     neighbouring start poses turned the hand up to 130 deg apart.
+    With ``--look S`` the hand first goes 10 cm above the chosen grasp without turning and hovers there S seconds
+    before it turns: the wrist camera sees the object from straight above before the turn a policy must copy.
 
     **Success** (:class:`LiftMonitor`, at every control tick): the object has stayed >= 5 cm above its start
     height for 1 s.
@@ -73,6 +75,8 @@ class GraspTask(Task):
     slack: float | None = option(None, "degrees the wrist turns less than the best grasp's yaw", range=(0.0, 60.0),
                                  unit="deg")  # fmt: skip
     tie: float | None = option(None, "millimetres of grasp score counted as a tie", range=(0.0, 10.0), unit="mm")
+    look: float | None = option(None, "seconds hovering above the grasp before the wrist turns", range=(0.0, 2.0),
+                                unit="s")  # fmt: skip
 
     @property
     def instruction(self) -> str:
@@ -135,6 +139,8 @@ class GraspTask(Task):
                 info["detour_m"] = [round(radius * math.cos(angle), 4), round(radius * math.sin(angle), 4)]
             except PlanningError:
                 pass
+        if self.look and _hover(ex, tcp, q_now, opened, self.look):
+            info["look_s"] = self.look
         move_to(ex, q_pre, opened, speed=0.6)
         ex.follow(time_parameterize(down, twin.dt, through=True, duration=0.8, robot=spec), opened)
         ex.hold(0.15, opened)  # let the arm's tracking error settle: a grasp off the widest height squeezes out
@@ -142,6 +148,19 @@ class GraspTask(Task):
         ex.follow(time_parameterize(up, twin.dt, through=True, duration=0.7, robot=spec), closed)  # squeezing
         ex.hold(1.0, closed)
         return "", {"grasp_tcp": tcp.tolist(), "grasp_yaw_deg": math.degrees(w), **info}
+
+
+def _hover(ex: Executor, tcp: np.ndarray, q_now: np.ndarray, finger: float, seconds: float) -> bool:
+    """Go 10 cm above ``tcp`` [3] with the hand's yaw unchanged and hold ``seconds``; False (no tick) if unreachable."""
+    T = tcp_pose(ex.twin)
+    T_look = topdown(tcp, T[:2, 1] / np.linalg.norm(T[:2, 1]), ex.spec.T_ee_tcp)
+    T_look[2, 3] += 0.10
+    try:  # plan() fails before any tick
+        move_to(ex, ik(ex.twin, T_look, q_now), finger, speed=0.6)
+    except PlanningError:
+        return False
+    ex.hold(seconds, finger)
+    return True
 
 
 def grasp_candidates(
