@@ -176,6 +176,16 @@ def test_grasp_detour_reaches_beside_the_object_then_grasps(twin):
         parse_task("grasp banana --detour 1.5")
 
 
+def _wrap_deg(a_rad):
+    """An angle (rad) in degrees, wrapped to [-180, 180)."""
+    return (np.degrees(a_rad) + 180.0) % 360.0 - 180.0
+
+
+def _closing_yaw(T_base_tcp):
+    """The yaw (rad) of the hand's closing axis (tool y) in pose ``T_base_tcp`` [4,4]."""
+    return np.arctan2(T_base_tcp[1, 1], T_base_tcp[0, 1])
+
+
 def test_toward_home_turns_at_most_slack():
     from mirage2matter.sim.tasks.grasp import toward_home
 
@@ -207,7 +217,7 @@ def test_grasp_slack_turns_the_wrist_less(twin, seed):
     from mirage2matter.sim.tasks.motion import tcp_pose
 
     def turn(yaw_rad):  # the wrist's turn from home, degrees in [-180, 180)
-        return (np.degrees(yaw_rad - twin.spec.home_closing_yaw) + 180.0) % 360.0 - 180.0
+        return _wrap_deg(yaw_rad - twin.spec.home_closing_yaw)
 
     runs = {}
     for text in ("grasp banana", "grasp banana --slack 45"):
@@ -215,7 +225,7 @@ def test_grasp_slack_turns_the_wrist_less(twin, seed):
         r = run_task(twin, parse_task(text, twin.cfg), np.random.default_rng(7))
         assert r.success, (text, r.reason)
         T = tcp_pose(twin)  # the hand's closing axis (tool y) now, holding the banana
-        runs[text] = (turn(np.radians(r.info["grasp_yaw_deg"])), turn(np.arctan2(T[1, 1], T[0, 1])), r.info)
+        runs[text] = (turn(np.radians(r.info["grasp_yaw_deg"])), turn(_closing_yaw(T)), r.info)
     (plain, plain_now, plain_info), (slack, slack_now, slack_info) = runs.values()
     assert np.allclose(plain_info["grasp_tcp"], slack_info["grasp_tcp"])
     assert abs(slack) == pytest.approx(max(abs(plain) - 45.0, 0.0), abs=1e-6) and slack * plain >= 0
@@ -230,7 +240,7 @@ def test_grasp_tie_takes_the_least_turn_among_equal_grasps(twin, seed):
     from mirage2matter.sim.tasks.motion import placed, tcp_pose
 
     def turn(yaw_rad):  # the wrist's turn from home, degrees in [-180, 180)
-        return (np.degrees(yaw_rad - twin.spec.home_closing_yaw) + 180.0) % 360.0 - 180.0
+        return _wrap_deg(yaw_rad - twin.spec.home_closing_yaw)
 
     twin.reset(seed=seed)
     spec = twin.spec
@@ -244,7 +254,7 @@ def test_grasp_tie_takes_the_least_turn_among_equal_grasps(twin, seed):
         r = run_task(twin, parse_task(text, twin.cfg), np.random.default_rng(7))
         assert r.success, (text, r.reason)
         T = tcp_pose(twin)
-        runs[text] = (turn(np.radians(r.info["grasp_yaw_deg"])), turn(np.arctan2(T[1, 1], T[0, 1])), r.info)
+        runs[text] = (turn(np.radians(r.info["grasp_yaw_deg"])), turn(_closing_yaw(T)), r.info)
     (plain, _, plain_info), (tie, tie_now, tie_info) = runs.values()
     assert len(ties) >= 3 and abs(tie) == pytest.approx(least, abs=1e-6) and abs(tie) <= abs(plain) - 9.9
     assert np.linalg.norm(np.subtract(plain_info["grasp_tcp"], tie_info["grasp_tcp"])) < 0.01  # the same spot
@@ -258,7 +268,7 @@ def test_grasp_look_hovers_above_the_grasp_before_turning(twin):
 
     twin.reset(seed=0)
     T0 = tcp_pose(twin)
-    yaw0 = np.arctan2(T0[1, 1], T0[0, 1])
+    yaw0 = _closing_yaw(T0)
     poses = []
     r = run_task(twin, parse_task("grasp banana --look 0.5", twin.cfg), np.random.default_rng(7),
                  on_step=lambda _rec: poses.append(tcp_pose(twin)))  # fmt: skip
@@ -266,14 +276,11 @@ def test_grasp_look_hovers_above_the_grasp_before_turning(twin):
     assert r.info["look_s"] == 0.5
     above = np.asarray(r.info["grasp_tcp"]) + [0.0, 0.0, 0.10]
 
-    def wrap(a):
-        return (np.degrees(a) + 180.0) % 360.0 - 180.0
-
-    hovering = [np.linalg.norm(T[:3, 3] - above) < 0.015 and abs(wrap(np.arctan2(T[1, 1], T[0, 1]) - yaw0)) < 5.0
+    hovering = [np.linalg.norm(T[:3, 3] - above) < 0.015 and abs(_wrap_deg(_closing_yaw(T) - yaw0)) < 5.0
                 for T in poses]  # fmt: skip
     run = max(len(k) for k in "".join("x" if h else " " for h in hovering).split(" "))
     assert run >= 5
-    assert abs(wrap(np.radians(r.info["grasp_yaw_deg"]) - yaw0)) > 20.0  # and then it turned
+    assert abs(_wrap_deg(np.radians(r.info["grasp_yaw_deg"]) - yaw0)) > 20.0  # and then it turned
 
 
 @pytest.mark.parametrize("text,seed,body", [("grasp banana", 1, "banana"), ("press button", 5, "button:cap"),
