@@ -133,14 +133,14 @@ class GraspTask(Task):
         if self.detour is not None and u < self.detour:
             T_off = T_pre.copy()
             T_off[:2, 3] += radius * np.array([math.cos(angle), math.sin(angle)])
-            try:  # the plan fails before any tick; an unreachable detour leaves the plain approach
-                move_to(ex, ik(twin, T_off, q_now), opened, speed=0.6)
-                ex.hold(0.3, opened)
+            if _stop_at(ex, T_off, q_now, opened, 0.3):  # an unreachable detour leaves the plain approach
                 info["detour_m"] = [round(radius * math.cos(angle), 4), round(radius * math.sin(angle), 4)]
-            except PlanningError:
-                pass
-        if self.look and _hover(ex, tcp, q_now, opened, self.look):
-            info["look_s"] = self.look
+        if self.look:  # above the grasp with the hand's yaw unchanged
+            hand_axis = tcp_pose(twin)[:2, 1]
+            T_look = topdown(tcp, hand_axis / np.linalg.norm(hand_axis), spec.T_ee_tcp)
+            T_look[2, 3] += 0.10
+            if _stop_at(ex, T_look, q_now, opened, self.look):
+                info["look_s"] = self.look
         move_to(ex, q_pre, opened, speed=0.6)
         ex.follow(time_parameterize(down, twin.dt, through=True, duration=0.8, robot=spec), opened)
         ex.hold(0.15, opened)  # let the arm's tracking error settle: a grasp off the widest height squeezes out
@@ -150,13 +150,10 @@ class GraspTask(Task):
         return "", {"grasp_tcp": tcp.tolist(), "grasp_yaw_deg": math.degrees(w), **info}
 
 
-def _hover(ex: Executor, tcp: np.ndarray, q_now: np.ndarray, finger: float, seconds: float) -> bool:
-    """Go 10 cm above ``tcp`` [3] with the hand's yaw unchanged and hold ``seconds``; False (no tick) if unreachable."""
-    T = tcp_pose(ex.twin)
-    T_look = topdown(tcp, T[:2, 1] / np.linalg.norm(T[:2, 1]), ex.spec.T_ee_tcp)
-    T_look[2, 3] += 0.10
-    try:  # plan() fails before any tick
-        move_to(ex, ik(ex.twin, T_look, q_now), finger, speed=0.6)
+def _stop_at(ex: Executor, T_base_ee: np.ndarray, q_now: np.ndarray, finger: float, seconds: float) -> bool:
+    """Move the hand to ``T_base_ee`` [4,4] and hold ``seconds``; False (and no tick) if it is unreachable."""
+    try:  # ik() and plan() fail before any tick
+        move_to(ex, ik(ex.twin, T_base_ee, q_now), finger, speed=0.6)
     except PlanningError:
         return False
     ex.hold(seconds, finger)
