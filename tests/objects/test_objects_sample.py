@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -91,7 +92,15 @@ def test_cli_with_a_user_mesh_writes_the_object_and_reports_it(small_ws, tmp_pat
 
 
 def test_banana_small_run_against_ground_truth(small_ws):
+    t0 = time.perf_counter()
     out = run_objects(small_ws, ObjectsConfig(names=["banana"], **SMALL))
+    wall = time.perf_counter() - t0
+    # where the object's minutes went: every step timed, none missing, adding up within the run's wall time
+    seconds = out["banana"]["seconds"]
+    steps = {"masks", "object 3DGS", "mesh", "alignment", "convex decomposition", "files"}
+    assert steps <= set(seconds) and all(seconds[k] > 0 for k in steps), seconds
+    assert seconds["total"] == pytest.approx(sum(v for k, v in seconds.items() if k != "total"), abs=0.1)
+    assert 0.5 * wall < seconds["total"] <= wall
     folder = small_ws / "objects" / "banana"
     for f in ("mesh.obj", "gaussians.ply", "align.json", "figure.png"):
         assert (folder / f).is_file(), f

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -265,10 +266,11 @@ def process_object(
     from .splat import train_object_gaussians
 
     name = target.name
+    log = _StepClock(log)
     user_mesh = config.mesh.get(name)
     mesh_input = None
     if user_mesh:  # check it before the long work
-        log(f"{name}: mesh from {user_mesh}")
+        log(f"{name}: mesh from {user_mesh}", step="user mesh")
         mesh_input = ensure_watertight(load_mesh(user_mesh, name), name, source=str(user_mesh))
     log(f"{name}: masks")
     result = _provider(config, progress, lens).masks(target, cameras, images)
@@ -288,7 +290,7 @@ def process_object(
 
     recon = None
     if target.cluster is not None and target.plane is not None:
-        log(f"{name}: mesh from {sum(m is not None for m in masks)} masks and the 3DGS depth")
+        log(f"{name}: mesh from {sum(m is not None for m in masks)} masks and the 3DGS depth", step="mesh")
         recon = _carved_mesh(target, cameras, masks, g_base, config)
 
     if recon is not None:
@@ -304,7 +306,8 @@ def process_object(
             opaque = (torch.sigmoid(g_base.logit_opacities) > 0.5).numpy()
             log(
                 f"{name}: {int(inside.sum())} Gaussians inside the object dropped "
-                f"({int((inside & opaque).sum())} of {int(opaque.sum())} opaque), short retraining"
+                f"({int((inside & opaque).sum())} of {int(opaque.sum())} opaque), short retraining",
+                step="short retraining",
             )
             heal = replace(config.splat, iterations=max(1, config.splat.iterations // 4), min_opacity_init=0.0)
             g_base, splat_metrics = train_object_gaussians(
@@ -315,7 +318,7 @@ def process_object(
         if pruned:
             splat_metrics = {**splat_metrics, "pruned_inside": pruned, "first_round": first_round}
         if pruned and config.recarve:
-            log(f"{name}: mesh again from the masks and the retrained 3DGS depth")
+            log(f"{name}: mesh again from the masks and the retrained 3DGS depth", step="mesh")
             recon = _carved_mesh(target, cameras, masks, g_base, config)
 
     log(f"{name}: alignment")
@@ -335,7 +338,7 @@ def process_object(
         # a user mesh (any scale, any pose): ICP against the reconstruction (two closed surfaces)
         # from each PCA start; the masks' outlines choose among the fits (a banana fits its
         # half-turned copy about as well in 3D) and refine the winner (the carved surface is biased)
-        log(f"{name}: user mesh against the reconstruction, then the masks' outlines")
+        log(f"{name}: user mesh against the reconstruction, then the masks' outlines", step="alignment")
         surface = trimesh.sample.sample_surface(recon, 20000, seed=0)[0]
         fits = alignment_candidates(surface, mesh_input)
         outline_cost = SilhouetteCost(mesh_input, cameras, masks, plane=target.plane)  # it rests on the table
@@ -368,6 +371,7 @@ def process_object(
     log(f"{name}: convex decomposition")
     parts = convex_decomposition(mesh_obj, config.collision_threshold, config.collision_max_parts)
 
+    log(f"{name}: files")
     with atomic_dir(out_dir) as tmp:
         (tmp / "masks").mkdir()
         for cam, m in zip(cameras, masks, strict=True):
@@ -406,9 +410,36 @@ def process_object(
             "collision": {"parts": len(parts), "threshold": config.collision_threshold},
             "gaussians": splat_metrics,
         }
+        summary["seconds"] = log.stop()
         with open(tmp / "align.json", "w", encoding="utf-8") as f:
             json.dump({**summary, "fingerprint": target_fingerprint(config, target)}, f, indent=1)
     return summary
+
+
+class _StepClock:
+    """A log that times the steps it announces: each ``"name: step ..."`` line ends the step before it, so the
+    summary says where an object's minutes went (``{step: seconds}``, repeated steps summed)."""
+
+    def __init__(self, log: Callable[[str], None]):
+        self._log, self._step, self._t0 = log, None, time.perf_counter()
+        self.seconds: dict[str, float] = {}
+
+    def _lap(self) -> None:
+        now = time.perf_counter()
+        if self._step is not None:
+            self.seconds[self._step] = round(self.seconds.get(self._step, 0.0) + now - self._t0, 2)
+        self._t0 = now
+
+    def __call__(self, line: str, step: str | None = None) -> None:
+        """Log ``line`` ("name: what") and start timing ``step`` (default: the "what")."""
+        self._lap()
+        self._step = step or line.split(": ", 1)[-1]
+        self._log(line)
+
+    def stop(self) -> dict[str, float]:
+        self._lap()
+        self._step = None
+        return dict(self.seconds) | {"total": round(sum(self.seconds.values()), 2)}
 
 
 def target_fingerprint(config: ObjectsConfig, target: Target) -> str:

@@ -67,7 +67,8 @@ def _object_line(name: str, s: dict[str, Any]) -> str:
         f"{name}: mesh {num(mesh.get('volume'), 1e6, '.1f')} cm3, {num(mesh.get('mass'), 1000, '.0f')} g, watertight "
         f"{mesh.get('watertight')}, {s.get('collision', {}).get('parts')} convex parts; 3DGS masked PSNR "
         f"{num(held.get('psnr_masked'), 1, '.2f')} dB, alpha outside {num(held.get('alpha_outside'), 1, '.3f')}; "
-        f"Gaussians to mesh {num(s.get('alignment', {}).get('median_distance_to_mesh_m'), 1000, '.2f')} mm (median)"
+        f"Gaussians to mesh {num(s.get('alignment', {}).get('median_distance_to_mesh_m'), 1000, '.2f')} mm (median); "
+        f"{num(s.get('seconds', {}).get('total'), 1, '.0f')} s"
     )
 
 
