@@ -21,7 +21,8 @@ class _Line:
         self.x, self.t = 0.0, 0
         self.start = 0.5 if seed % 2 else 0.0  # odd seeds start half way
         self.x = self.start
-        self.start_poses = {"puck": np.array([[1, 0, 0, self.start], [0, 1, 0, 0.25], [0, 0, 1, 0], [0, 0, 0, 1.0]])}
+        c, s = np.cos(np.radians(30 * seed)), np.sin(np.radians(30 * seed))  # a heading of 30 deg per seed
+        self.start_poses = {"puck": np.array([[c, -s, 0, self.start], [s, c, 0, 0.25], [0, 0, 1, 0], [0, 0, 0, 1.0]])}
         return {"observation.state": np.array([self.x], np.float32)}, {}
 
     def step(self, action):
@@ -39,6 +40,7 @@ def test_evaluation_counts_terminations_as_successes():
     assert [r["success"] for r in summary["runs"]] == [False, True] * 3
     assert summary["wilson95"] == list(wilson_interval(3, 6)) and len(frames) == 2
     assert [r["start_xy"] for r in summary["runs"][:2]] == [{"puck": [0.0, 0.25]}, {"puck": [0.5, 0.25]}]
+    assert [r["start_yaw_deg"]["puck"] for r in summary["runs"]] == [0.0, 30.0, 60.0, 90.0, 120.0, 150.0]
 
 
 class _SlowFromStep:

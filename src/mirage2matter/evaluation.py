@@ -59,7 +59,8 @@ def evaluate_policy(
     episodes already run (a resumed evaluation: their seeds are not run again); ``on_episode(record)`` after
     each episode (to save it). Each record also holds the slowest step's seconds (``max_step_seconds``) and the
     env's per-part ``timings`` when it reports them, and ``start_xy`` {object: [x, y]} (its origin in the base frame,
-    m) when the env reports its objects' start poses (``start_poses``, as TwinEnv does): which placements fail.
+    m) and ``start_yaw_deg`` {object: deg} (its x axis about the base's z) when the env reports its objects' start poses
+    (``start_poses``, as TwinEnv does): which placements and headings fail.
     ``max_episode_seconds``: an episode still running after that
     much wall-clock time ends there as a failure with ``reason`` saying so and ``cut: true`` (the summary counts
     them in ``cut``): a world that renders pathologically slowly in one pose cannot hold an evaluation for hours."""
@@ -98,6 +99,9 @@ def evaluate_policy(
                "max_step_seconds": round(slowest, 3)}  # fmt: skip
         if isinstance(start, dict) and start:
             row["start_xy"] = {n: [round(float(T[0][3]), 4), round(float(T[1][3]), 4)] for n, T in start.items()}
+            # the heading of the object's x axis (its footprint's long axis) about the base's z: which headings fail
+            row["start_yaw_deg"] = {n: round(float(np.degrees(np.arctan2(T[1][0], T[0][0]))), 1)
+                                    for n, T in start.items()}  # fmt: skip
         timings = info.get("timings") if isinstance(info, dict) else None
         if timings is None:  # an episode cut short: the env's running totals
             timings = getattr(getattr(env, "unwrapped", env), "timings", None)
