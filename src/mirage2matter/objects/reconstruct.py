@@ -427,7 +427,7 @@ class _StepClock:
     def _lap(self) -> None:
         now = time.perf_counter()
         if self._step is not None:
-            self.seconds[self._step] = round(self.seconds.get(self._step, 0.0) + now - self._t0, 2)
+            self.seconds[self._step] = self.seconds.get(self._step, 0.0) + now - self._t0
         self._t0 = now
 
     def __call__(self, line: str, step: str | None = None) -> None:
@@ -439,7 +439,7 @@ class _StepClock:
     def stop(self) -> dict[str, float]:
         self._lap()
         self._step = None
-        return dict(self.seconds) | {"total": round(sum(self.seconds.values()), 2)}
+        return {k: round(v, 2) for k, v in self.seconds.items()} | {"total": round(sum(self.seconds.values()), 2)}
 
 
 def target_fingerprint(config: ObjectsConfig, target: Target) -> str:
