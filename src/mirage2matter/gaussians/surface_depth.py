@@ -8,7 +8,8 @@ removes the object's front layer with it. The depth where the ray's opacity reac
 It is measured with any render backend, by the fact that the renderers composite Gaussians in
 order of their centres' camera depth: colour Gaussian i with the indicator [z_i < L] and, over a
 black background, a pixel renders to exactly the opacity accumulated in front of depth L. Three
-depth levels fit in one render (one per colour channel).
+depth levels fit in one render (one per colour channel). On the CPU one pass of the rasterizer reads
+every level off as it composites (``numba_kernels.opacity_levels``): the same figures, one render.
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ import numpy as np
 import torch
 
 from .model import Gaussians
-from .render import render
+from .render import render, resolve_backend
+from .render.numba_cpu import opacity_levels_numba
 from .sh import rgb_to_sh_dc
 
 
@@ -30,6 +32,10 @@ def opacity_in_front(
     if levels.size == 0:
         raise ValueError("levels must hold at least one depth")
     V = np.asarray(viewmat, np.float64)
+    if resolve_backend(backend) == "cpu":  # one pass of the rasterizer for every level (~40x faster at 240 levels)
+        order = np.argsort(levels, kind="stable")
+        A, alpha = opacity_levels_numba(g, V, np.asarray(K, np.float64), width, height, levels[order])
+        return A[np.argsort(order)], alpha
     with torch.no_grad():
         z = torch.as_tensor(g.means.detach().double().cpu().numpy() @ V[2, :3] + V[2, 3])
         plain = Gaussians(g.means.detach(), g.quats.detach(), g.log_scales.detach(), g.logit_opacities.detach(),

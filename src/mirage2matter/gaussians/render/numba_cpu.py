@@ -27,9 +27,9 @@ def _np32(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().to("cpu", torch.float32).numpy())
 
 
-def _rasterize(rec: np.ndarray, width: int, height: int):
-    """Sort, bin and composite records rec [N, REC_SIZE]. Returns the raw sums (rgb [H,W,3], depth
-    [H,W]), final transmittance T [H,W], and what the backward pass needs."""
+def _tile_lists(rec: np.ndarray, width: int, height: int):
+    """Sort and bin records rec [N, REC_SIZE]: (offsets [n_tiles+1], ids [n_isect], recs [n_isect, REC_SIZE]),
+    tile t's records front to back in recs[offsets[t]:offsets[t+1]]."""
     n = rec.shape[0]
     rect = np.empty((n, 4), np.int32)
     nk.tile_rects(rec, width, height, rect)
@@ -39,6 +39,13 @@ def _rasterize(rec: np.ndarray, width: int, height: int):
     offsets, ids = nk.bin_tiles(order, rect, width, height, nk.num_threads())
     recs = np.empty((ids.shape[0], nk.REC_SIZE), np.float32)
     nk.gather_records(ids, rec.view(np.complex128), recs.view(np.complex128))
+    return offsets, ids, recs
+
+
+def _rasterize(rec: np.ndarray, width: int, height: int):
+    """Sort, bin and composite records rec [N, REC_SIZE]. Returns the raw sums (rgb [H,W,3], depth
+    [H,W]), final transmittance T [H,W], and what the backward pass needs."""
+    offsets, ids, recs = _tile_lists(rec, width, height)
     rgb = np.empty((height, width, 3), np.float32)
     dsum = np.empty((height, width), np.float32)
     T = np.empty((height, width), np.float32)
@@ -136,3 +143,24 @@ def render_numba(
         radius = torch.from_numpy(rec[:, nk.REC_RADIUS_X : nk.REC_RADIUS_Y + 1].copy())
         info.update(mean2d=torch.from_numpy(rec[:, : nk.REC_MEAN_Y + 1].copy()), radius=radius)
     return _finish(torch.from_numpy(rgb), torch.from_numpy(dsum), torch.from_numpy(T), background, dtype)
+
+
+def opacity_levels_numba(
+    g: Gaussians, viewmat: np.ndarray, K: np.ndarray, width: int, height: int, levels: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(A [L,H,W], alpha [H,W]) float64: the opacity each pixel accumulates from the Gaussians (world frame) whose
+    centres lie in front of camera depth ``levels`` [L] (ascending, metres), and from all of them; one pass of
+    the rasterizer instead of one render per level."""
+    levels = np.ascontiguousarray(levels, np.float64)
+    A = np.zeros((len(levels), height, width))
+    T = np.ones((height, width))
+    if len(g):
+        rec = np.empty((len(g), nk.REC_SIZE), np.float32)
+        nk.project_fused(
+            _np32(g.means), _np32(g.quats), _np32(g.log_scales), _np32(g.logit_opacities), _np32(g.sh[:, :1]),
+            0, np.asarray(viewmat, np.float64), np.asarray(K, np.float64), width, height, rec, False,
+        )  # fmt: skip
+        offsets, _, recs = _tile_lists(rec, width, height)
+        with numba.parallel_chunksize(1):
+            nk.opacity_levels(offsets, recs, width, height, levels, A, T)
+    return A, 1.0 - T
