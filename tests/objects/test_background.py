@@ -54,3 +54,22 @@ def test_keyframes_that_look_through_the_object_do_not_vote():
         assert wrong_aware < 0.08, wrong_aware
         far = (gap > 0.06) & np.isfinite(plain[..., 0])  # away from the object both are the table
         assert np.isfinite(aware[far]).all() and np.abs(aware - truth).max(-1)[far].mean() < 0.02
+
+
+def test_the_median_of_the_votes_is_numpys_nanmedian():
+    from mirage2matter.objects.background import _nanmedian_first_axis
+
+    rng = np.random.default_rng(0)
+    votes = rng.random((9, 500, 3)).astype(np.float32)
+    votes[rng.random(votes.shape) < 0.4] = np.nan
+    votes[:, :3] = np.nan  # columns nobody votes for
+    votes[:-2, 3:6] = np.nan  # even counts
+    votes[:-1, 6:9] = np.nan  # one vote
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # numpy warns on the all-NaN columns
+        want = np.nanmedian(votes, axis=0)
+    got = _nanmedian_first_axis(votes)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, want)  # NaN where nobody votes, the very same numbers elsewhere

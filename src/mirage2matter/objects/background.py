@@ -79,8 +79,18 @@ def table_background(
     out = np.full((h, w, 3), np.nan, np.float32)
     ok_clear = np.isfinite(clear[..., 0]).sum(0) >= min_views
     if ok_clear.any():
-        out[ok_clear] = np.nanmedian(clear[:, ok_clear], axis=0)
+        out[ok_clear] = _nanmedian_first_axis(clear[:, ok_clear])
     under = ~ok_clear & (np.isfinite(stack[..., 0]).sum(0) >= min_views)  # hidden from (nearly) all
     if under.any():
-        out[under] = np.nanmedian(stack[:, under], axis=0)
+        out[under] = _nanmedian_first_axis(stack[:, under])
     return out
+
+
+def _nanmedian_first_axis(x: np.ndarray) -> np.ndarray:
+    """``np.nanmedian(x, axis=0)`` (NaN where a column has no number) without its masked-array path, which took
+    ~70 % of the matting's background time: sort (NaNs go last) and average the middle two of the numbers."""
+    s = np.sort(x, axis=0)
+    n = np.isfinite(s).sum(0)
+    lo = np.take_along_axis(s, np.maximum((n - 1) // 2, 0)[None], 0)[0]
+    hi = np.take_along_axis(s, (n // 2)[None], 0)[0]
+    return np.where(n > 0, (lo + hi) / 2, np.nan).astype(x.dtype, copy=False)
