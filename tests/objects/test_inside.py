@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from mirage2matter.geometry.mesh_distance import point_mesh_distance
 from mirage2matter.objects.align import signed_distance
 from mirage2matter.objects.inside import points_inside
 
@@ -43,5 +44,11 @@ def test_signed_distance_matches_trimesh():
     mesh = _meshes()["bent bar"]
     pts = np.random.default_rng(1).uniform(*mesh.bounds, (3000, 3))
     ours = signed_distance(mesh, pts)
-    np.testing.assert_allclose(ours, trimesh.proximity.signed_distance(mesh, pts), atol=1e-9)
+    ref = trimesh.proximity.signed_distance(mesh, pts)
+    assert np.array_equal(ours > 0, ref > 0)
+    # trimesh's closest point is now and then not the closest (its candidate search misses a triangle, ~1.5 % of
+    # these points, by up to 0.03 mm): ours is never farther, and is the distance to every triangle's nearest point
+    assert (np.abs(ours) <= np.abs(ref) + 1e-12).all()
+    np.testing.assert_allclose(np.abs(ours), point_mesh_distance(pts, mesh.vertices, mesh.faces, k=len(mesh.faces)))
+    np.testing.assert_allclose(ours, ref, atol=5e-5)
     assert (ours > 0).any() and (ours < 0).any()

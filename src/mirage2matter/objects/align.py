@@ -116,14 +116,11 @@ def alignment_candidates(
 
 
 def distance_to_mesh(points: np.ndarray, mesh) -> np.ndarray:
-    """Unsigned distance [N] of ``points`` [N,3] to the surface of ``mesh`` (exact, per triangle)."""
-    import trimesh
+    """Unsigned distance [N] of ``points`` [N,3] to the surface of ``mesh`` (exact, per triangle; ~20x faster than
+    trimesh's ``closest_point``, which took ~10 s of each object's minutes)."""
+    from ..geometry.mesh_distance import point_mesh_distance
 
-    pts = np.asarray(points, np.float64)
-    # in chunks: trimesh's candidate search grows with points x nearby triangles
-    return np.concatenate(
-        [trimesh.proximity.closest_point(mesh, pts[k : k + 4096])[1] for k in range(0, len(pts), 4096)] or [np.zeros(0)]
-    )
+    return point_mesh_distance(points, mesh.vertices, mesh.faces)
 
 
 def signed_distance(mesh, points: np.ndarray) -> np.ndarray:
