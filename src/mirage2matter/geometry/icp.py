@@ -58,7 +58,7 @@ def scaled_icp(
     gate = max_distance
     for iterations in range(1, max_iterations + 1):  # noqa: B007 (reported after the loop)
         moved = sim.apply(source)
-        dist, idx = tree.query(moved)
+        dist, idx = tree.query(moved, workers=-1)  # every core: the queries are most of the time
         keep = dist <= np.quantile(dist, trim_fraction)
         if gate is not None:
             keep &= dist <= gate
