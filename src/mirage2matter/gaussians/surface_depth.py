@@ -9,7 +9,7 @@ It is measured with any render backend, by the fact that the renderers composite
 order of their centres' camera depth: colour Gaussian i with the indicator [z_i < L] and, over a
 black background, a pixel renders to exactly the opacity accumulated in front of depth L. Three
 depth levels fit in one render (one per colour channel). On the CPU one pass of the rasterizer reads
-every level off as it composites (``numba_kernels.rasterize_forward``'s levels): the same figures, one render.
+every level off as it composites (``numba_kernels.opacity_levels``): the same figures, one render.
 """
 
 from __future__ import annotations

@@ -42,21 +42,17 @@ def _tile_lists(rec: np.ndarray, width: int, height: int):
     return offsets, ids, recs
 
 
-def _rasterize(rec: np.ndarray, width: int, height: int, levels: np.ndarray | None = None):
+def _rasterize(rec: np.ndarray, width: int, height: int):
     """Sort, bin and composite records rec [N, REC_SIZE]. Returns the raw sums (rgb [H,W,3], depth
-    [H,W]), final transmittance T [H,W], and what the backward pass needs (with ``levels`` [L] ascending
-    camera depths: the opacity in front of each, [L,H,W] float64, instead)."""
+    [H,W]), final transmittance T [H,W], and what the backward pass needs."""
     offsets, ids, recs = _tile_lists(rec, width, height)
     rgb = np.empty((height, width, 3), np.float32)
     dsum = np.empty((height, width), np.float32)
     T = np.empty((height, width), np.float32)
     last = np.empty((height, width), np.int32)
-    if levels is None:
-        levels = np.zeros(0)
-    out_levels = np.zeros((len(levels), height, width) if len(levels) else (0, 1, 1))
     with numba.parallel_chunksize(1):  # tiles differ a lot in cost: hand them out one at a time
-        nk.rasterize_forward(offsets, recs, width, height, rgb, dsum, T, last, levels, out_levels)
-    return rgb, dsum, T, (out_levels if len(levels) else (last, offsets, ids, recs))
+        nk.rasterize_forward(offsets, recs, width, height, rgb, dsum, T, last)
+    return rgb, dsum, T, (last, offsets, ids, recs)
 
 
 def _finish(rgb_acc, dsum, T, background, dtype) -> RenderOutput:
@@ -156,12 +152,15 @@ def opacity_levels_numba(
     centres lie in front of camera depth ``levels`` [L] (ascending, metres), and from all of them; one pass of
     the rasterizer instead of one render per level."""
     levels = np.ascontiguousarray(levels, np.float64)
-    if not len(g):
-        return np.zeros((len(levels), height, width)), np.zeros((height, width))
-    rec = np.empty((len(g), nk.REC_SIZE), np.float32)
-    nk.project_fused(
-        _np32(g.means), _np32(g.quats), _np32(g.log_scales), _np32(g.logit_opacities), _np32(g.sh[:, :1]),
-        0, np.asarray(viewmat, np.float64), np.asarray(K, np.float64), width, height, rec, False,
-    )  # fmt: skip
-    _, _, T, A = _rasterize(rec, width, height, levels)
-    return A, 1.0 - T.astype(np.float64)
+    A = np.zeros((len(levels), height, width))
+    T = np.ones((height, width))
+    if len(g):
+        rec = np.empty((len(g), nk.REC_SIZE), np.float32)
+        nk.project_fused(
+            _np32(g.means), _np32(g.quats), _np32(g.log_scales), _np32(g.logit_opacities), _np32(g.sh[:, :1]),
+            0, np.asarray(viewmat, np.float64), np.asarray(K, np.float64), width, height, rec, False,
+        )  # fmt: skip
+        offsets, _, recs = _tile_lists(rec, width, height)
+        with numba.parallel_chunksize(1):
+            nk.opacity_levels(offsets, recs, width, height, levels, A, T)
+    return A, 1.0 - T

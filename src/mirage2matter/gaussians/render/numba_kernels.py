@@ -333,23 +333,13 @@ def gather_records(ids, rec, out):
             out[k, j] = rec[g, j]
 
 
-@njit(cache=True, inline="always")
-def _record_levels(out_A, lev, T, px0, py0, tw, th):
-    for ly in range(th):
-        for lx in range(tw):
-            out_A[lev, py0 + ly, px0 + lx] = 1.0 - T[ly * TILE_SIZE + lx]
-
-
 @njit(parallel=True, cache=True)
-def rasterize_forward(offsets, recs, width, height, out_rgb, out_depth, out_T, out_last, levels, out_levels):
+def rasterize_forward(offsets, recs, width, height, out_rgb, out_depth, out_T, out_last):
     """Front-to-back alpha compositing per tile over recs [n_isect, REC_SIZE] (tile t owns
     recs[offsets[t]:offsets[t+1]], front to back). Outputs [H,W(,3)]: out_rgb = sum w c (no
     background), out_depth = sum w z, out_T final transmittance, out_last the index k of the last
-    record composited into the pixel (-1: none), where the backward pass starts. ``levels`` [L] (ascending camera
-    depths, metres; usually none): out_levels [L,H,W] = the opacity composited from the records in front of each
-    (1 - T just before the first record at or behind it), what one render of those records alone gives."""
+    record composited into the pixel (-1: none), where the backward pass starts."""
     tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
-    n_levels = levels.shape[0]
     for t in prange(offsets.shape[0] - 1):
         px0 = (t % tiles_x) * TILE_SIZE
         py0 = (t // tiles_x) * TILE_SIZE
@@ -359,11 +349,8 @@ def rasterize_forward(offsets, recs, width, height, out_rgb, out_depth, out_T, o
         acc = np.zeros((TILE_SIZE * TILE_SIZE, 4))
         done = np.zeros(TILE_SIZE * TILE_SIZE, np.bool_)
         last = np.full(TILE_SIZE * TILE_SIZE, -1, np.int32)
-        n_done, lev = 0, 0
+        n_done = 0
         for k in range(offsets[t], offsets[t + 1]):
-            while lev < n_levels and recs[k, REC_DEPTH] >= levels[lev]:
-                _record_levels(out_levels, lev, T, px0, py0, tw, th)
-                lev += 1
             mx, my = recs[k, REC_MEAN_X], recs[k, REC_MEAN_Y]
             x0, x1, y0, y1 = _box_in_tile(recs, k, px0, py0, tw, th, width, height)
             ca, cb, cc = recs[k, REC_CONIC_A], recs[k, REC_CONIC_B], recs[k, REC_CONIC_C]
@@ -398,9 +385,6 @@ def rasterize_forward(offsets, recs, width, height, out_rgb, out_depth, out_T, o
                     last[p] = k
             if n_done == tw * th:
                 break
-        while lev < n_levels:  # the levels behind every record (or behind the pixels' stop)
-            _record_levels(out_levels, lev, T, px0, py0, tw, th)
-            lev += 1
         for ly in range(th):
             for lx in range(tw):
                 p = ly * TILE_SIZE + lx
@@ -410,6 +394,70 @@ def rasterize_forward(offsets, recs, width, height, out_rgb, out_depth, out_T, o
                 out_depth[py0 + ly, px0 + lx] = acc[p, 3]
                 out_T[py0 + ly, px0 + lx] = T[p]
                 out_last[py0 + ly, px0 + lx] = last[p]
+
+
+@njit(cache=True, inline="always")
+def _record_levels(out_A, lev, T, px0, py0, tw, th):
+    for ly in range(th):
+        for lx in range(tw):
+            out_A[lev, py0 + ly, px0 + lx] = 1.0 - T[ly * TILE_SIZE + lx]
+
+
+@njit(parallel=True, cache=True)
+def opacity_levels(offsets, recs, width, height, levels, out_A, out_T):
+    """The opacity each pixel accumulates from the records in front of each depth of ``levels`` [L] (ascending,
+    metres): out_A [L,H,W] = 1 - T just before the first record whose depth is at or behind the level, composited
+    by ``rasterize_forward``'s rules (same offsets/recs, front to back); out_T [H,W] the final transmittance. One
+    pass gives what one render per level (the Gaussians in front of it alone) gives.
+    Its compositing loop repeats rasterize_forward's on purpose: reading the levels inside rasterize_forward (an
+    optional array) made every render ~10 % slower (no-grad, 100k Gaussians at 224 px, five paired runs, median
+    46.5 -> 55.6 ms), and that loop is the training's hot path."""
+    tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
+    n_levels = levels.shape[0]
+    for t in prange(offsets.shape[0] - 1):
+        px0 = (t % tiles_x) * TILE_SIZE
+        py0 = (t // tiles_x) * TILE_SIZE
+        tw = min(TILE_SIZE, width - px0)
+        th = min(TILE_SIZE, height - py0)
+        T = np.ones(TILE_SIZE * TILE_SIZE)
+        done = np.zeros(TILE_SIZE * TILE_SIZE, np.bool_)
+        n_done, lev = 0, 0
+        for k in range(offsets[t], offsets[t + 1]):
+            while lev < n_levels and recs[k, REC_DEPTH] >= levels[lev]:
+                _record_levels(out_A, lev, T, px0, py0, tw, th)
+                lev += 1
+            mx, my = recs[k, REC_MEAN_X], recs[k, REC_MEAN_Y]
+            x0, x1, y0, y1 = _box_in_tile(recs, k, px0, py0, tw, th, width, height)
+            ca, cb, cc = recs[k, REC_CONIC_A], recs[k, REC_CONIC_B], recs[k, REC_CONIC_C]
+            op, smax, inv_ca = recs[k, REC_OPACITY], recs[k, REC_SIGMA_MAX], recs[k, REC_INV_A]
+            for py in range(y0, y1 + 1):
+                dy = my - (py + 0.5)
+                row = (py - py0) * TILE_SIZE - px0
+                sx0, sx1 = _row_span(mx, dy, ca, inv_ca, cb, cc, smax, x0, x1)
+                for px in range(sx0, sx1 + 1):
+                    p = row + px
+                    if done[p]:
+                        continue
+                    dx = mx - (px + 0.5)
+                    sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                    if sigma < 0.0:
+                        continue
+                    alpha = min(ALPHA_MAX, op * _exp_neg(sigma))
+                    if alpha < ALPHA_MIN:
+                        continue
+                    if T[p] * (1.0 - alpha) <= T_MIN:  # as rasterize_forward: left out, and the pixel stops
+                        done[p] = True
+                        n_done += 1
+                        continue
+                    T[p] *= 1.0 - alpha
+            if n_done == tw * th:
+                break
+        while lev < n_levels:  # the levels behind every record (or behind the pixels' stop)
+            _record_levels(out_A, lev, T, px0, py0, tw, th)
+            lev += 1
+        for ly in range(th):
+            for lx in range(tw):
+                out_T[py0 + ly, px0 + lx] = T[ly * TILE_SIZE + lx]
 
 
 @njit(parallel=True, cache=True)
