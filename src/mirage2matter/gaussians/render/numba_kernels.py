@@ -410,8 +410,8 @@ def opacity_levels(offsets, recs, width, height, levels, out_A, out_T):
     by ``rasterize_forward``'s rules (same offsets/recs, front to back); out_T [H,W] the final transmittance. One
     pass gives what one render per level (the Gaussians in front of it alone) gives.
     Its compositing loop repeats rasterize_forward's on purpose: reading the levels inside rasterize_forward (an
-    optional array) made every render ~10 % slower (no-grad, 100k Gaussians at 224 px, five paired runs, median
-    46.5 -> 55.6 ms), and that loop is the training's hot path."""
+    optional array) made every render slower (no-grad, 100k Gaussians at 224 px, seven interleaved runs on an idle
+    2-core host: median 52.1 -> 54.2 ms, slower in 5 of 7), and that loop is the training's hot path."""
     tiles_x = (width + TILE_SIZE - 1) // TILE_SIZE
     n_levels = levels.shape[0]
     for t in prange(offsets.shape[0] - 1):
