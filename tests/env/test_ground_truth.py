@@ -151,6 +151,56 @@ def test_a_capture_without_ground_truth_is_a_clear_error(tmp_path: Path) -> None
         GroundTruthRenderer(tmp_path, {"head": (K, 224, 224)})
 
 
+def test_a_stalled_render_is_stopped_and_retried_with_the_cameras_moved_back() -> None:
+    """llvmpipe can hang on one exact camera pose (HTL1's seed 1000196: one wrist render held for 460 s; 0.1 mm off
+    it renders in 0.04 s): GroundTruthFrames stops a render past its time limit and retries with every camera
+    moved back along its axis, 0.2 mm then 1 mm, counting stalls; three stalls on one state are a clear error."""
+    from mirage2matter.env.ground_truth import STALL_NUDGES_M, GroundTruthFrames
+    from mirage2matter.processes import WorkerTimeout
+
+    T_cam = np.eye(4)
+    T_cam[:3, :3] = [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]  # its +z (optical axis) is base +y
+    T_cam[:3, 3] = [0.1, 0.2, 0.3]
+
+    class Twin:
+        def camera(self, name: str):
+            return T_cam, None
+
+        def robot_state(self):
+            return np.zeros(9)
+
+        def object_poses(self):
+            return {"banana": np.eye(4)}
+
+    class StallingWorker:  # stands in for the TimedWorker holding the renderer
+        def __init__(self, stalls: int):
+            self.stalls, self.seen = stalls, []
+
+        def call(self, method, views, *, timeout_s, **state):
+            self.seen.append(views["head"])
+            if len(self.seen) <= self.stalls:
+                raise WorkerTimeout("stalled")
+            return {"head": np.zeros((2, 2, 3), np.uint8)}
+
+    frames = object.__new__(GroundTruthFrames)
+    frames.twin, frames.cameras, frames.timeout_s = Twin(), ("head",), 60.0
+    frames.T_body_asset = {"banana": np.eye(4)}
+    frames.start_episode(None)
+    frames.renderer = StallingWorker(stalls=0)
+    frames.render()
+    assert np.array_equal(frames.renderer.seen[0], T_cam) and frames.timings["ground_truth_stalls"] == 0
+    frames.renderer = StallingWorker(stalls=2)
+    with pytest.warns(UserWarning, match="llvmpipe stall"):
+        assert frames.render()["head"].shape == (2, 2, 3)
+    seen = frames.renderer.seen
+    assert [round(float(T[1, 3] - 0.2), 6) for T in seen] == [0.0, -STALL_NUDGES_M[0], -STALL_NUDGES_M[1]]
+    assert all(np.array_equal(T[:3, :3], T_cam[:3, :3]) and np.allclose(T[[0, 2], 3], [0.1, 0.3]) for T in seen)
+    assert frames.timings["ground_truth_stalls"] == 2
+    frames.renderer = StallingWorker(stalls=3)
+    with pytest.warns(UserWarning), pytest.raises(GroundTruthError, match="stalled 3 times on one state"):
+        frames.render()
+
+
 def test_intrinsics_genesis_cannot_render_are_refused_or_approximated_as_the_twin_does(sample_dir: Path) -> None:
     ok = np.array([[200.0, 0, 112], [0, 200.0, 112], [0, 0, 1]])
     assert np.array_equal(render_intrinsics(ok, 224, 224), ok)

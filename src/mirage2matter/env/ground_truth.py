@@ -36,6 +36,7 @@ import math
 import shutil
 import tempfile
 import time
+import warnings
 import weakref
 from collections.abc import Mapping
 from pathlib import Path
@@ -47,6 +48,7 @@ import numpy as np
 from ..errors import M2MError
 from ..geometry.camera import GL_TO_CV
 from ..geometry.rotation import quat_to_matrix
+from ..processes import TimedWorker, WorkerTimeout
 from ..robots import DEFAULT_ROBOT, RobotSpec, get_robot
 from ..robots.model import genesis_morph, resolve_model
 
@@ -68,6 +70,9 @@ _SUPPORTED_VERSION = 1
 # A hidden robot stands this far under the floor: beyond every camera's far plane and out of the light's shadow
 # maps. Measured: renders with the robot there equal renders of a scene without a robot, bit for bit (at -5 m too).
 _HIDDEN_ROBOT_Z = -100.0
+# a ground-truth render takes 0.05-0.2 s; one that takes a minute is an llvmpipe stall (GroundTruthFrames.render)
+RENDER_TIMEOUT_S = 60.0
+STALL_NUDGES_M = (0.0002, 0.001)
 
 
 class GroundTruthError(M2MError, ValueError):
@@ -512,44 +517,81 @@ class GroundTruthFrames:
     is as it is). Bodies without a ground-truth asset are an error: this world is not the sample's.
     """
 
-    def __init__(self, twin: Any, sample_dir: str | Path, cameras: tuple[str, ...], size: tuple[int, int]) -> None:
-        self.twin, self.cameras = twin, tuple(cameras)
-        self.timings: dict[str, float] = {"ground_truth_render": 0.0}
+    def __init__(self, twin: Any, sample_dir: str | Path, cameras: tuple[str, ...], size: tuple[int, int],
+                 timeout_s: float | None = RENDER_TIMEOUT_S) -> None:  # fmt: skip
+        self.twin, self.cameras, self.timeout_s = twin, tuple(cameras), timeout_s
+        self.timings: dict[str, float] = dict.fromkeys(("ground_truth_render", "ground_truth_stalls"), 0.0)
         T_base_body0 = twin.object_poses()  # at the placements, straight after the build
         w, h = size
         views = {c: (twin.camera(c)[1], w, h) for c in self.cameras}
-        self.renderer = GroundTruthRenderer(sample_dir, views, with_robot=True, robot=twin.cfg.robot.name,
-                                            intrinsics="twin")  # fmt: skip
+        args, kwargs = (sample_dir, views), {"with_robot": True, "robot": twin.cfg.robot.name, "intrinsics": "twin"}
+        if timeout_s is None:
+            self.renderer: Any = GroundTruthRenderer(*args, **kwargs)
+        else:  # in a child process: a render that hangs in llvmpipe can be stopped (see ``render``)
+            self.renderer = TimedWorker(GroundTruthRenderer, args, kwargs, name="ground-truth renderer")
         try:
-            known = set(self.renderer.object_names)
+            known = set(self._call("object_names"))
             unknown = sorted(set(T_base_body0) - known)
+            gt = self._call("ground_truth_poses")
             if unknown:
                 raise GroundTruthError(
                     f"the world's object(s) {unknown} are not in {Path(sample_dir) / 'ground_truth.json'} (objects: "
-                    f"{sorted(self.renderer.ground_truth_poses())}); ground_truth rendering needs that sample's world"
+                    f"{sorted(gt)}); ground_truth rendering needs that sample's world"
                 )
-            gt = self.renderer.ground_truth_poses()
             self.T_body_asset = {n: np.linalg.inv(T) @ gt[n] for n, T in T_base_body0.items()}
         except BaseException:
             self.renderer.close()
             raise
 
+    def _call(self, method: str, *args: Any, **kwargs: Any) -> Any:
+        if self.timeout_s is None:
+            value = getattr(self.renderer, method)
+            return value(*args, **kwargs) if callable(value) else value
+        return self.renderer.call(method, *args, timeout_s=self.timeout_s, **kwargs)
+
     def start_episode(self, draw: Any) -> None:
-        self.timings = {"ground_truth_render": 0.0}
+        self.timings = dict.fromkeys(("ground_truth_render", "ground_truth_stalls"), 0.0)
 
     def asset_poses(self) -> dict[str, np.ndarray]:
         """{name: T_base_asset [4,4]} of every body in the twin's current state."""
         return {n: T @ self.T_body_asset[n] for n, T in self.twin.object_poses().items()}
 
     def render(self) -> dict[str, np.ndarray]:
+        """The frames of the twin's state. A render past ``timeout_s`` (a stall) is stopped and retried from a fresh
+        renderer with every camera moved back along its axis by :data:`STALL_NUDGES_M` in turn (llvmpipe's stalls
+        happen at exact poses: HTL1's seed 1000196 held one wrist render for 460 s; 0.01 mm off it took 2.3 s, 0.1
+        mm off 0.04 s); ``timings["ground_truth_stalls"]`` counts them. The whole state goes with every render, so
+        a fresh renderer draws the same world."""
         t0 = time.perf_counter()
         views = {c: self.twin.camera(c)[0] for c in self.cameras}
-        frames = self.renderer.render(views, robot_q=self.twin.robot_state(), object_poses=self.asset_poses())
+        state = {"robot_q": self.twin.robot_state(), "object_poses": self.asset_poses()}
+        for nudge in (0.0, *STALL_NUDGES_M):
+            moved = {c: _moved_back(T, nudge) for c, T in views.items()}
+            try:
+                frames = self._call("render", moved, **state)
+                break
+            except WorkerTimeout:
+                self.timings["ground_truth_stalls"] += 1
+                warnings.warn(f"a ground-truth render took over {self.timeout_s:g} s (an llvmpipe stall); retrying with"
+                              f" the cameras {1000 * STALL_NUDGES_M[0]:g} mm or more back", stacklevel=2)  # fmt: skip
+        else:
+            raise GroundTruthError(
+                f"the ground-truth renderer stalled {len(STALL_NUDGES_M) + 1} times on one state (each over "
+                f"{self.timeout_s:g} s); cameras {({c: np.round(T, 5).tolist() for c, T in views.items()})}, robot_q "
+                f"{np.round(state['robot_q'], 5).tolist()}"
+            )
         self.timings["ground_truth_render"] += time.perf_counter() - t0
         return frames
 
     def close(self) -> None:
         self.renderer.close()
+
+
+def _moved_back(T_base_cam: np.ndarray, metres: float) -> np.ndarray:
+    """The camera ``metres`` back along its optical axis (OpenCV +z looks forward)."""
+    T = np.array(T_base_cam, dtype=np.float64, copy=True)
+    T[:3, 3] -= metres * T[:3, 2]
+    return T
 
 
 def build_ground_truth(cfg: Any) -> tuple[Any, GroundTruthFrames]:
