@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,7 @@ from mirage2matter.geometry.rotation import axis_angle_to_matrix, rotation_angle
 from mirage2matter.geometry.sim3 import Sim3
 from mirage2matter.objects import ObjectsError
 from mirage2matter.objects.matting import MattingConfig
-from mirage2matter.objects.reconstruct import ObjectsConfig
+from mirage2matter.objects.reconstruct import ObjectsConfig, find_targets, pinhole_keyframes, target_fingerprint
 from mirage2matter.objects.splat import SplatConfig
 from mirage2matter.stages import get_stage, run_stage
 from mirage2matter.workspace import Workspace, WorkspaceError
@@ -194,3 +195,38 @@ def test_must_show_user_mesh_recovered(full_ws, tmp_path):
     print("user mesh", json.dumps({"scale_error": scale_err, "rotation_error_deg": rot_err}))
     assert scale_err <= 0.01
     assert rot_err <= 1.0
+
+
+def _posed(ws: Path) -> tuple[list, np.ndarray]:
+    posed = Workspace(ws).posed_capture(frame="base")
+    return pinhole_keyframes(posed.cameras, posed.image_dir)[0], posed.points
+
+
+def test_objects_side_by_side_in_worker_processes(small_ws, tmp_path):
+    """workers=2: each object in its own process, log lines passed on, the same files; a rerun with one worker
+    finds them up to date (workers is how, not what); an error in one worker is the stage's error."""
+    ws = tmp_path / "ws"
+    shutil.copytree(small_ws / "capture", ws / "capture")
+    shutil.copytree(small_ws / "calib", ws / "calib")
+    tiny = dict(SMALL, matting=MattingConfig(iterations=250, init_gaussians=6000, max_gaussians=12000),
+                splat=SplatConfig(iterations=40, sh_degree=0, max_gaussians=8000), prune_rounds=1)  # fmt: skip
+    lines: list[str] = []
+    cfg = ObjectsConfig(names=["banana", "croissant"], workers=2, **tiny)
+    summary, _ = run_stage(get_stage("objects"), Workspace(ws), cfg, log=lines.append)
+    assert list(summary["objects"]) == ["banana", "croissant"]
+    assert any("2 worker processes" in s for s in lines)
+    for name in ("banana", "croissant"):
+        assert any(s.startswith(f"{name}: object 3DGS") for s in lines), name
+        for f in ("mesh.obj", "gaussians.ply", "align.json"):
+            assert (ws / "objects" / name / f).is_file(), (name, f)
+    lines.clear()
+    _, skipped = run_stage(get_stage("objects"), Workspace(ws), replace(cfg, workers=1), log=lines.append)
+    assert skipped and not lines  # the stage is up to date: workers is not in its fingerprint
+    align = json.loads((ws / "objects" / "banana" / "align.json").read_text())
+    assert align["fingerprint"] == target_fingerprint(replace(cfg, workers=1), find_targets(cfg, *_posed(ws))[1][0])
+
+    bad = tmp_path / "croissant.obj"
+    bad.write_text("not a mesh\n")
+    cfg = ObjectsConfig(names=["banana", "croissant"], mesh={"croissant": bad}, workers=2, **tiny)
+    with pytest.raises(ObjectsError, match="croissant"):
+        run_objects(ws, cfg)

@@ -66,6 +66,9 @@ class ObjectsConfig:
     collision_threshold  CoACD concavity threshold of the convex collision parts
     collision_max_parts  at most this many convex parts
     figure_views         keyframes shown in figure.png
+    workers              objects reconstructed at once, each in its own process (0: one per object, at most two
+                         per core and one per 2 GiB of free memory); the same objects either way (not in the
+                         fingerprint)
     """
 
     names: list[str] = field(default_factory=list)
@@ -95,6 +98,7 @@ class ObjectsConfig:
     collision_threshold: float = 0.05
     collision_max_parts: int = 16
     figure_views: int = 3
+    workers: int = field(default=0, metadata={"fingerprint": "never"})
 
 
 def load_keyframes_rgb(cameras: list[Camera], image_dir: Path) -> list[np.ndarray]:
@@ -448,4 +452,5 @@ def target_fingerprint(config: ObjectsConfig, target: Target) -> str:
     from ..fingerprint import fingerprint
 
     pts = None if target.cluster is None else np.round(target.cluster.points, 4).tobytes()
-    return fingerprint(to_dict(config), target.name, hashlib.sha256(pts or b"").hexdigest())
+    settings = {k: v for k, v in to_dict(config).items() if k != "workers"}  # how, not what
+    return fingerprint(settings, target.name, hashlib.sha256(pts or b"").hexdigest())

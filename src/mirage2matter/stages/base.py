@@ -127,10 +127,16 @@ ADDED_LATER = {"fingerprint": "when_set"}
 stage's fingerprint, so a finished stage of an existing workspace is not rerun for a setting it never used."""
 
 
+NOT_FINGERPRINTED = {"fingerprint": "never"}
+"""Field metadata of a setting that says how a stage runs, not what it makes (``objects.workers``): never in the
+stage's fingerprint."""
+
+
 def _fingerprinted(cfg: Any) -> dict[str, Any]:
     d = to_dict(cfg)
     for f in dataclasses.fields(cfg):
-        if f.metadata.get("fingerprint") == "when_set" and getattr(cfg, f.name) == f.default:
+        when = f.metadata.get("fingerprint")
+        if when == "never" or (when == "when_set" and getattr(cfg, f.name) == f.default):
             d.pop(f.name)
     return d
 

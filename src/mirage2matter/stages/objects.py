@@ -11,7 +11,8 @@ from typing import Any
 
 from ..atomic import atomic_write
 from ..objects import ObjectsError
-from ..objects.reconstruct import ObjectsConfig, find_targets, pinhole_keyframes, process_object, target_fingerprint
+from ..objects.pool import object_workers, process_objects
+from ..objects.reconstruct import ObjectsConfig, find_targets, pinhole_keyframes, target_fingerprint
 from ..workspace import Workspace
 from .base import Input, Log
 
@@ -39,6 +40,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         names = [t.name for t in targets]
         raise ObjectsError(f"mesh for {', '.join(sorted(unknown))}: no such object (objects: {names})")
     out: dict[str, Any] = {}
+    todo = []
     for target in targets:
         folder = ws.object_dir(target.name)
         done = folder / "align.json"
@@ -48,7 +50,9 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
                 log(f"{target.name}: up to date, skipped")
                 out[target.name] = previous
                 continue
-        out[target.name] = process_object(target, cfg, cameras, images, folder, log, progress=True, lens=lens)
+        todo.append((target, folder))
+    made = process_objects(todo, cfg, cameras, images, log, lens, workers=object_workers(cfg.workers, len(todo)))
+    out = {t.name: out.get(t.name) or made[t.name] for t in targets}
     keep = ("sim3_obj_to_base", "mesh", "gaussians")
     with atomic_write(ws.objects_summary, "w", encoding="utf-8") as f:
         json.dump({k: {kk: v[kk] for kk in keep if kk in v} for k, v in out.items()}, f, indent=1, default=str)
