@@ -127,12 +127,9 @@ ADDED_LATER = {"fingerprint": "when_set"}
 stage's fingerprint, so a finished stage of an existing workspace is not rerun for a setting it never used."""
 
 
-NOT_FINGERPRINTED = {"fingerprint": "never"}
-"""Field metadata of a setting that says how a stage runs, not what it makes (``objects.workers``): never in the
-stage's fingerprint."""
-
-
 def _fingerprinted(cfg: Any) -> dict[str, Any]:
+    """The config as fingerprinted: without :data:`ADDED_LATER` fields at their default, and never with fields whose
+    metadata is ``{"fingerprint": "never"}`` (how a stage runs, not what it makes: ``objects.workers``)."""
     d = to_dict(cfg)
     for f in dataclasses.fields(cfg):
         when = f.metadata.get("fingerprint")
