@@ -197,6 +197,10 @@ def test_must_show_user_mesh_recovered(full_ws, tmp_path):
     assert rot_err <= 1.0
 
 
+TINY = dict(SMALL, matting=MattingConfig(iterations=250, init_gaussians=6000, max_gaussians=12000),
+            splat=SplatConfig(iterations=40, sh_degree=0, max_gaussians=8000), prune_rounds=1)  # fmt: skip
+
+
 def _posed(ws: Path) -> tuple[list, np.ndarray]:
     posed = Workspace(ws).posed_capture(frame="base")
     return pinhole_keyframes(posed.cameras, posed.image_dir)[0], posed.points
@@ -208,10 +212,8 @@ def test_objects_side_by_side_in_worker_processes(small_ws, tmp_path):
     ws = tmp_path / "ws"
     shutil.copytree(small_ws / "capture", ws / "capture")
     shutil.copytree(small_ws / "calib", ws / "calib")
-    tiny = dict(SMALL, matting=MattingConfig(iterations=250, init_gaussians=6000, max_gaussians=12000),
-                splat=SplatConfig(iterations=40, sh_degree=0, max_gaussians=8000), prune_rounds=1)  # fmt: skip
     lines: list[str] = []
-    cfg = ObjectsConfig(names=["banana", "croissant"], workers=2, **tiny)
+    cfg = ObjectsConfig(names=["banana", "croissant"], workers=2, **TINY)
     summary, _ = run_stage(get_stage("objects"), Workspace(ws), cfg, log=lines.append)
     assert list(summary["objects"]) == ["banana", "croissant"]
     assert any("2 worker processes" in s for s in lines)
@@ -227,6 +229,38 @@ def test_objects_side_by_side_in_worker_processes(small_ws, tmp_path):
 
     bad = tmp_path / "croissant.obj"
     bad.write_text("not a mesh\n")
-    cfg = ObjectsConfig(names=["banana", "croissant"], mesh={"croissant": bad}, workers=2, **tiny)
+    cfg = ObjectsConfig(names=["banana", "croissant"], mesh={"croissant": bad}, workers=2, **TINY)
     with pytest.raises(ObjectsError, match="croissant"):
         run_objects(ws, cfg)
+
+
+def test_a_worker_that_dies_is_a_clear_error_and_leaves_no_worker(small_ws, tmp_path):
+    """A worker killed mid-object (the kernel's OOM killer) stops the stage with what to do, not a hang."""
+    import os
+    import signal
+    import subprocess
+    import threading
+
+    ws = tmp_path / "ws"
+    shutil.copytree(small_ws / "capture", ws / "capture")
+    shutil.copytree(small_ws / "calib", ws / "calib")
+    killed: list[int] = []
+
+    def spawned() -> set[int]:
+        found = subprocess.run(["pgrep", "-P", str(os.getpid()), "-f", "spawn_main"], capture_output=True, text=True)
+        return {int(pid) for pid in found.stdout.split()}
+
+    before = spawned()  # children of earlier tests, if any
+
+    def kill_a_worker() -> None:
+        time.sleep(6.0)  # the workers are on their masks by then (the run takes ~30 s)
+        killed.extend(sorted(spawned() - before))  # this run's workers
+        if killed:
+            os.kill(killed[0], signal.SIGKILL)
+
+    threading.Thread(target=kill_a_worker, daemon=True).start()
+    with pytest.raises(ObjectsError, match="worker process died.*objects.workers lower"):
+        run_objects(ws, ObjectsConfig(names=["banana", "croissant"], workers=2, **TINY))
+    assert killed
+    time.sleep(1.0)
+    assert not [pid for pid in killed if Path(f"/proc/{pid}").exists()]  # the other worker was stopped too

@@ -13,7 +13,6 @@ from __future__ import annotations
 import math
 import os
 import queue
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -77,42 +76,55 @@ def process_objects(
 ) -> dict[str, dict[str, Any]]:
     """``process_object`` for each ``(target, folder)``, ``workers`` at a time -> {name: summary} in ``jobs``' order.
     One worker: in this process, with progress bars. More: spawned processes (numba, torch and CUDA do not survive
-    fork), ``ceil(cores / workers)`` threads each (at least 2: measured as the faster on 2 cores), log lines
-    passed on as they come."""
+    fork), ``ceil(cores / workers)`` threads each but at least 2 (as measured: 3 workers of 2 threads on 2 cores),
+    log lines passed on as they come. A worker that dies (out of memory) is an :class:`ObjectsError`."""
     from .reconstruct import process_object
 
     if workers <= 1 or len(jobs) <= 1:
         return {t.name: process_object(t, config, cameras, images, folder, log, progress=True, lens=lens)
                 for t, folder in jobs}  # fmt: skip
     import multiprocessing as mp
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures.process import BrokenProcessPool
 
     ctx = mp.get_context("spawn")
     lines = ctx.Queue()
     cores = os.cpu_count() or 1
     threads = min(cores, max(2, math.ceil(cores / workers)))
     log(f"objects: {len(jobs)} objects, {workers} worker processes of {threads} threads")
-    pool = ctx.Pool(workers, initializer=_init_worker, initargs=(lines, threads, os.getpid()))
+    pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
+                               initargs=(lines, threads, os.getpid()))  # fmt: skip
     try:
-        pending = {t.name: pool.apply_async(_process_one, (t, config, cameras, images, folder, lens))
-                   for t, folder in jobs}  # fmt: skip
+        pending = {pool.submit(_process_one, t, config, cameras, images, folder, lens): t.name for t, folder in jobs}
         out: dict[str, dict[str, Any]] = {}
         while pending:
-            _drain(lines, log, wait_s=1.0)
-            for name in [n for n, r in pending.items() if r.ready()]:
-                out[name] = pending.pop(name).get()  # a worker's error is raised here
-        _drain(lines, log, wait_s=0.0)
-        pool.close()
-        pool.join()
+            _drain(lines, log)
+            done, _ = wait(pending, timeout=1.0, return_when=FIRST_COMPLETED)
+            for future in done:
+                out[pending.pop(future)] = future.result()  # a worker's error is raised here
+        _drain(lines, log)
+        pool.shutdown()
         return {t.name: out[t.name] for t, _ in jobs}
-    except BaseException:
-        pool.terminate()  # the other objects stop too (a rerun resumes from those already written)
-        raise
+    except BrokenProcessPool:
+        raise ObjectsError(f"an objects worker process died (out of memory?); with {workers} objects at once each "
+                           "needs ~1.5 GiB: set objects.workers lower (1: one at a time)") from None  # fmt: skip
+    finally:  # on an error the other objects stop too (a rerun resumes from those already written)
+        _stop(pool)
 
 
-def _drain(lines: Any, log: Callable[[str], None], wait_s: float) -> None:
-    deadline = time.monotonic() + wait_s
-    while True:
-        try:
-            log(lines.get(timeout=max(0.0, deadline - time.monotonic())) if wait_s else lines.get_nowait())
-        except queue.Empty:
-            return
+def _stop(pool: Any) -> None:
+    procs = list((getattr(pool, "_processes", None) or {}).values())  # before shutdown forgets them
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in procs:  # running work is not cancellable
+        if proc.is_alive():
+            proc.kill()
+            proc.join(timeout=10)
+
+
+def _drain(lines: Any, log: Callable[[str], None]) -> None:
+    """Pass on the workers' log lines so far."""
+    try:
+        while True:
+            log(lines.get_nowait())
+    except queue.Empty:
+        return
