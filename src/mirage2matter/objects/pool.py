@@ -26,8 +26,9 @@ _lines: Any = None  # the worker's queue of log lines (set by _init_worker)
 
 def object_workers(requested: int, n_objects: int) -> int:
     """Worker processes for ``n_objects``: ``requested``, or (0) one per object, at most two per core (an object keeps
-    a core ~75 % busy) and one per 2 GiB of available memory (a worker peaks near 1.5 GiB); never more than the objects.
-    The demo's three objects on 2 cores: 3 workers 548 s, 2 workers 595 s, one after the other 757-766 s."""
+    a core ~75 % busy) and one per 2 GiB of available memory (top: one holds ~1.1 GiB training the button); never
+    more than the objects. The demo's three objects on 2 cores: 3 workers 548 s, 2 workers 595 s, one after the
+    other 757-766 s."""
     if requested < 0:
         raise ObjectsError(f"objects.workers must be >= 0 (0: one per object, at most two per core), got {requested}")
     if requested == 0:
@@ -107,7 +108,7 @@ def process_objects(
         return {t.name: out[t.name] for t, _ in jobs}
     except BrokenProcessPool:
         raise ObjectsError(f"an objects worker process died (out of memory?); with {workers} objects at once each "
-                           "needs ~1.5 GiB: set objects.workers lower (1: one at a time)") from None  # fmt: skip
+                           "needs 1-2 GiB: set objects.workers lower (1: one at a time)") from None  # fmt: skip
     finally:  # on an error the other objects stop too (a rerun resumes from those already written)
         _stop(pool)
 
