@@ -12,9 +12,11 @@ from .errors import M2MError
 __all__ = ["TimedWorker", "WorkerError", "WorkerTimeout", "die_with_parent"]
 
 
-def die_with_parent() -> None:
+def die_with_parent(parent_pid: int | None = None) -> None:
     """Linux: SIGKILL this process when its parent dies (a killed generator must not leave workers or a renderer
-    behind that would keep committing attempts, or holding a GPU, next to the rerun). Elsewhere: nothing."""
+    behind that would keep committing attempts, or holding a GPU, next to the rerun). Elsewhere: nothing. With
+    ``parent_pid`` (the parent's ``os.getpid()``, passed down): exit at once if that parent is already gone (it
+    died before the request took effect)."""
     try:
         import ctypes
         import signal
@@ -22,6 +24,8 @@ def die_with_parent() -> None:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):
         pass
+    if parent_pid is not None and os.getppid() != parent_pid:
+        os._exit(1)
 
 
 class WorkerError(M2MError, RuntimeError):
@@ -43,9 +47,7 @@ def _picklable(exc: BaseException) -> BaseException:
 
 
 def _work(factory: Any, args: tuple, kwargs: dict, conn: Any, parent_pid: int) -> None:
-    die_with_parent()
-    if os.getppid() != parent_pid:  # the parent died before the line above took effect
-        return
+    die_with_parent(parent_pid)
     try:
         obj = factory(*args, **kwargs)
     except BaseException as exc:

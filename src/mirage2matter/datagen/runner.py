@@ -99,9 +99,7 @@ class _Inline:
 
 
 def _worker_main(factory, staging_root, threads, tasks, results, parent) -> None:  # runs in a worker process
-    die_with_parent()
-    if os.getppid() != parent:  # the parent died before prctl took effect
-        os._exit(1)
+    die_with_parent(parent)  # also exits if the parent died before prctl took effect
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     os.environ.setdefault("LP_NUM_THREADS", str(threads))  # Mesa llvmpipe: one GL thread per core we own
     try:

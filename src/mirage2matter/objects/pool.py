@@ -53,9 +53,7 @@ def _init_worker(lines: Any, threads: int, parent_pid: int) -> None:
     from ..processes import die_with_parent
 
     global _lines
-    die_with_parent()  # a killed stage leaves no worker behind (it resumes from the objects already written)
-    if os.getppid() != parent_pid:
-        os._exit(1)
+    die_with_parent(parent_pid)  # a killed stage leaves no worker behind (it resumes from the objects written)
     _lines = lines
     configure_threads(threads)
 

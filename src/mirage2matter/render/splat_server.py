@@ -148,9 +148,7 @@ def _serve(parts, options, slots, cameras, size, background, table_z, gather_s, 
            parent) -> None:  # fmt: skip  (the server process)
     from ..processes import die_with_parent
 
-    die_with_parent()
-    if os.getppid() != parent:
-        os._exit(1)
+    die_with_parent(parent)
     try:
         import torch
 
