@@ -227,6 +227,18 @@ def to_dict(cfg: Any, base_dir: Path | None = None) -> dict[str, Any]:
     return plain(cfg)
 
 
+def fingerprinted(cfg: Any) -> dict[str, Any]:
+    """:func:`to_dict` of ``cfg`` as fingerprints see it: without top-level fields whose metadata is
+    ``{"fingerprint": "when_set"}`` (``stages.base.ADDED_LATER``) while at their default, and never with those whose
+    metadata is ``{"fingerprint": "never"}`` (how a stage runs, not what it makes: ``objects.workers``)."""
+    d = to_dict(cfg)
+    for f in dataclasses.fields(cfg):
+        when = f.metadata.get("fingerprint")
+        if when == "never" or (when == "when_set" and getattr(cfg, f.name) == f.default):
+            d.pop(f.name)
+    return d
+
+
 def to_yaml(cfg: Any, base_dir: Path | None = None, header: str = "", notes: dict[str, str] | None = None) -> str:
     """``cfg`` as YAML text that :func:`from_dict` reads back to ``cfg``: every field, each under its doc (from
     the class docstrings) as a comment; nested Configs as indented sections. ``header``: comment lines on top;

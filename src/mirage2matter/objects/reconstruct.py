@@ -448,9 +448,8 @@ class _StepClock:
 
 def target_fingerprint(config: ObjectsConfig, target: Target) -> str:
     """The object's resume key: the config and the object's points (a changed cluster is another object)."""
-    from ..configs import to_dict
+    from ..configs import fingerprinted
     from ..fingerprint import fingerprint
 
     pts = None if target.cluster is None else np.round(target.cluster.points, 4).tobytes()
-    settings = {k: v for k, v in to_dict(config).items() if k != "workers"}  # how, not what
-    return fingerprint(settings, target.name, hashlib.sha256(pts or b"").hexdigest())
+    return fingerprint(fingerprinted(config), target.name, hashlib.sha256(pts or b"").hexdigest())

@@ -13,7 +13,6 @@ returned). Otherwise it runs and its record is written. Work inside a stage that
 
 from __future__ import annotations
 
-import dataclasses
 import importlib
 import json
 import os
@@ -24,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from ..atomic import atomic_write
-from ..configs import to_dict
+from ..configs import fingerprinted, to_dict
 from ..errors import M2MError
 from ..fingerprint import fingerprint
 from ..workspace import Workspace, WorkspaceError
@@ -119,23 +118,12 @@ def stage_fingerprint(stage: Stage, ws: Workspace, cfg: Any) -> str:
     inputs = stage.inputs(ws, cfg)
     for i in inputs:
         i.check(ws)
-    return fingerprint(stage.name, _fingerprinted(cfg), *[i.path for i in inputs])
+    return fingerprint(stage.name, fingerprinted(cfg), *[i.path for i in inputs])
 
 
 ADDED_LATER = {"fingerprint": "when_set"}
 """Field metadata of a setting added to a stage after workspaces were made: at its default it stays out of the
 stage's fingerprint, so a finished stage of an existing workspace is not rerun for a setting it never used."""
-
-
-def _fingerprinted(cfg: Any) -> dict[str, Any]:
-    """The config as fingerprinted: without :data:`ADDED_LATER` fields at their default, and never with fields whose
-    metadata is ``{"fingerprint": "never"}`` (how a stage runs, not what it makes: ``objects.workers``)."""
-    d = to_dict(cfg)
-    for f in dataclasses.fields(cfg):
-        when = f.metadata.get("fingerprint")
-        if when == "never" or (when == "when_set" and getattr(cfg, f.name) == f.default):
-            d.pop(f.name)
-    return d
 
 
 class StageRecord:
