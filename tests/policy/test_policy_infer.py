@@ -17,6 +17,7 @@ from mirage2matter.policy import (
     load_policy_callable,
     open_policy,
 )
+from mirage2matter.policy.infer import medoid
 
 
 def _obs(rng, h=224, w=224, s=9) -> dict:
@@ -106,6 +107,27 @@ def test_an_ensemble_averages_its_members_chunks_and_executes_them_as_one_policy
         load_ensemble([out, out]).check_matches(robot_type="ur5e")
     with pytest.raises(PolicyError, match="two or more"):
         PolicyEnsemble([single])
+
+
+def test_a_medoid_ensemble_executes_the_member_chunk_nearest_the_others(tiny_run):
+    """Two members that go either way around and one between them: the mean of the outer two is a motion none of
+    them makes; the medoid is the middle member's own chunk."""
+    _, out, _, _ = tiny_run
+    obs = _obs(np.random.default_rng(2))
+    k = 4
+    ens = load_ensemble([out, out, out], ensemble_decay=0.0, combine="medoid")
+    assert ens.combine == "medoid"
+    left, right = np.full((k, 8), -3.0, np.float32), np.full((k, 8), 3.0, np.float32)
+    middle = np.full((k, 8), 0.5, np.float32) + np.arange(k)[:, None]
+    for m, c in zip(ens.members, (left, middle, right), strict=True):
+        m.predict_chunk = lambda o, c=c: c
+    np.testing.assert_array_equal(ens.predict_chunk(obs), middle)
+    # the first of equals
+    assert medoid(np.stack([middle, middle, middle])) == 0
+    with pytest.raises(PolicyError, match="medoid ensemble needs three or more"):
+        load_ensemble([out, out], combine="medoid")
+    with pytest.raises(PolicyError, match="combine must be one of mean, medoid"):
+        load_ensemble([out, out], combine="median")
 
 
 def test_checkpoint_of_another_robot_or_that_does_not_load(tiny_run, tmp_path):

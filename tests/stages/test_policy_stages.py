@@ -97,7 +97,7 @@ def test_train_then_eval_in_the_hybrid_world(ws: Path, capsys) -> None:
         (ws / "m2m.yaml").write_bytes(settings)
     ens = json.loads((ws / "evals" / "tiny+tiny1-hybrid-grasp_banana" / "summary.json").read_text())
     assert ens["policy"] == "tiny,tiny1" and ens["episodes"] == 1 and ens["size"] == 48
-    assert ens["inference"] == {"ensemble_decay": 0.1, "replan_every": None}
+    assert ens["inference"] == {"ensemble_decay": 0.1, "replan_every": None, "combine": "mean"}
 
 
 def test_generate_with_a_takeover_records_from_where_the_policy_left_the_world(ws: Path, capsys) -> None:
@@ -235,6 +235,10 @@ def test_bad_input_is_a_clear_error_and_leaves_no_report(ws: Path, tmp_path: Pat
                                                    "--ensemble-decay", "-1")  # fmt: skip
     assert "replan_every must be in [1," in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",
                                                    "--replan-every", "99")  # fmt: skip
+    assert "ensemble_combine medoid combines several policies" in _error(
+        capsys, "eval-policy", "-w", w, "--policy", "tiny", "--ensemble-combine", "medoid")
+    assert "a medoid ensemble needs three or more policies" in _error(
+        capsys, "eval-policy", "-w", w, "--policy", f"tiny,{ws / 'policies' / 'tiny'}", "--ensemble-combine", "medoid")
     assert "the ground_truth renderer draws its own world" in _error(
         capsys, "eval-policy", "-w", w, "--policy", "tiny", "--renderer", "ground_truth", "--objects", "meshes")
     assert "add --supersample 0" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny", "--renderer",

@@ -1,5 +1,6 @@
 """Deploying a policy: ``load_policy(dir) -> Policy``, a callable ``obs -> action [A]``; ``load_ensemble(dirs) ->
-PolicyEnsemble``, several trained policies whose chunks are averaged; and user callables.
+PolicyEnsemble``, several trained policies whose chunks are combined (averaged, or their medoid); and user
+callables.
 
 Observations have exactly the keys of our datasets: ``observation.images.<camera>`` (uint8 [H, W, 3], any
 size: resized inside with the training's area filter) and ``observation.state`` (float [S]). The network
@@ -34,8 +35,11 @@ __all__ = [
     "load_ensemble",
     "load_policy",
     "load_policy_callable",
+    "medoid",
     "open_policy",
 ]
+
+ENSEMBLE_COMBINES = ("mean", "medoid")
 
 
 class ChunkedPolicy:
@@ -181,14 +185,26 @@ class Policy(ChunkedPolicy):
 
 class PolicyEnsemble(ChunkedPolicy):
     """Several policies trained for the same robot, rate, cameras and chunk length (e.g. the same recipe from
-    different seeds), run as one: at each prediction every member's chunk (unnormalised) is averaged, and the mean
-    chunk is executed as one policy's. Seeds of one recipe disagree most where each is unsure; the mean is steadier
-    than any one of them (measured on the sample: see the README's closed-loop section)."""
+    different seeds), run as one: at each prediction the members' chunks (unnormalised) are combined into one, which
+    is executed as one policy's. Seeds of one recipe disagree most where each is unsure; the combination is steadier
+    than any one of them (measured on the sample: see the README's closed-loop section).
+
+    combine   "mean": the members' chunks averaged; "medoid": the one member's chunk nearest all the others (sum of
+              distances in action-std units; three members or more). The mean of two 7-joint arm motions that
+              reach one place on different arm branches, or two grasps either side of an object, reaches neither;
+              the medoid is always one member's own motion, the one the others agree with most.
+    """
 
     def __init__(self, members: Sequence[Policy], replan_every: int | None = None,
-                 ensemble_decay: float = 0.1) -> None:  # fmt: skip
+                 ensemble_decay: float = 0.1, combine: str = "mean") -> None:  # fmt: skip
         if len(members) < 2:
             raise PolicyError(f"an ensemble needs two or more policies, got {len(members)}")
+        if combine not in ENSEMBLE_COMBINES:
+            raise PolicyError(f"ensemble combine must be one of {', '.join(ENSEMBLE_COMBINES)}, got {combine!r}")
+        if combine == "medoid" and len(members) < 3:
+            raise PolicyError(f"a medoid ensemble needs three or more policies (of two, neither is nearer the "
+                              f"other), got {len(members)}; use mean, or add a member")  # fmt: skip
+        self.combine = combine
         first = members[0]
         for m in members[1:]:
             differs = [name for name, a, b in (("robot", first.meta.robot_type, m.meta.robot_type),
@@ -216,7 +232,18 @@ class PolicyEnsemble(ChunkedPolicy):
             m.check_matches(*args, **kwargs)
 
     def predict_chunk(self, obs: Mapping[str, Any]) -> np.ndarray:
-        return np.mean([m.predict_chunk(obs) for m in self.members], axis=0).astype(np.float32)
+        chunks = np.stack([m.predict_chunk(obs) for m in self.members])  # [M, K, A]
+        if self.combine == "mean":
+            return chunks.mean(0).astype(np.float32)
+        return chunks[medoid(chunks / self.action_std)].astype(np.float32)
+
+
+def medoid(chunks: np.ndarray) -> int:
+    """Index of the member of ``chunks`` [M, K, A] with the least summed Euclidean distance to the others (over all
+    K x A values; the first of equals)."""
+    flat = chunks.reshape(len(chunks), -1).astype(np.float64)
+    d = np.linalg.norm(flat[:, None] - flat[None], axis=-1)  # [M, M]
+    return int(np.argmin(d.sum(1)))
 
 
 def _checkpoint_file(path: Path) -> Path:
@@ -280,12 +307,12 @@ def load_policy(
 
 
 def load_ensemble(checkpoint_dirs: Sequence[str | Path], device: str = "auto", replan_every: int | None = None,
-                  ensemble_decay: float | None = None, **robot: Any) -> PolicyEnsemble:
+                  ensemble_decay: float | None = None, combine: str = "mean", **robot: Any) -> PolicyEnsemble:
     """Open several policies as one :class:`PolicyEnsemble` (each as :func:`load_policy` opens it; the robot
     arguments are checked against every member). ``ensemble_decay`` defaults to the first member's."""
     members = [load_policy(d, device=device, ensemble_decay=ensemble_decay, **robot) for d in checkpoint_dirs]
     decay = members[0].ensemble_decay if members else 0.1
-    return PolicyEnsemble(members, replan_every=replan_every, ensemble_decay=decay)
+    return PolicyEnsemble(members, replan_every=replan_every, ensemble_decay=decay, combine=combine)
 
 
 class CallablePolicy:

@@ -33,7 +33,7 @@ class Config:
     """eval-policy settings.
 
     policy          the policy: a name under <workspace>/policies, a policy folder, or module:function (obs -> action);
-                    several names or folders joined by commas (A,B,C) run as one ensemble, their chunks averaged
+                    several names or folders joined by commas (A,B,C) run as one ensemble (``ensemble_combine``)
     task            the task instruction (default: the task of the datasets the policy was trained on, when one)
     renderer        observations: hybrid (the reconstructed world, as generation renders it) or ground_truth (a
                     sample's own world, as its video was rendered)
@@ -52,6 +52,8 @@ class Config:
     device          where a trained policy runs: auto, cpu, cuda
     ensemble_decay  a trained policy's temporal-ensembling weights exp(-m i) over its overlapping chunks (default:
                     the checkpoint's, 0.1; ACT's is 0.01; 0 averages them equally)
+    ensemble_combine  how an ensemble's chunks become one: mean (averaged) or medoid (the member's chunk nearest the
+                    others; three members or more)
     replan_every    run a trained policy's network every n steps and play its chunk open-loop in between, instead of
                     temporal ensembling (1 <= n <= its chunk length)
     objects         how the hybrid renderer draws objects: gaussians (the method) or meshes (the world a mesh-only
@@ -76,6 +78,7 @@ class Config:
     video_episodes: int = 4
     device: str = "auto"
     ensemble_decay: float | None = None
+    ensemble_combine: Literal["mean", "medoid"] = "mean"
     replan_every: int | None = None
     objects: Literal["gaussians", "meshes"] = "gaussians"
     supersample: int = 0
@@ -251,6 +254,7 @@ def report_name(ws: Workspace, cfg: Config) -> str:
         return cfg.name
     paths = policy_paths(ws, cfg)
     who = "+".join(p.name for p in paths) if paths else task_slug(cfg.policy)
+    who += "-medoid" if cfg.ensemble_combine == "medoid" else ""
     world = cfg.renderer + ("-mesh_objects" if cfg.objects == "meshes" else "")
     ss = supersample_of(ws, cfg)
     world += f"-ss{ss}" if ss != 1 else ""
@@ -282,7 +286,11 @@ def open_policy(ws: Workspace, cfg: Config, world: Any):
                               f"train-policy runs its chunks; {cfg.policy} is a callable: leave them out")  # fmt: skip
         return load_policy_callable(cfg.policy, action_dim=len(spec.action_names))
     how = {"device": cfg.device, "replan_every": cfg.replan_every, "ensemble_decay": cfg.ensemble_decay}
-    policy = load_policy(paths[0], **how) if len(paths) == 1 else load_ensemble(paths, **how)
+    if len(paths) == 1 and cfg.ensemble_combine != "mean":
+        raise PolicyError(f"eval-policy: ensemble_combine {cfg.ensemble_combine} combines several policies; "
+                          f"{cfg.policy} is one: name several (A,B,C) or leave it out")  # fmt: skip
+    policy = (load_policy(paths[0], **how) if len(paths) == 1
+              else load_ensemble(paths, combine=cfg.ensemble_combine, **how))  # fmt: skip
     policy.check_matches(robot_type=spec.robot_type, state_names=spec.state_names, action_names=spec.action_names,
                          fps=10, cameras=[c for c in CAMERAS if c in world.cameras])  # fmt: skip
     return policy
@@ -349,7 +357,8 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         "size": size,
         "seeds": [cfg.seed, cfg.seed + cfg.episodes - 1],
         **({"start_regions": list(cfg.start_region)} if cfg.start_region else {}),
-        **({"inference": {"ensemble_decay": policy.ensemble_decay, "replan_every": policy.replan_every}}
+        **({"inference": {"ensemble_decay": policy.ensemble_decay, "replan_every": policy.replan_every,
+                          **({"combine": policy.combine} if hasattr(policy, "combine") else {})}}
            if hasattr(policy, "ensemble_decay") else {}),  # fmt: skip
         "seconds": {"build": round(build_s, 1), "episodes": round(eval_s, 1),
                     "per_step": round(eval_s / max(steps, 1), 4)},  # fmt: skip
