@@ -239,6 +239,8 @@ def test_bad_input_is_a_clear_error_and_leaves_no_report(ws: Path, tmp_path: Pat
         capsys, "eval-policy", "-w", w, "--policy", "tiny", "--ensemble-combine", "medoid")
     assert "a medoid ensemble needs three or more policies" in _error(
         capsys, "eval-policy", "-w", w, "--policy", f"tiny,{ws / 'policies' / 'tiny'}", "--ensemble-combine", "medoid")
+    assert "some_pkg:act is a callable: leave them out" in _error(
+        capsys, "eval-policy", "-w", w, "--policy", "some_pkg:act", "--task", TASK, "--ensemble-combine", "medoid")
     assert "the ground_truth renderer draws its own world" in _error(
         capsys, "eval-policy", "-w", w, "--policy", "tiny", "--renderer", "ground_truth", "--objects", "meshes")
     assert "add --supersample 0" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny", "--renderer",

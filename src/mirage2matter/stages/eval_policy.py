@@ -281,9 +281,10 @@ def open_policy(ws: Workspace, cfg: Config, world: Any):
     spec = world.robot.spec
     paths = policy_paths(ws, cfg)
     if not paths:
-        if cfg.ensemble_decay is not None or cfg.replan_every is not None:
-            raise PolicyError(f"eval-policy: ensemble_decay and replan_every set how a policy trained by m2m "
-                              f"train-policy runs its chunks; {cfg.policy} is a callable: leave them out")  # fmt: skip
+        if cfg.ensemble_decay is not None or cfg.replan_every is not None or cfg.ensemble_combine != "mean":
+            raise PolicyError(f"eval-policy: ensemble_decay, ensemble_combine and replan_every set how policies "
+                              f"trained by m2m train-policy run their chunks; {cfg.policy} is a callable: leave them "
+                              "out")  # fmt: skip
         return load_policy_callable(cfg.policy, action_dim=len(spec.action_names))
     how = {"device": cfg.device, "replan_every": cfg.replan_every, "ensemble_decay": cfg.ensemble_decay}
     if len(paths) == 1 and cfg.ensemble_combine != "mean":
