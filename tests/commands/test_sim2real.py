@@ -16,9 +16,10 @@ def _e(k: int, n: int = 50) -> dict:
 
 
 def test_tables_hold_every_policy_with_its_interval(sample_dir):
-    cfg = Sim2RealConfig(sample=sample_dir)
+    cfg = Sim2RealConfig(sample=sample_dir, task="grasp banana")
     rows = [
-        {"kind": "main", "task": "grasp banana", "demos": 300, "ground_truth": _e(40), "hybrid": _e(45)},
+        {"kind": "main", "task": "grasp banana", "demos": 300, "seeds": 4, "ground_truth": _e(40), "hybrid": _e(45),
+         "ground_truth_single": _e(38)},
         {"kind": "main", "task": "press button", "demos": 150, "ground_truth": _e(41), "hybrid": _e(49)},
         {"kind": "data_scale", "task": "grasp banana", "demos": 50, "ground_truth": _e(20)},
         {"kind": "data_scale", "task": "grasp banana", "demos": 150, "ground_truth": _e(35)},
@@ -26,12 +27,15 @@ def test_tables_hold_every_policy_with_its_interval(sample_dir):
     ]
     md = markdown_tables({"policies": rows, "minutes": {"generation": 30.0, "training": 50.0, "evaluation": 60.0}},
                          cfg)  # fmt: skip
-    assert "| grasp banana | 300 | 80.0 % [67-89] (40/50) | 90.0 % [79-96] (45/50) |" in md
+    assert "| grasp banana | 300 | 4 training seeds as one | 80.0 % [67-89] (40/50) | 90.0 % [79-96] (45/50) |" in md
+    assert "| grasp banana | 300 | the first seed alone | 76.0 % [63-86] (38/50) | - |" in md
+    assert "| press button | 150 | one training seed | 82.0 % [69-90] (41/50) | 98.0 % [90-100] (49/50) |" in md
     assert "| 3DGS (the method) | 70.0 % [56-81] (35/50) | - |" in md  # the Gaussian twin at 150 demos
     # and the ablation's policy in its own world: whether it learnt the task at all, beside the gap
     assert "| mesh only (vertex-coloured) | 60.0 % [46-72] (30/50) | 88.0 % [76-94] (44/50) |" in md
     scale = md.split("Data scale")[1]
     assert scale.index("| 50 |") < scale.index("| 150 |") < scale.index("| 300 |")
+    assert "| 300 | 76.0 % [63-86] (38/50) |" in scale  # one seed, as the curve's other points
     assert "generation 30.0 min, training 50.0 min, evaluation 60.0 min" in md
 
 
@@ -40,6 +44,10 @@ def test_settings_are_checked(tmp_path, sample_dir):
         Sim2RealConfig(sample=tmp_path).validate()
     with pytest.raises(M2MError, match="ablation_demos .* must be one of demos"):
         Sim2RealConfig(sample=sample_dir, ablation_demos=100).validate()
+    with pytest.raises(M2MError, match="seeds must be >= 1"):
+        Sim2RealConfig(sample=sample_dir, seeds=0).validate()
+    with pytest.raises(M2MError, match="steps must be >= 0"):
+        Sim2RealConfig(sample=sample_dir, steps=-1).validate()
 
 
 def test_the_bench_draws_its_demos_supersampled_and_records_the_scene(tmp_path, sample_dir, monkeypatch):
@@ -72,7 +80,59 @@ def test_the_bench_draws_its_demos_supersampled_and_records_the_scene(tmp_path, 
     assert {c.objects for c in gens} == {"gaussians", "meshes"}
     assert result["scene"] == {"head_photo": "/x/head_view.png", "psnr_heldout": 29.7}
     assert "supersampling x3; the scene trained with the head camera's photo" in result["tables"]
-    assert Sim2RealConfig().supersample == 4  # the recipe the README measured, by default
+    assert "with splat supersampling x3" in result["tables"]
     for bad in (0, 9):  # generate's own bound (1-8), said before the bench starts
         with pytest.raises(M2MError, match=f"supersample must be from 1 \\(off\\) to 8, got {bad}"):
             Sim2RealConfig(sample=sample_dir, supersample=bad).validate()
+
+
+def test_the_main_policies_are_their_training_seeds_as_one(tmp_path, sample_dir, monkeypatch):
+    """By default the bench runs the recipe the README measured: 300 demos of the expert with `--tie 2 --look 0.5`,
+    drawn at frame size, four training seeds of 4,000 steps each deployed as one, the first seed alone beside them;
+    the data-scale curve and the ablation train one seed."""
+    import json
+
+    from mirage2matter.commands import sim2real
+    from mirage2matter.workspace import Workspace
+
+    ws = Workspace(tmp_path / "ws")
+    ws.world_yaml.parent.mkdir(parents=True)
+    ws.world_yaml.write_text("objects: []\n")
+    ws.scene_metrics.parent.mkdir(parents=True)
+    ws.scene_metrics.write_text(json.dumps({"psnr_heldout": 29.9, "config": {"head_photo": "/x/head_view.png"}}))
+    calls = []
+
+    def fake_run(stage_name, ws_, cfg, log):
+        calls.append((stage_name, cfg))
+        if stage_name == "generate":
+            return {"tasks": {cfg.task[0]: {"episodes": cfg.episodes, "success_rate": 1.0}}}, 1.0
+        if stage_name == "train_policy":
+            return {"seconds": {"train": 60.0}, "steps": cfg.steps}, 60.0
+        k = {"grasp_banana_tie_2_look_0_5_300_x4": 43, "grasp_banana_tie_2_look_0_5_300": 40}.get(
+            cfg.name.split("-")[0], 30)
+        return _e(k), 30.0
+
+    monkeypatch.setattr(sim2real, "_run", fake_run)
+    cfg = Sim2RealConfig(sample=sample_dir)
+    assert (cfg.task, cfg.seeds, cfg.steps, cfg.supersample) == ("grasp banana --tie 2 --look 0.5", 4, 4000, 1)
+    result = sim2real.run_sim2real(ws, cfg, log=lambda m: None)
+    grasp = [c for name, c in calls if name == "generate" and c.task == (cfg.task,)]
+    assert [(c.episodes, c.supersample, c.objects) for c in grasp] == [(300, 1, "gaussians"), (150, 1, "meshes")]
+    trains = [c for name, c in calls if name == "train_policy"]
+    main = [c for c in trains if c.episodes == 300]
+    slug = "grasp_banana_tie_2_look_0_5"
+    assert [(c.name, c.seed, c.steps) for c in main] == [(f"{slug}_300", 0, 4000), (f"{slug}_300_s1", 1, 4000),
+                                                         (f"{slug}_300_s2", 2, 4000), (f"{slug}_300_s3", 3, 4000)]
+    assert sorted(c.seed for c in trains if c.episodes != 300 and c.datasets == (slug,)) == [0, 0]  # curve: 50, 150
+    evals = {c.name: c for name, c in calls if name == "eval_policy"}
+    ens = evals[f"{slug}_300_x4-ground_truth"]
+    assert ens.policy == ",".join(c.name for c in main) and ens.task == cfg.task
+    assert evals[f"{slug}_300_x4-hybrid"].policy == ens.policy
+    assert evals[f"{slug}_300-ground_truth"].policy == f"{slug}_300"  # the first seed alone
+    assert evals["press_button_150_x4-ground_truth"].policy.count(",") == 3
+    row = result["policies"][0]
+    assert (row["seeds"], row["train_minutes"], row["train_steps"]) == (4, 4.0, [4000] * 4)
+    md = result["tables"]
+    assert "| 4 training seeds as one | 86.0 % [74-93] (43/50) |" in md
+    assert "| 300 | 80.0 % [67-89] (40/50) |" in md.split("Data scale")[1]
+    assert "without splat supersampling" in md
