@@ -54,7 +54,8 @@ def run_stage_command(stage: Stage, args: argparse.Namespace) -> int:
     cfg = from_flags(stage.config, args, load().stage_config(stage.name))
     configure_threads()
     summary, skipped = run_stage(stage, ws, cfg, log=info, force=args.force)
-    with workspace_lock(ws):  # read-modify-write of m2m.yaml: another stage's section may have changed
+    # read-modify-write of m2m.yaml (another stage's section may have changed), beside running policy stages
+    with workspace_lock(ws, alongside=True, wait_s=60.0):
         pipeline = load()
         setattr(pipeline, stage.name, cfg)
         pipeline.save(ws.config_file)

@@ -11,6 +11,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ import pytest
 from PIL import Image
 
 from mirage2matter.stages import get_stage, run_stage
+from mirage2matter.stages.base import Stage
 from mirage2matter.stages.transaction import Transaction, WorkspaceBusy, workspace_lock
 from mirage2matter.workspace import Workspace
 
@@ -193,3 +195,98 @@ def test_a_full_disk_fails_an_edit_cleanly(sample_world_ws, tmp_path):
         assert not _leftovers(ws)
     finally:
         subprocess.run(["umount", str(disk)], capture_output=True)
+
+
+def _side_stage() -> Stage:
+    """A stage run once per output name and outside pipelines (as train-policy, eval-policy): it writes
+    side/<name>/out.txt, after waiting for the file ``gate`` when given."""
+    import types
+    from dataclasses import dataclass
+
+    mod = types.ModuleType("mirage2matter.stages._side_test")
+
+    @dataclass
+    class Config:
+        name: str = "a"
+        gate: str = ""
+        started: str = ""
+
+    def run(ws, cfg, log):
+        if cfg.started:
+            Path(cfg.started).write_text("started")
+        for _ in range(600):
+            if not cfg.gate or Path(cfg.gate).exists():
+                break
+            time.sleep(0.1)
+        out = ws.path("side", cfg.name, "out.txt")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(cfg.name)
+        return {"line": cfg.name}
+
+    mod.Config, mod.run = Config, run
+    mod.inputs = lambda ws, cfg: []
+    mod.outputs = lambda ws, cfg: [ws.path("side", cfg.name, "out.txt")]
+    mod.writes = lambda ws, cfg: [ws.path("side", cfg.name)]
+    mod.record_key = lambda ws, cfg: f"side/{cfg.name}"
+    sys.modules[mod.__name__] = mod
+    return Stage(name="side", command="side", help="", module="_side_test", pipeline=False)
+
+
+def _fork_stage(ws: Workspace, cfg) -> int:
+    """run_stage(side stage, ws, cfg) in a forked child; its pid (exit status 0 when it committed)."""
+    pid = os.fork()
+    if pid == 0:  # the child: no pytest teardown, its own exit status
+        code = 1
+        try:
+            run_stage(_side_stage(), ws, cfg, log=lambda s: None)
+            code = 0
+        finally:
+            os._exit(code)
+    return pid
+
+
+def _wait_for(path: Path, seconds: float = 60.0) -> None:
+    t0 = time.monotonic()
+    while not path.exists():
+        assert time.monotonic() - t0 < seconds, f"{path} never appeared"
+        time.sleep(0.05)
+
+
+def test_policy_stages_run_side_by_side_and_one_output_is_run_once(tmp_path):
+    """Two trainings (or evaluations) of one workspace run at once, each committing when it finishes; a second
+    run of the same output, and any other writer, are refused naming the run; a killed run frees the workspace."""
+    stage = _side_stage()
+    cfg = stage.config
+    ws = Workspace(tmp_path / "ws")
+    gate, started = tmp_path / "gate", tmp_path / "started"
+    a = _fork_stage(ws, cfg(name="a", gate=str(gate), started=str(started)))
+    try:
+        _wait_for(started)
+        # b runs and commits while a is running
+        assert run_stage(stage, ws, cfg(name="b"), log=lambda s: None) == ({"line": "b"}, False)
+        assert (ws.root / "side" / "b" / "out.txt").read_text() == "b"
+        assert not (ws.root / "side" / "a").exists()
+        with pytest.raises(WorkspaceBusy, match=f"side-a is being run by pid {a} "):
+            run_stage(stage, ws, cfg(name="a"), log=lambda s: None)
+        with pytest.raises(WorkspaceBusy, match=f"in use by side-a: pid {a} "), workspace_lock(ws, "m2m sfm"):
+            pass
+        with workspace_lock(ws, alongside=True):  # bookkeeping (an m2m.yaml update) goes on beside it
+            pass
+        gate.write_text("go")
+        assert os.waitpid(a, 0)[1] == 0
+    finally:
+        gate.write_text("go")
+    records = json.loads(ws.record_file.read_text())
+    assert {"side/a", "side/b"} <= set(records)
+    assert (ws.root / "side" / "a" / "out.txt").read_text() == "a"
+    assert not _leftovers(ws.root) and not (ws.root / ".m2m").exists()
+    # a run killed mid-way leaves its staging to resume, and nothing that holds the workspace
+    started.unlink()
+    c = _fork_stage(ws, cfg(name="c", gate=str(tmp_path / "never"), started=str(started)))
+    _wait_for(started)
+    os.kill(c, signal.SIGKILL)
+    os.waitpid(c, 0)
+    with workspace_lock(ws, "m2m sfm"):
+        pass
+    assert run_stage(stage, ws, cfg(name="c"), log=lambda s: None)[0] == {"line": "c"}
+    assert not _leftovers(ws.root) and not (ws.root / ".m2m").exists()

@@ -157,9 +157,10 @@ def run_stage(
     """Run ``stage`` on ``ws`` with ``cfg`` unless an identical run finished; returns (summary, skipped).
 
     Holds the workspace lock; the stage writes into its transaction's staging and its outputs are swapped in
-    together only when it succeeded (see ``stages.transaction``). With ``ground_truth`` (a sample's
-    ground_truth.json) the stage's ``compare`` adds how close it came."""
-    from .transaction import Transaction, workspace_lock
+    together only when it succeeded (see ``stages.transaction``). A policy stage (not part of a pipeline) holds
+    it only to start and to commit, and its own output's lock in between, so several run side by side. With
+    ``ground_truth`` (a sample's ground_truth.json) the stage's ``compare`` adds how close it came."""
+    from .transaction import OutputLock, Transaction, holds_lock, workspace_lock
 
     validate = getattr(cfg, "validate", None)
     if validate is not None:
@@ -167,31 +168,67 @@ def run_stage(
     if ws.root.exists() and not ws.root.is_dir():
         raise WorkspaceError(f"workspace {ws.root} exists and is not a folder; choose another with -w")
     stage_fingerprint(stage, ws, cfg)  # missing inputs are errors before anything is written
-    with workspace_lock(ws):
+    alongside = not stage.pipeline and not holds_lock(ws)
+    with workspace_lock(ws, alongside=alongside):
         key = stage_fingerprint(stage, ws, cfg)  # under the lock: what the stage will read
         record_key = stage.record_key(ws, cfg)
         done = None if force else StageRecord(ws).get(record_key, key, stage.outputs(ws, cfg))
         if done is not None:
             return done["summary"], True
         txn = Transaction(ws, record_key.replace("/", "-"), [_inside(ws, p, stage) for p in stage.writes(ws, cfg)])
-        t0 = time.perf_counter()
-        # a failed stage leaves the workspace as it was; a killed (or interrupted) one, its staging to resume
-        with txn.staging_of(key) as staged:
-            if txn.resumed:
-                log(f"{stage.name}: resuming the interrupted run")
-            summary = stage.run(staged, cfg, log)
-            # an output the stage found up to date and left in place (not rewritten into the staging) counts
-            missing = [str(_relative(p, txn.staging, ws.root)) for p in stage.outputs(staged, cfg)
-                       if not p.exists() and not (ws.root / _relative(p, txn.staging, ws.root)).exists()]  # fmt: skip
-            if missing:
-                raise WorkspaceError(f"{stage.command} finished without writing {', '.join(missing)}")
-            extra = None if ground_truth is None else stage.compare(staged, cfg, ground_truth)
-            if extra is not None:
-                summary = {**summary, **extra, "line": summary["line"] + extra["line"]}
-            summary = jsonable(_unstaged(summary, txn.staging, ws.root))
-        StageRecord(ws).put(record_key, {"fingerprint": key, "config": to_dict(cfg), "summary": summary,
-                                         "seconds": round(time.perf_counter() - t0, 1)})  # fmt: skip
+        if not alongside:  # the whole run under the lock
+            t0 = time.perf_counter()
+            # a failed stage leaves the workspace as it was; a killed (or interrupted) one, its staging to resume
+            with txn.staging_of(key) as staged:
+                summary = _run_staged(stage, staged, cfg, txn, ws, log, ground_truth)
+            StageRecord(ws).put(record_key, _record(key, cfg, summary, t0))
+            return summary, False
+        running = OutputLock(ws, txn.name).acquire()
+        try:
+            txn.resumed = txn.begin(key)
+        except BaseException:
+            running.release()
+            raise
+    t0 = time.perf_counter()
+    try:
+        summary = _run_staged(stage, txn.staged_ws, cfg, txn, ws, log, ground_truth)
+    except KeyboardInterrupt:  # like a kill: the staging stays for the next run to resume
+        running.release(unlink=False)
+        raise
+    except BaseException:
+        txn.abort()
+        running.release(unlink=False)
+        raise
+    try:  # the commit waits out another run's bookkeeping (seconds), not hours of work
+        with workspace_lock(ws, alongside=True, wait_s=600.0):
+            txn.commit()
+            StageRecord(ws).put(record_key, _record(key, cfg, summary, t0))
+            running.release()
+    finally:
+        running.release(unlink=False)
     return summary, False
+
+
+def _run_staged(stage: Stage, staged: Workspace, cfg: Any, txn: Any, ws: Workspace, log: Log,
+                ground_truth: dict | None) -> dict[str, Any]:  # fmt: skip
+    """The stage on its staged workspace; the summary with staged paths named where they land."""
+    if txn.resumed:
+        log(f"{stage.name}: resuming the interrupted run")
+    summary = stage.run(staged, cfg, log)
+    # an output the stage found up to date and left in place (not rewritten into the staging) counts
+    missing = [str(_relative(p, txn.staging, ws.root)) for p in stage.outputs(staged, cfg)
+               if not p.exists() and not (ws.root / _relative(p, txn.staging, ws.root)).exists()]  # fmt: skip
+    if missing:
+        raise WorkspaceError(f"{stage.command} finished without writing {', '.join(missing)}")
+    extra = None if ground_truth is None else stage.compare(staged, cfg, ground_truth)
+    if extra is not None:
+        summary = {**summary, **extra, "line": summary["line"] + extra["line"]}
+    return jsonable(_unstaged(summary, txn.staging, ws.root))
+
+
+def _record(key: str, cfg: Any, summary: dict[str, Any], t0: float) -> dict[str, Any]:
+    seconds = round(time.perf_counter() - t0, 1)
+    return {"fingerprint": key, "config": to_dict(cfg), "summary": summary, "seconds": seconds}
 
 
 def _relative(p: Path, staging: Path, root: Path) -> Path:

@@ -5,6 +5,12 @@
 refused with the holder's pid, command and start time (``.m2m/holder.json``). Under the lock, leftovers of
 killed runs (the hidden ``.<name>.tmp-*`` / ``.<name>.old-*`` of atomic writes) are removed.
 
+**Runs side by side.** The policy stages (``train-policy``, ``eval-policy``: one output per name, never part of a
+pipeline run) hold the lock only to start and to commit; in between each holds its own output's lock
+(``.m2m/running/<name>.json``, flocked, naming its holder), so several trainings and evaluations of one
+workspace run at once while a second run of the same output is refused. Every other writer is refused while
+any of them runs (it would change what they read); short bookkeeping (their commits, ``m2m.yaml``) waits its turn.
+
 **The transaction.** A stage runs on a staged view of the workspace (:meth:`Workspace.staged`): what it
 writes lands in ``<ws>/.m2m/txn/<name>/staged/`` with the workspace's layout, what it reads comes from the
 workspace. Only when the stage returned and its outputs exist is the staged set swapped in, one rename per
@@ -31,7 +37,7 @@ from pathlib import Path
 from ..atomic import atomic_write
 from ..workspace import Workspace, WorkspaceError
 
-__all__ = ["Transaction", "WorkspaceBusy", "workspace_lock"]
+__all__ = ["OutputLock", "Transaction", "WorkspaceBusy", "holds_lock", "workspace_lock"]
 
 # what atomic_write / atomic_dir leave behind when killed: ".<name>.tmp-<pid>-<hex>[.suffix]", ".<name>.old-..."
 _LEFTOVER = re.compile(r"^\..+\.(tmp|old)-\d+-[0-9a-f]{8}(\.[A-Za-z0-9]+)?$")
@@ -46,12 +52,34 @@ def _command() -> str:
     return "m2m " + " ".join(sys.argv[1:4]) if sys.argv and sys.argv[0].endswith(("m2m", "__main__.py")) else "python"
 
 
+def holds_lock(ws: Workspace) -> bool:
+    """Whether this process holds ``ws``'s lock now."""
+    return bool(_held.get(ws.root.resolve()))
+
+
+def _holder(path: Path) -> str:
+    try:
+        h = json.loads(path.read_text())
+        return f"pid {h['pid']} (`{h['command']}`, since {h['since']})"
+    except (OSError, ValueError, KeyError, TypeError):
+        return "another process"
+
+
+def _holder_info(command: str | None) -> str:
+    return json.dumps({"pid": os.getpid(), "command": command or _command(),
+                       "since": time.strftime("%Y-%m-%d %H:%M:%S")})  # fmt: skip
+
+
 @contextmanager
-def workspace_lock(ws: Workspace, command: str | None = None) -> Iterator[None]:
+def workspace_lock(ws: Workspace, command: str | None = None, *, alongside: bool = False,
+                   wait_s: float = 0.0) -> Iterator[None]:  # fmt: skip
     """Hold ``ws``'s writer lock (re-entrant within a process); :class:`WorkspaceBusy` names the holder.
 
     The lock is an exclusive ``flock`` on the workspace folder itself, so it needs no lock file (a failing
-    command leaves the workspace's files as they were); ``.m2m/holder.json`` says who holds it."""
+    command leaves the workspace's files as they were); ``.m2m/holder.json`` says who holds it. It is refused
+    while a policy stage runs beside it (:class:`OutputLock`), unless ``alongside``: a short hold that may
+    happen beside them (their start and commit, an ``m2m.yaml`` update). ``wait_s``: wait that long for
+    another holder to finish before refusing."""
     key = ws.root.resolve()
     if _held.get(key):
         _held[key] += 1
@@ -66,35 +94,90 @@ def workspace_lock(ws: Workspace, command: str | None = None) -> Iterator[None]:
     ws.root.mkdir(parents=True, exist_ok=True)
     fd = os.open(ws.root, os.O_RDONLY | os.O_DIRECTORY)
     holder = ws.state_dir / "holder.json"
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        os.close(fd)
+    deadline = time.monotonic() + wait_s
+    while True:
         try:
-            h = json.loads(holder.read_text())
-            who = f"pid {h['pid']} (`{h['command']}`, since {h['since']})"
-        except (OSError, ValueError, KeyError, TypeError):
-            who = "another process"
-        raise WorkspaceBusy(
-            f"workspace {ws.root} is being written by {who}; wait for it to finish (or stop it), then run again"
-        ) from None
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            break
+        except BlockingIOError:
+            if time.monotonic() < deadline:
+                time.sleep(0.2)
+                continue
+            os.close(fd)
+            raise WorkspaceBusy(f"workspace {ws.root} is being written by {_holder(holder)}; wait for it to finish "
+                                "(or stop it), then run again") from None  # fmt: skip
     _held[key] = 1
     try:
-        info = {"pid": os.getpid(), "command": command or _command(), "since": time.strftime("%Y-%m-%d %H:%M:%S")}
+        running = [] if alongside else OutputLock.running(ws)
+        if running:
+            raise WorkspaceBusy(f"workspace {ws.root} is in use by {'; '.join(running)}; wait for "
+                                f"{'them' if len(running) > 1 else 'it'} to finish (or stop "
+                                f"{'them' if len(running) > 1 else 'it'}), then run again")  # fmt: skip
         ws.state_dir.mkdir(exist_ok=True)
-        holder.write_text(json.dumps(info))
+        holder.write_text(_holder_info(command))
         _remove_leftovers(ws.root)
         yield
     finally:
         _held.pop(key, None)
         holder.unlink(missing_ok=True)
-        for d in (ws.state_dir / "txn", ws.state_dir):  # the state folder holds nothing between commands
+        # the state folder holds nothing between commands
+        for d in (ws.state_dir / "running", ws.state_dir / "txn", ws.state_dir):
             with contextlib.suppress(OSError):
                 d.rmdir()
         if created and not any(ws.root.iterdir()):  # a command that wrote nothing leaves no workspace behind
             with contextlib.suppress(OSError):
                 ws.root.rmdir()
         os.close(fd)  # releases the flock
+
+
+class OutputLock:
+    """One running output of a policy stage (``name``: its transaction's), held from its start to its commit
+    while the workspace lock is not: ``.m2m/running/<name>.json``, flocked (the kernel drops it when the process
+    dies) and naming its holder. Acquire and release it holding the workspace lock (``alongside``)."""
+
+    def __init__(self, ws: Workspace, name: str, command: str | None = None) -> None:
+        self.path = ws.state_dir / "running" / f"{name}.json"
+        self.command = command
+        self.fd: int | None = None
+
+    def acquire(self) -> OutputLock:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise WorkspaceBusy(f"{self.path.stem} is being run by {_holder(self.path)}; wait for it to finish (or "
+                                "stop it), then run again") from None  # fmt: skip
+        os.ftruncate(fd, 0)
+        os.write(fd, _holder_info(self.command).encode())
+        self.fd = fd
+        return self
+
+    def release(self, unlink: bool = True) -> None:
+        """Drop the hold; ``unlink`` only holding the workspace lock (a file left behind is removed later)."""
+        if self.fd is None:
+            return
+        if unlink:
+            self.path.unlink(missing_ok=True)
+        os.close(self.fd)
+        self.fd = None
+
+    @staticmethod
+    def running(ws: Workspace) -> list[str]:
+        """Who runs beside the lock's holder now ("<name>: pid ..."); files of killed runs are removed."""
+        out = []
+        folder = ws.state_dir / "running"
+        for path in sorted(folder.glob("*.json")) if folder.is_dir() else []:
+            fd = os.open(path, os.O_RDONLY)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                path.unlink(missing_ok=True)  # its process died: nothing holds it
+            except BlockingIOError:
+                out.append(f"{path.stem}: {_holder(path)}")
+            finally:
+                os.close(fd)
+        return out
 
 
 def _remove_leftovers(root: Path) -> None:
