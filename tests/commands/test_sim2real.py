@@ -44,8 +44,9 @@ def test_settings_are_checked(tmp_path, sample_dir):
         Sim2RealConfig(sample=tmp_path).validate()
     with pytest.raises(M2MError, match="ablation_demos .* must be one of demos"):
         Sim2RealConfig(sample=sample_dir, ablation_demos=100).validate()
-    with pytest.raises(M2MError, match="seeds must be >= 1"):
-        Sim2RealConfig(sample=sample_dir, seeds=0).validate()
+    for bad in ({"seeds": 0}, {"parallel": 0}):
+        with pytest.raises(M2MError, match="seeds and parallel must be >= 1"):
+            Sim2RealConfig(sample=sample_dir, **bad).validate()
     with pytest.raises(M2MError, match="steps must be >= 0"):
         Sim2RealConfig(sample=sample_dir, steps=-1).validate()
 
@@ -67,13 +68,14 @@ def test_the_bench_draws_its_demos_supersampled_and_records_the_scene(tmp_path, 
     def fake_run(stage_name, ws_, cfg, log):
         calls.append((stage_name, cfg))
         if stage_name == "generate":
-            return {"tasks": {cfg.task[0]: {"episodes": cfg.episodes, "success_rate": 1.0}}}, 1.0
+            return {"tasks": {cfg.task[0]: {"episodes": cfg.episodes, "success_rate": 1.0}}}, 1.0, False
         if stage_name == "train_policy":
-            return {"seconds": {"train": 60.0}, "steps": 10}, 60.0
-        return _e(8, 10), 30.0
+            return {"seconds": {"train": 60.0}, "steps": 10}, 60.0, False
+        return _e(8, 10), 30.0, False
 
-    monkeypatch.setattr(sim2real, "_run", fake_run)
-    cfg = Sim2RealConfig(sample=sample_dir, demos=(50, 150), ablation_demos=150, episodes=10, supersample=3)
+    monkeypatch.setattr(sim2real, "_run_stage", fake_run)
+    cfg = Sim2RealConfig(sample=sample_dir, demos=(50, 150), ablation_demos=150, episodes=10, supersample=3,
+                         parallel=1)  # fmt: skip
     result = sim2real.run_sim2real(ws, cfg, log=lambda m: None)
     gens = [c for name, c in calls if name == "generate"]
     assert len(gens) == 3 and {c.supersample for c in gens} == {3}
@@ -105,16 +107,18 @@ def test_the_main_policies_are_their_training_seeds_as_one(tmp_path, sample_dir,
     def fake_run(stage_name, ws_, cfg, log):
         calls.append((stage_name, cfg))
         if stage_name == "generate":
-            return {"tasks": {cfg.task[0]: {"episodes": cfg.episodes, "success_rate": 1.0}}}, 1.0
-        if stage_name == "train_policy":
-            return {"seconds": {"train": 60.0}, "steps": cfg.steps}, 60.0
+            return {"tasks": {cfg.task[0]: {"episodes": cfg.episodes, "success_rate": 1.0}}}, 1.0, False
+        if stage_name == "train_policy":  # the first seed's done earlier: its recorded time counts
+            return {"seconds": {"train": 60.0}, "steps": cfg.steps}, 60.0, cfg.seed == 0
         k = {"grasp_banana_tie_2_look_0_5_300_x4": 43, "grasp_banana_tie_2_look_0_5_300": 40}.get(
             cfg.name.split("-")[0], 30)
-        return _e(k), 30.0
+        return _e(k), 30.0, False
 
-    monkeypatch.setattr(sim2real, "_run", fake_run)
+    monkeypatch.setattr(sim2real, "_run_stage", fake_run)
     cfg = Sim2RealConfig(sample=sample_dir)
-    assert (cfg.task, cfg.seeds, cfg.steps, cfg.supersample) == ("grasp banana --tie 2 --look 0.5", 4, 4000, 1)
+    assert (cfg.task, cfg.seeds, cfg.steps, cfg.supersample, cfg.parallel) == (
+        "grasp banana --tie 2 --look 0.5", 4, 4000, 1, 2)
+    cfg.parallel = 1  # side by side: the test below
     result = sim2real.run_sim2real(ws, cfg, log=lambda m: None)
     grasp = [c for name, c in calls if name == "generate" and c.task == (cfg.task,)]
     assert [(c.episodes, c.supersample, c.objects) for c in grasp] == [(300, 1, "gaussians"), (150, 1, "meshes")]
@@ -136,3 +140,32 @@ def test_the_main_policies_are_their_training_seeds_as_one(tmp_path, sample_dir,
     assert "| 4 training seeds as one | 86.0 % [74-93] (43/50) |" in md
     assert "| 300 | 80.0 % [67-89] (40/50) |" in md.split("Data scale")[1]
     assert "without splat supersampling" in md
+    # the seed-0 trainings done earlier (main 300, the curve's 50 and 150, press, ablation: 5 x 60 s) count
+    assert 5.0 <= result["minutes"]["training"] < 5.2
+
+
+def test_the_seeds_train_side_by_side_in_one_workspace(tmp_path, capfd):
+    """The bench's seeds train in child processes at once (the workspace lock lets policy stages run side by
+    side); each lands as a finished policy with its own record, and a rerun finds them done."""
+    import json
+
+    from fixtures.policy_datasets import build_dataset, spec_for, tiny_config
+    from mirage2matter.commands import sim2real
+    from mirage2matter.stages import train_policy
+    from mirage2matter.workspace import Workspace
+
+    ws = Workspace(tmp_path / "ws")
+    build_dataset(ws.datasets_dir / "demos", spec_for(), length=12)
+    base = {f: getattr(tiny_config(steps=4), f) for f in ("image_size", "chunk", "batch_size", "warmup_steps", "steps",
+                                                           "widths", "keypoints", "hidden", "val_fraction")}
+    cfgs = [train_policy.Config(datasets=("demos",), name=f"p{k}", seed=k, **base) for k in range(2)]
+    done = sim2real._train_side_by_side(ws, cfgs, 2, log=lambda m: None)
+    assert [(s["steps"], skipped) for s, _, skipped in done] == [(4, False), (4, False)]
+    err = capfd.readouterr().err
+    assert "[p0] " in err and "[p1] " in err  # each child's lines carry its policy's name
+    records = json.loads(ws.record_file.read_text())
+    assert {"train_policy/p0", "train_policy/p1"} <= set(records)
+    assert all((ws.policy_dir(f"p{k}") / "policy.pt").is_file() for k in range(2))
+    assert not (ws.root / ".m2m").exists()
+    again = sim2real._train_side_by_side(ws, cfgs, 2, log=lambda m: None)
+    assert [skipped for _, _, skipped in again] == [True, True]
