@@ -51,8 +51,9 @@ def test_settings_are_checked(tmp_path, sample_dir):
         Sim2RealConfig(sample=sample_dir, steps=-1).validate()
 
 
-def test_the_bench_draws_its_demos_supersampled_and_records_the_scene(tmp_path, sample_dir, monkeypatch):
-    """Every generation (main, press, ablation) gets the bench's supersample; the result says what scene it used."""
+def _bench_ws(tmp_path, monkeypatch, evals=lambda cfg: _e(8, 10)):
+    """A workspace with a world and a scene trained with the head photo, and the bench's stage runs recorded (calls:
+    (stage name, config)) instead of run: the first training seed counts as done earlier (60 s recorded)."""
     import json
 
     from mirage2matter.commands import sim2real
@@ -70,10 +71,18 @@ def test_the_bench_draws_its_demos_supersampled_and_records_the_scene(tmp_path, 
         if stage_name == "generate":
             return {"tasks": {cfg.task[0]: {"episodes": cfg.episodes, "success_rate": 1.0}}}, 1.0, False
         if stage_name == "train_policy":
-            return {"seconds": {"train": 60.0}, "steps": 10}, 60.0, False
-        return _e(8, 10), 30.0, False
+            return {"seconds": {"train": 60.0}, "steps": cfg.steps}, 60.0, cfg.seed == 0
+        return evals(cfg), 30.0, False
 
     monkeypatch.setattr(sim2real, "_run_stage", fake_run)
+    return ws, calls
+
+
+def test_the_bench_draws_its_demos_supersampled_and_records_the_scene(tmp_path, sample_dir, monkeypatch):
+    """Every generation (main, press, ablation) gets the bench's supersample; the result says what scene it used."""
+    from mirage2matter.commands import sim2real
+
+    ws, calls = _bench_ws(tmp_path, monkeypatch)
     cfg = Sim2RealConfig(sample=sample_dir, demos=(50, 150), ablation_demos=150, episodes=10, supersample=3,
                          parallel=1)  # fmt: skip
     result = sim2real.run_sim2real(ws, cfg, log=lambda m: None)
@@ -92,29 +101,10 @@ def test_the_main_policies_are_their_training_seeds_as_one(tmp_path, sample_dir,
     """By default the bench runs the recipe the README measured: 300 demos of the expert with `--tie 2 --look 0.5`,
     drawn at frame size, four training seeds of 4,000 steps each deployed as one, the first seed alone beside them;
     the data-scale curve and the ablation train one seed."""
-    import json
-
     from mirage2matter.commands import sim2real
-    from mirage2matter.workspace import Workspace
 
-    ws = Workspace(tmp_path / "ws")
-    ws.world_yaml.parent.mkdir(parents=True)
-    ws.world_yaml.write_text("objects: []\n")
-    ws.scene_metrics.parent.mkdir(parents=True)
-    ws.scene_metrics.write_text(json.dumps({"psnr_heldout": 29.9, "config": {"head_photo": "/x/head_view.png"}}))
-    calls = []
-
-    def fake_run(stage_name, ws_, cfg, log):
-        calls.append((stage_name, cfg))
-        if stage_name == "generate":
-            return {"tasks": {cfg.task[0]: {"episodes": cfg.episodes, "success_rate": 1.0}}}, 1.0, False
-        if stage_name == "train_policy":  # the first seed's done earlier: its recorded time counts
-            return {"seconds": {"train": 60.0}, "steps": cfg.steps}, 60.0, cfg.seed == 0
-        k = {"grasp_banana_tie_2_look_0_5_300_x4": 43, "grasp_banana_tie_2_look_0_5_300": 40}.get(
-            cfg.name.split("-")[0], 30)
-        return _e(k), 30.0, False
-
-    monkeypatch.setattr(sim2real, "_run_stage", fake_run)
+    scores = {"grasp_banana_tie_2_look_0_5_300_x4": 43, "grasp_banana_tie_2_look_0_5_300": 40}
+    ws, calls = _bench_ws(tmp_path, monkeypatch, lambda cfg: _e(scores.get(cfg.name.split("-")[0], 30)))
     cfg = Sim2RealConfig(sample=sample_dir)
     assert (cfg.task, cfg.seeds, cfg.steps, cfg.supersample, cfg.parallel) == (
         "grasp banana --tie 2 --look 0.5", 4, 4000, 1, 2)
