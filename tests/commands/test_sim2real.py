@@ -149,7 +149,7 @@ def test_the_seeds_train_side_by_side_in_one_workspace(tmp_path, capfd):
     base = {f: getattr(tiny_config(steps=4), f) for f in ("image_size", "chunk", "batch_size", "warmup_steps", "steps",
                                                            "widths", "keypoints", "hidden", "val_fraction")}
     cfgs = [train_policy.Config(datasets=("demos",), name=f"p{k}", seed=k, **base) for k in range(2)]
-    done = sim2real._train_side_by_side(ws, cfgs, 2, log=lambda m: None)
+    done = sim2real._side_by_side(ws, "train_policy", cfgs, 2, log=lambda m: None)
     assert [(s["steps"], skipped) for s, _, skipped in done] == [(4, False), (4, False)]
     err = capfd.readouterr().err
     assert "[p0] " in err and "[p1] " in err  # each child's lines carry its policy's name
@@ -157,5 +157,5 @@ def test_the_seeds_train_side_by_side_in_one_workspace(tmp_path, capfd):
     assert {"train_policy/p0", "train_policy/p1"} <= set(records)
     assert all((ws.policy_dir(f"p{k}") / "policy.pt").is_file() for k in range(2))
     assert not (ws.root / ".m2m").exists()
-    again = sim2real._train_side_by_side(ws, cfgs, 2, log=lambda m: None)
+    again = sim2real._side_by_side(ws, "train_policy", cfgs, 2, log=lambda m: None)
     assert [skipped for _, _, skipped in again] == [True, True]

@@ -59,9 +59,9 @@ class Sim2RealConfig:
                     68 % (README), for twice the generation time
     workers         generation workers
     seeds           training seeds of each main policy (0, 1, ...), deployed as one ensemble; 1: a single policy
-    parallel        a main policy's seeds trained this many at a time, side by side in child processes with the
-                    cores shared out (on 2 cores two one-thread trainings of 4,000 steps took 28.5 min together,
-                    one alone with both cores about 22 min)
+    parallel        a policy's seeds trained, and its evaluations run, this many at a time, side by side in child
+                    processes with the cores shared out (on 2 cores two one-thread trainings of 4,000 steps took
+                    28.5 min together, one alone with both cores about 22 min)
     steps           training steps per policy (0: train for `minutes` of wall-clock time instead)
     minutes         training budget per policy when steps is 0
     image_size      the policies' input side (pixels)
@@ -132,29 +132,32 @@ def _run(stage_name: str, ws: Workspace, cfg: Any, log: Log) -> tuple[dict[str, 
     return summary, seconds
 
 
-def _train_side_by_side(ws: Workspace, cfgs: list[Any], parallel: int, log: Log) -> list[tuple[dict, float, bool]]:
-    """train-policy runs, ``parallel`` at a time in child processes (the stages hold only their own output while
-    they train, so they share the workspace), the cores shared out; one at a time in this process when 1."""
+def _side_by_side(ws: Workspace, stage_name: str, cfgs: list[Any], parallel: int,
+                  log: Log) -> list[tuple[dict, float, bool]]:  # fmt: skip
+    """Runs of a policy stage (train_policy, eval_policy: each holds only its own output while it works, so they
+    share the workspace), ``parallel`` at a time in child processes with the cores shared out; one at a time in
+    this process when 1. Each run's (summary, seconds, done earlier), in order."""
     if parallel <= 1 or len(cfgs) <= 1:
-        return [_run_stage("train_policy", ws, c, log) for c in cfgs]
+        return [_run_stage(stage_name, ws, c, log) for c in cfgs]
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
     n = min(parallel, len(cfgs))
     threads = max(1, (os.cpu_count() or 1) // n)
-    log(f"bench sim2real: training {', '.join(c.name for c in cfgs)}, {n} side by side ({threads} thread(s) each)")
+    log(f"bench sim2real: {stage_name} {', '.join(c.name for c in cfgs)}, {n} side by side ({threads} thread(s) "
+        "each)")  # fmt: skip
     # spawn: this process may already run torch's and OpenMP's threads, which a fork does not carry over safely
     with ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("spawn")) as pool:
-        jobs = [pool.submit(_train_child, str(ws.root), c, threads) for c in cfgs]
+        jobs = [pool.submit(_child, str(ws.root), stage_name, c, threads) for c in cfgs]
         return [j.result() for j in jobs]
 
 
-def _train_child(root: str, cfg: Any, threads: int) -> tuple[dict[str, Any], float, bool]:
+def _child(root: str, stage_name: str, cfg: Any, threads: int) -> tuple[dict[str, Any], float, bool]:
     from .. import configure_threads
     from .args import info
 
     configure_threads(threads)
-    return _run_stage("train_policy", Workspace(root), cfg, lambda m: info(f"[{cfg.name}] {m}"))
+    return _run_stage(stage_name, Workspace(root), cfg, lambda m: info(f"[{cfg.name}] {m}"))
 
 
 def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[str, Any]:
@@ -185,21 +188,27 @@ def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[s
     def train(dataset: str, n: int, names: list[str]) -> list[dict]:
         cs = [train_policy.Config(datasets=(dataset,), episodes=n, name=name, steps=cfg.steps, minutes=cfg.minutes,
                                   image_size=cfg.image_size, seed=seed) for seed, name in enumerate(names)]  # fmt: skip
-        t0 = time.perf_counter()
-        done = _train_side_by_side(ws, cs, cfg.parallel, log)
-        # wall-clock (runs side by side overlap), and the recorded time of a run done earlier
-        seconds["training"] += time.perf_counter() - t0 + sum(dt for _, dt, skipped in done if skipped)
-        return [s for s, _, _ in done]
+        return side_by_side("train_policy", cs, "training")
 
-    def evaluate(policy: str, label: str, task: str, renderer: str, objects: str = "gaussians") -> dict:
-        # absolute: the stage records it in m2m.yaml, where a relative path would mean the workspace's folder
-        sample = Path(cfg.sample).resolve() if renderer == "ground_truth" else None
-        name = f"{label}-{renderer}" + ("-mesh_objects" if objects == "meshes" else "")
-        c = eval_policy.Config(policy=policy, task=task, renderer=renderer, episodes=cfg.episodes, seed=cfg.seed,
-                               size=cfg.size, ground_truth=sample, name=name, objects=objects)  # fmt: skip
-        s, dt = _run("eval_policy", ws, c, log)
-        seconds["evaluation"] += dt
-        return {k: s[k] for k in ("successes", "episodes", "success_rate", "wilson95", "mean_steps")}
+    def evaluate(task: str, runs: list[tuple[str, str, str, str]]) -> list[dict]:
+        """runs: (policy, report label, renderer, objects), side by side."""
+        cs = []
+        for policy, label, renderer, objects in runs:
+            # absolute: the stage records it in m2m.yaml, where a relative path would mean the workspace's folder
+            sample = Path(cfg.sample).resolve() if renderer == "ground_truth" else None
+            name = f"{label}-{renderer}" + ("-mesh_objects" if objects == "meshes" else "")
+            cs.append(eval_policy.Config(policy=policy, task=task, renderer=renderer, episodes=cfg.episodes,
+                                         seed=cfg.seed, size=cfg.size, ground_truth=sample, name=name,
+                                         objects=objects))  # fmt: skip
+        keys = ("successes", "episodes", "success_rate", "wilson95", "mean_steps")
+        return [{k: s[k] for k in keys} for s in side_by_side("eval_policy", cs, "evaluation")]
+
+    def side_by_side(stage_name: str, cs: list[Any], part: str) -> list[dict]:
+        t0 = time.perf_counter()
+        done = _side_by_side(ws, stage_name, cs, cfg.parallel, log)
+        # wall-clock (runs side by side overlap), and the recorded time of a run done earlier
+        seconds[part] += time.perf_counter() - t0 + sum(dt for _, dt, skipped in done if skipped)
+        return [s for s, _, _ in done]
 
     rows: list[dict[str, Any]] = []
 
@@ -212,10 +221,14 @@ def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[s
         row = {"kind": kind, "task": task, "dataset": dataset, "demos": n, "policy": deployed, "seeds": seeds,
                "train_minutes": round(sum(t["seconds"]["train"] for t in trained) / 60, 2),
                "train_steps": [t["steps"] for t in trained]}  # fmt: skip
-        for world in worlds:  # its own world: the hybrid one with the objects drawn as in its demos
-            row[world] = evaluate(deployed, label, task, world, objects if world == "hybrid" else "gaussians")
+        # its own world: the hybrid one with the objects drawn as in its demos
+        runs = [(deployed, label, world, objects if world == "hybrid" else "gaussians") for world in worlds]
         if seeds > 1:  # the first seed alone: one policy's figure, and the data-scale curve's point
-            row["ground_truth_single"] = evaluate(names[0], names[0], task, "ground_truth")
+            runs.append((names[0], names[0], "ground_truth", "gaussians"))
+        results = evaluate(task, runs)
+        row.update(zip(worlds, results[: len(worlds)], strict=True))
+        if seeds > 1:
+            row["ground_truth_single"] = results[-1]
         rows.append(row)
         return row
 
