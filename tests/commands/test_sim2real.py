@@ -159,3 +159,4 @@ def test_the_seeds_train_side_by_side_in_one_workspace(tmp_path, capfd):
     assert not (ws.root / ".m2m").exists()
     again = sim2real._side_by_side(ws, "train_policy", cfgs, 2, log=lambda m: None)
     assert [skipped for _, _, skipped in again] == [True, True]
+    assert "[p0] " not in capfd.readouterr().err  # found done here: no child started

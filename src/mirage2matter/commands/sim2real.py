@@ -137,19 +137,33 @@ def _side_by_side(ws: Workspace, stage_name: str, cfgs: list[Any], parallel: int
     """Runs of a policy stage (train_policy, eval_policy: each holds only its own output while it works, so they
     share the workspace), ``parallel`` at a time in child processes with the cores shared out; one at a time in
     this process when 1. Each run's (summary, seconds, done earlier), in order."""
-    if parallel <= 1 or len(cfgs) <= 1:
+    todo = [c for c in cfgs if not _done(ws, stage_name, c)]  # a resumed bench starts no process for those
+    if parallel <= 1 or len(todo) <= 1:
         return [_run_stage(stage_name, ws, c, log) for c in cfgs]
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    n = min(parallel, len(cfgs))
+    n = min(parallel, len(todo))
     threads = max(1, (os.cpu_count() or 1) // n)
-    log(f"bench sim2real: {stage_name} {', '.join(c.name for c in cfgs)}, {n} side by side ({threads} thread(s) "
+    log(f"bench sim2real: {stage_name} {', '.join(c.name for c in todo)}, {n} side by side ({threads} thread(s) "
         "each)")  # fmt: skip
     # spawn: this process may already run torch's and OpenMP's threads, which a fork does not carry over safely
     with ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("spawn")) as pool:
-        jobs = [pool.submit(_child, str(ws.root), stage_name, c, threads) for c in cfgs]
-        return [j.result() for j in jobs]
+        jobs = {id(c): pool.submit(_child, str(ws.root), stage_name, c, threads) for c in todo}
+        return [jobs[id(c)].result() if id(c) in jobs else _run_stage(stage_name, ws, c, log) for c in cfgs]
+
+
+def _done(ws: Workspace, stage_name: str, cfg: Any) -> bool:
+    """Whether an identical run finished (run_stage would skip it)."""
+    from ..stages import get_stage
+    from ..stages.base import StageRecord, stage_fingerprint
+
+    stage = get_stage(stage_name)
+    try:
+        key = stage_fingerprint(stage, ws, cfg)
+    except M2MError:  # a missing input: the run itself says so
+        return False
+    return StageRecord(ws).get(stage.record_key(ws, cfg), key, stage.outputs(ws, cfg)) is not None
 
 
 def _child(root: str, stage_name: str, cfg: Any, threads: int) -> tuple[dict[str, Any], float, bool]:
