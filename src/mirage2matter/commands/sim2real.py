@@ -127,11 +127,6 @@ def _run_stage(stage_name: str, ws: Workspace, cfg: Any, log: Log) -> tuple[dict
     return summary, seconds, skipped
 
 
-def _run(stage_name: str, ws: Workspace, cfg: Any, log: Log) -> tuple[dict[str, Any], float]:
-    summary, seconds, _ = _run_stage(stage_name, ws, cfg, log)
-    return summary, seconds
-
-
 def _side_by_side(ws: Workspace, stage_name: str, cfgs: list[Any], parallel: int,
                   log: Log) -> list[tuple[dict, float, bool]]:  # fmt: skip
     """Runs of a policy stage (train_policy, eval_policy: each holds only its own output while it works, so they
@@ -156,14 +151,12 @@ def _side_by_side(ws: Workspace, stage_name: str, cfgs: list[Any], parallel: int
 def _done(ws: Workspace, stage_name: str, cfg: Any) -> bool:
     """Whether an identical run finished (run_stage would skip it)."""
     from ..stages import get_stage
-    from ..stages.base import StageRecord, stage_fingerprint
+    from ..stages.base import finished_record
 
-    stage = get_stage(stage_name)
     try:
-        key = stage_fingerprint(stage, ws, cfg)
+        return finished_record(get_stage(stage_name), ws, cfg) is not None
     except M2MError:  # a missing input: the run itself says so
         return False
-    return StageRecord(ws).get(stage.record_key(ws, cfg), key, stage.outputs(ws, cfg)) is not None
 
 
 def _child(root: str, stage_name: str, cfg: Any, threads: int) -> tuple[dict[str, Any], float, bool]:
@@ -195,7 +188,7 @@ def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[s
     def gen(task: str, n: int, objects: str = "gaussians", out: str | None = None) -> dict:
         c = generate.Config(task=(task,), episodes=n, workers=cfg.workers, size=cfg.size, objects=objects,
                             supersample=cfg.supersample, out=ws.dataset_dir(out) if out else None)  # fmt: skip
-        s, dt = _run("generate", ws, c, log)
+        s, dt, _ = _run_stage("generate", ws, c, log)
         seconds["generation"] += dt
         return s["tasks"][task]
 

@@ -151,6 +151,13 @@ class StageRecord:
             json.dump(self.data, f, indent=1, default=str)
 
 
+def finished_record(stage: Stage, ws: Workspace, cfg: Any, key: str | None = None) -> dict | None:
+    """The record of an identical finished run (its fingerprint ``key``, its outputs in place): what
+    :func:`run_stage` skips; None when there is none."""
+    key = key or stage_fingerprint(stage, ws, cfg)
+    return StageRecord(ws).get(stage.record_key(ws, cfg), key, stage.outputs(ws, cfg))
+
+
 def run_stage(
     stage: Stage, ws: Workspace, cfg: Any, log: Log = print, force: bool = False, ground_truth: dict | None = None
 ) -> tuple[dict[str, Any], bool]:
@@ -172,7 +179,7 @@ def run_stage(
     with workspace_lock(ws, alongside=alongside):
         key = stage_fingerprint(stage, ws, cfg)  # under the lock: what the stage will read
         record_key = stage.record_key(ws, cfg)
-        done = None if force else StageRecord(ws).get(record_key, key, stage.outputs(ws, cfg))
+        done = None if force else finished_record(stage, ws, cfg, key)
         if done is not None:
             return done["summary"], True
         txn = Transaction(ws, record_key.replace("/", "-"), [_inside(ws, p, stage) for p in stage.writes(ws, cfg)])
