@@ -11,13 +11,14 @@ the test is deterministic and no other process competing for the cores can move 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 import torch
 
 import mirage2matter.gaussians.train as train_module
-from mirage2matter.gaussians.budget import budget_config
+from mirage2matter.gaussians.budget import COARSE_FRACTION, budget_config
 from mirage2matter.gaussians.render import render
 from mirage2matter.gaussians.schedule import RunLength, Schedule
 from mirage2matter.gaussians.synthetic import orbit_cameras, tabletop_scene
@@ -36,12 +37,19 @@ class RenderClock:
     clock's reading (rate 10: a machine 10x slower than the nominal one)."""
 
     def __init__(self, rate, monkeypatch):
-        self.rate, self.now, self.renders = rate, 0.0, 0
+        self.rate, self.now, self.renders, self.training = rate, 0.0, 0, 0.0
+        # (training time before it, width, height, a training step's render?): the training time is what the
+        # trainer counts against its budget, the time of its steps' renders (evaluations are extra)
+        self.sizes: list[tuple[float, int, int, bool]] = []
 
-        def timed_render(g, *args, **kwargs):
+        def timed_render(g, viewmat, K, width, height, *args, **kwargs):
             self.renders += 1
-            self.now += self.rate(self.renders, self.now) * render_seconds(len(g))
-            return render(g, *args, **kwargs)
+            step = len(args) > 2 and args[2] is not None  # training renders pass an info dict
+            self.sizes.append((self.training, width, height, step))
+            seconds = self.rate(self.renders, self.now) * render_seconds(len(g))
+            self.now += seconds
+            self.training += seconds if step else 0.0
+            return render(g, viewmat, K, width, height, *args, **kwargs)
 
         monkeypatch.setattr(train_module, "render", timed_render)
 
@@ -104,6 +112,33 @@ def test_the_budget_is_used_and_the_schedule_ends_where_set(scene, name, monkeyp
     assert s["last_step_progress"] >= 0.9
     assert math.log(s["means_lr"] / lr1) <= 0.1 * math.log(lr0 / lr1)  # within the last tenth of its decay
     assert [c["step"] for c in m["curve"]][0] == 0 and len(m["curve"]) == 5  # 0, 1/4, 1/2, 3/4, the end
+
+
+def test_a_budget_run_trains_coarse_then_fine(scene, monkeypatch):
+    """budget_config trains on half-resolution views for its first COARSE_FRACTION of the time, then on the
+    views themselves; evaluations are always at full resolution."""
+    views, init = scene
+    budget_s = 120 * render_seconds(len(init))
+    cfg = budget_config(budget_s / 60, TrainConfig(sh_degree=1, max_gaussians=1500, checkpoint_every=0, backend="cpu"),
+                        densify_fraction=0.5, curve_points=4)  # fmt: skip
+    assert (cfg.coarse_fraction, cfg.coarse_factor) == (COARSE_FRACTION, 2)
+    clock = RenderClock(lambda k, t: 1.0, monkeypatch)
+    train(views, views[:1], init, cfg, progress=False, clock=clock)
+    warm_up, *steps = [(t, (w, h)) for t, w, h, training in clock.sizes if training]
+    # the untimed warm-up render (full size, before the run) is on the clock but not on the budget
+    steps = [((t - render_seconds(len(init))) / budget_s, size) for t, size in steps]
+    assert warm_up == (0.0, (W, H))
+    coarse = [p for p, size in steps if size == (W // 2, H // 2)]
+    fine = [p for p, size in steps if size == (W, H)]
+    assert len(coarse) + len(fine) == len(steps) and coarse and fine
+    assert max(coarse) < COARSE_FRACTION <= min(fine) and max(coarse) > COARSE_FRACTION - 0.05
+    assert {(w, h) for _, w, h, training in clock.sizes if not training} == {(W, H)}
+    no_coarse = budget_config(1.0, coarse_fraction=0.0)
+    assert no_coarse.coarse_fraction == 0.0
+    with pytest.raises(ValueError, match="coarse_fraction"):
+        budget_config(1.0, coarse_fraction=1.0)
+    with pytest.raises(ValueError, match="coarse_factor >= 1"):
+        train(views, views[:1], init, replace(cfg, coarse_factor=0), progress=False)
 
 
 def test_a_resumed_budget_run_continues_the_same_schedule(scene, tmp_path, monkeypatch):

@@ -11,7 +11,14 @@ import torch
 from mirage2matter.gaussians.losses import l1, psnr, ssim
 from mirage2matter.gaussians.render import render
 from mirage2matter.gaussians.synthetic import orbit_cameras, tabletop_scene
-from mirage2matter.gaussians.train import TrainConfig, View, init_gaussians_from_points, train, view_loss
+from mirage2matter.gaussians.train import (
+    TrainConfig,
+    View,
+    downsample_view,
+    init_gaussians_from_points,
+    train,
+    view_loss,
+)
 
 W, H = 64, 48
 
@@ -281,3 +288,40 @@ def test_opacity_regulariser_pushes_opacities_to_zero_or_one():
         o = torch.sigmoid(g.logit_opacities)
         hazy.append(float(((o > 0.1) & (o < 0.9)).float().mean()))
     assert hazy[1] < 0.6 * hazy[0], hazy
+
+
+# ---- coarse views ------------------------------------------------------------------------------
+def test_a_downsampled_view_is_the_scene_seen_at_that_resolution():
+    """A photo at 2W x 2H downsampled by 2: a world point lands at half its pixel coordinates (pixel edges stay
+    put), and the image is (up to the box filter) the render of its coarse camera, closer to it than to the
+    render of that camera half a pixel off."""
+    gt = tabletop_scene(3000, sh_degree=1, seed=0)
+    vm, K = orbit_cameras(1, W, H, seed=0)[0]
+    vm_t, K_t = torch.tensor(vm, dtype=torch.float32), torch.tensor(K, dtype=torch.float32)
+    K2 = K_t.clone()
+    K2[:2] *= 2
+    mask = torch.ones(2 * H, 2 * W, dtype=torch.bool)
+    mask[5, 7] = False  # one invalid fine pixel: its coarse pixel (2, 3) is invalid, no other
+    allowed = torch.zeros(2 * H, 2 * W, dtype=torch.bool)
+    allowed[9, 11] = True  # one fine pixel that may hold alpha: so may its coarse pixel (4, 5)
+    with torch.no_grad():
+        fine = render(gt, vm_t, K2, 2 * W, 2 * H, torch.zeros(3), backend="cpu").rgb.clamp(0, 1)
+        coarse = downsample_view(View(fine, vm_t, K2, mask=mask, alpha_mask=allowed, background=fine), 2)
+        assert (coarse.width, coarse.height) == (W, H) and torch.equal(coarse.viewmat, vm_t)
+        point = vm_t[:3, :3] @ torch.tensor([0.05, -0.1, 0.2]) + vm_t[:3, 3]  # camera frame
+        uv_fine, uv = (K2 @ point)[:2] / point[2], (coarse.K @ point)[:2] / point[2]
+        assert torch.allclose(uv, uv_fine / 2) and torch.allclose(coarse.K, K_t)
+        assert torch.equal(coarse.image, coarse.background)
+        assert torch.allclose(coarse.image[1, 2], fine[2:4, 4:6].mean(dim=(0, 1)))
+        assert not coarse.mask[2, 3] and int(coarse.mask.sum()) == W * H - 1
+        assert coarse.alpha_mask[4, 5] and int(coarse.alpha_mask.sum()) == 1
+        direct = render(gt, vm_t, K_t, W, H, torch.zeros(3), backend="cpu").rgb.clamp(0, 1)
+        shifted = K_t.clone()
+        shifted[:2, 2] += 0.5
+        off = render(gt, vm_t, shifted, W, H, torch.zeros(3), backend="cpu").rgb.clamp(0, 1)
+    right, wrong = float(psnr(direct, coarse.image)), float(psnr(off, coarse.image))
+    print("coarse view PSNR", round(right, 2), "half a pixel off", round(wrong, 2))  # 29.8 and 28.8 dB
+    assert right >= 27.0 and right >= wrong + 0.5
+    assert downsample_view(coarse, 1) is coarse
+    with pytest.raises(ValueError, match="leaves no pixels"):
+        downsample_view(coarse, 100)

@@ -3,7 +3,8 @@
 Loss L1 + lambda * (1 - SSIM) over valid pixels, Adam with the per-parameter learning rates of
 3DGS (means scaled by the scene extent and decayed exponentially), the SH degree raised during the
 run, densification / pruning by gsplat's ``DefaultStrategy`` operations (pure torch, so they run on the
-CPU too) with a cap on the number of Gaussians, held-out evaluation, and atomic checkpoints that
+CPU too) with a cap on the number of Gaussians, optionally a coarse start (the views at a fraction of
+their resolution for the first part of the run), held-out evaluation, and atomic checkpoints that
 ``train(..., resume=True)`` resumes. A run ends at ``iterations`` steps or ``max_seconds`` of training,
 whichever is first, and every schedule follows the run's progress (``schedule.py``), so a time budget
 holds on any device.
@@ -33,6 +34,7 @@ from .sh import num_sh_bases, rgb_to_sh_dc
 __all__ = [
     "TrainConfig",
     "View",
+    "downsample_view",
     "init_gaussians_from_points",
     "scene_extent",
     "train",
@@ -85,6 +87,10 @@ class TrainConfig:
     # weight of mean o (1 - o) over the Gaussians' opacities o: pushes each to 0 or 1, so a surface is
     # drawn by opaque Gaussians on it rather than a haze of faint ones around an opaque core; 0 = off
     lambda_opacity: float = 0.0
+    # train on views downsampled by ``coarse_factor`` for the first ``coarse_fraction`` of the run (0: off):
+    # early steps fit the low frequencies, which a quarter of the pixels carry at a quarter of the cost
+    coarse_fraction: float = 0.0
+    coarse_factor: int = 2
 
     def run_length(self) -> RunLength:
         return RunLength(self.iterations, self.max_seconds)
@@ -115,6 +121,32 @@ class View:
     @property
     def height(self) -> int:
         return int(self.image.shape[0])
+
+
+def downsample_view(view: View, factor: int) -> View:
+    """``view`` at 1/``factor`` resolution: images area-averaged over factor x factor blocks (cropped to a
+    multiple of it, so pixel edges stay put), K scaled by 1/factor, a pixel valid only where its whole
+    block is, and allowed alpha wherever any of its block is."""
+    f = int(factor)
+    if f == 1:
+        return view
+    h, w = view.height // f, view.width // f
+    if h < 1 or w < 1:
+        raise ValueError(f"factor {f} leaves no pixels of a {view.width}x{view.height} view")
+
+    def pool(img: torch.Tensor | None, how: str) -> torch.Tensor | None:
+        if img is None:
+            return None
+        x = img[: h * f, : w * f]
+        x = x.reshape(h, f, w, f, *x.shape[2:])
+        if how == "mean":
+            return x.float().mean(dim=(1, 3)).to(img.dtype)
+        return x.all(dim=3).all(dim=1) if how == "all" else x.any(dim=3).any(dim=1)
+
+    K = torch.as_tensor(view.K).clone()
+    K[:2] = K[:2] / f
+    return View(pool(view.image, "mean"), view.viewmat, K, pool(view.mask, "all"), view.name,
+                pool(view.background, "mean"), pool(view.alpha_mask, "any"))  # fmt: skip
 
 
 def scene_extent(views: Sequence[View]) -> float:
@@ -393,6 +425,9 @@ def train(
     length = config.run_length()  # validates iterations and max_seconds
     if not length.bounded:
         raise ValueError("train needs iterations > 0 or a max_seconds budget")
+    if not (0 <= config.coarse_fraction <= 1 and int(config.coarse_factor) >= 1):
+        raise ValueError(f"coarse_fraction must be in [0, 1] and coarse_factor >= 1, got {config.coarse_fraction} "
+                         f"and {config.coarse_factor}")  # fmt: skip
     backend = resolve_backend(config.backend)
     device = torch.device("cuda" if backend == "cuda" else "cpu")
     extent = scene_extent(views_train)
@@ -468,6 +503,7 @@ def train(
         total = config.iterations if config.max_seconds is None else None  # a time budget: no step count
         bar = tqdm(total=total, initial=step, desc="train", dynamic_ncols=True)
     n_views = len(views_train)
+    coarse: dict[int, View] = {}  # training views at 1/coarse_factor, made on first use
     # the next step is expected to take the median of the last five (robust to one step stalled by a
     # busy machine): the run stops before a step that would end past the budget
     recent: deque[float] = deque(maxlen=5)
@@ -477,7 +513,12 @@ def train(
         while not length.finished(step, elapsed, float(np.median(recent)) if recent else 0.0):
             t0 = clock()
             p = length.fraction(step, elapsed)
-            view = views_train[int(_view_order(n_views, config.seed, step // n_views)[step % n_views])]
+            index = int(_view_order(n_views, config.seed, step // n_views)[step % n_views])
+            view = views_train[index]
+            if p < config.coarse_fraction:
+                if index not in coarse:
+                    coarse[index] = downsample_view(view, config.coarse_factor)
+                view = coarse[index]
             lr = schedule.means_lr(p)
             optimizers["means"].param_groups[0]["lr"] = lr
             degree = schedule.active_sh_degree(p)
