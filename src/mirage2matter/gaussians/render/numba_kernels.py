@@ -477,15 +477,22 @@ def rasterize_backward(offsets, ids, recs, width, height, T_final, last, v_rgb, 
             tw = min(TILE_SIZE, width - px0)
             th = min(TILE_SIZE, height - py0)
             T = np.empty(TILE_SIZE * TILE_SIZE)
-            S = np.zeros((TILE_SIZE * TILE_SIZE, 4))  # sums of w*c and w*z behind the current Gaussian
+            # The pixel's loss gradients (rgb, depth) read once into the tile, and S: their dot product with
+            # everything composited behind the current record, plus v_T * T_final (what occluding it costs).
+            V = np.zeros((TILE_SIZE * TILE_SIZE, 4))
+            S = np.zeros(TILE_SIZE * TILE_SIZE)
             lastp = np.full(TILE_SIZE * TILE_SIZE, -1, np.int32)
             k_max = -1
             for ly in range(th):
                 for lx in range(tw):
                     p = ly * TILE_SIZE + lx
-                    T[p] = T_final[py0 + ly, px0 + lx]
-                    lastp[p] = last[py0 + ly, px0 + lx]
+                    py, px = py0 + ly, px0 + lx
+                    T[p] = T_final[py, px]
+                    lastp[p] = last[py, px]
                     k_max = max(k_max, lastp[p])
+                    V[p, 0], V[p, 1], V[p, 2] = v_rgb[py, px, 0], v_rgb[py, px, 1], v_rgb[py, px, 2]
+                    V[p, 3] = v_depth[py, px]
+                    S[p] = v_T[py, px] * T_final[py, px]
             for k in range(k_max, offsets[t] - 1, -1):
                 mx, my = recs[k, REC_MEAN_X], recs[k, REC_MEAN_Y]
                 x0, x1, y0, y1 = _box_in_tile(recs, k, px0, py0, tw, th, width, height)
@@ -509,22 +516,18 @@ def rasterize_backward(offsets, ids, recs, width, height, T_final, last, v_rgb, 
                         alpha = min(ALPHA_MAX, op * vis)
                         if alpha < ALPHA_MIN:
                             continue
-                        T_i = T[p] / (1.0 - alpha)
+                        inv_1ma = 1.0 / (1.0 - alpha)
+                        T_i = T[p] * inv_1ma
                         w = alpha * T_i
-                        vr, vg, vb = v_rgb[py, px, 0], v_rgb[py, px, 1], v_rgb[py, px, 2]
-                        vd = v_depth[py, px]
+                        vr, vg, vb, vd = V[p, 0], V[p, 1], V[p, 2], V[p, 3]
                         gr += w * vr
                         gg += w * vg
                         gbl += w * vb
                         gz += w * vd
+                        v_c = vr * cr + vg * cg + vb * cbl + vd * z
                         # dL/dalpha: own weight, minus the share of everything behind it and of T_final
-                        v_alpha = T_i * (vr * cr + vg * cg + vb * cbl + vd * z) - (
-                            vr * S[p, 0] + vg * S[p, 1] + vb * S[p, 2] + vd * S[p, 3] + v_T[py, px] * T_final[py, px]
-                        ) / (1.0 - alpha)
-                        S[p, 0] += w * cr
-                        S[p, 1] += w * cg
-                        S[p, 2] += w * cbl
-                        S[p, 3] += w * z
+                        v_alpha = T_i * v_c - S[p] * inv_1ma
+                        S[p] += w * v_c
                         T[p] = T_i
                         if op * vis <= ALPHA_MAX:  # the clamp passes no gradient
                             go += vis * v_alpha
