@@ -18,7 +18,7 @@ import pytest
 import torch
 
 import mirage2matter.gaussians.train as train_module
-from mirage2matter.gaussians.budget import COARSE_FRACTION, budget_config
+from mirage2matter.gaussians.budget import COARSE_FRACTION, LR_COOLDOWN, budget_config
 from mirage2matter.gaussians.render import render
 from mirage2matter.gaussians.schedule import RunLength, Schedule
 from mirage2matter.gaussians.synthetic import orbit_cameras, tabletop_scene
@@ -91,6 +91,9 @@ def test_the_budget_is_used_and_the_schedule_ends_where_set(scene, name, monkeyp
     base = TrainConfig(sh_degree=1, max_gaussians=1500, checkpoint_every=0, backend="cpu")
     cfg = budget_config(budget_s / 60, base, densify_fraction=0.5, curve_points=4)
     clock = RenderClock(lambda k, t: rate(k, t, budget_s), monkeypatch)
+    made = []  # the trainer's optimizers, to read their learning rates at the end
+    make = train_module._make_optimizers
+    monkeypatch.setattr(train_module, "_make_optimizers", lambda *a: made.append(make(*a)) or made[-1])
     g, m = train(views, views[:1], init, cfg, progress=False, clock=clock)
     s = m["schedule"]
     refinements = [(r[0], round(r[1], 3), r[2]) for r in s["refinements"]]
@@ -111,6 +114,13 @@ def test_the_budget_is_used_and_the_schedule_ends_where_set(scene, name, monkeyp
     lr0, lr1 = (scene_extent(views) * cfg.lr[k] for k in ("means", "means_final"))
     assert s["last_step_progress"] >= 0.9
     assert math.log(s["means_lr"] / lr1) <= 0.1 * math.log(lr0 / lr1)  # within the last tenth of its decay
+    # the other rates cooled down over the last LR_COOLDOWN of the budget (p >= 0.9: 2/3 of the way or more)
+    assert cfg.lr_cooldown == LR_COOLDOWN and LR_COOLDOWN >= 0.1
+    ends_at = 1 - (1 - s["last_step_progress"]) / LR_COOLDOWN
+    assert s["lr_scale"] == pytest.approx(cfg.lr_cooldown_ratio**ends_at) and ends_at >= 0.6
+    assert {k: o.param_groups[0]["lr"] for k, o in made[-1].items()} == pytest.approx(
+        {k: s["means_lr"] if k == "means" else cfg.lr[k] * s["lr_scale"] for k in made[-1]}
+    )
     assert [c["step"] for c in m["curve"]][0] == 0 and len(m["curve"]) == 5  # 0, 1/4, 1/2, 3/4, the end
 
 
@@ -139,6 +149,14 @@ def test_a_budget_run_trains_coarse_then_fine(scene, monkeypatch):
         budget_config(1.0, coarse_fraction=1.0)
     with pytest.raises(ValueError, match="coarse_factor >= 1"):
         train(views, views[:1], init, replace(cfg, coarse_factor=0), progress=False)
+
+
+def test_bad_cooldown_values_are_clear_errors(scene):
+    views, init = scene
+    cfg = budget_config(0.01, TrainConfig(sh_degree=1, checkpoint_every=0, backend="cpu"))
+    for bad in ({"lr_cooldown": 1.5}, {"lr_cooldown": -0.1}, {"lr_cooldown_ratio": 0.0}, {"lr_cooldown_ratio": 2.0}):
+        with pytest.raises(ValueError, match="lr_cooldown"):
+            train(views, views[:1], init, replace(cfg, **bad), progress=False)
 
 
 def test_a_resumed_budget_run_continues_the_same_schedule(scene, tmp_path, monkeypatch):
@@ -189,6 +207,9 @@ def test_schedule_by_progress():
     assert [s.active_sh_degree(p) for p in (0.0, 0.124, 0.125, 0.3, 0.375, 0.99)] == [0, 0, 1, 2, 3, 3]
     assert s.means_lr(0.0) == pytest.approx(1e-3) and s.means_lr(0.5) == pytest.approx(1e-4)
     assert s.means_lr(1.0) == pytest.approx(1e-5)
+    assert s.lr_scale(0.99) == 1.0  # no cool-down unless asked
+    cool = replace(s, cooldown=0.2, cooldown_ratio=0.01)
+    assert [cool.lr_scale(p) for p in (0.0, 0.8, 0.9, 1.0)] == pytest.approx([1.0, 1.0, 0.1, 0.01])
     # 1000 steps: refinements every 1/60 of the run (17 steps) within [0.05, 0.5)
     steps = [k for k in range(1, 1001) if s.refine_now(k, (k - 1) / 1000)]
     assert steps[0] >= 51 and steps[-1] <= 500 and len(steps) == pytest.approx(0.45 * 60, abs=2)

@@ -73,6 +73,8 @@ class Schedule:
     opacity_reset_every: fraction of the run between opacity resets within the window (0: off)
     eval_points: evaluations spread evenly over the run (0: only before and after)
     lr0 / lr1: the means' learning rate at the start and the end (exponential decay in between)
+    cooldown / cooldown_ratio: over the last ``cooldown`` of the run the other parameters' learning rates
+    decay exponentially to ``cooldown_ratio`` of theirs (0: constant, as in 3DGS)
     """
 
     sh_degree: int
@@ -84,6 +86,8 @@ class Schedule:
     eval_points: int
     lr0: float
     lr1: float
+    cooldown: float = 0.0
+    cooldown_ratio: float = 0.1
     last_refine_step: int = 0
     last_refine_p: float = 0.0
     evals_done: int = 0
@@ -91,6 +95,12 @@ class Schedule:
 
     def means_lr(self, p: float) -> float:
         return math.exp((1 - p) * math.log(self.lr0) + p * math.log(self.lr1))
+
+    def lr_scale(self, p: float) -> float:
+        """The factor on every learning rate but the means' at progress ``p``: 1 until the cool-down."""
+        if self.cooldown <= 0 or p <= 1 - self.cooldown:
+            return 1.0
+        return math.exp(min(1.0, (p - (1 - self.cooldown)) / self.cooldown) * math.log(self.cooldown_ratio))
 
     def active_sh_degree(self, p: float) -> int:
         if self.sh_increase_every <= 0:

@@ -1,13 +1,13 @@
 """3D Gaussian Splatting training (paper section 3.1, DESIGN.md section 2).
 
 Loss L1 + lambda * (1 - SSIM) over valid pixels, Adam with the per-parameter learning rates of
-3DGS (means scaled by the scene extent and decayed exponentially), the SH degree raised during the
-run, densification / pruning by gsplat's ``DefaultStrategy`` operations (pure torch, so they run on the
-CPU too) with a cap on the number of Gaussians, optionally a coarse start (the views at a fraction of
-their resolution for the first part of the run), held-out evaluation, and atomic checkpoints that
-``train(..., resume=True)`` resumes. A run ends at ``iterations`` steps or ``max_seconds`` of training,
-whichever is first, and every schedule follows the run's progress (``schedule.py``), so a time budget
-holds on any device.
+3DGS (means scaled by the scene extent and decayed exponentially; optionally the others cooled down at
+the end), the SH degree raised during the run, densification / pruning by gsplat's ``DefaultStrategy``
+operations (pure torch, so they run on the CPU too) with a cap on the number of Gaussians, optionally a
+coarse start (the views at a fraction of their resolution for the first part of the run), held-out
+evaluation, and atomic checkpoints that ``train(..., resume=True)`` resumes. A run ends at ``iterations``
+steps or ``max_seconds`` of training, whichever is first, and every schedule follows the run's progress
+(``schedule.py``), so a time budget holds on any device.
 """
 
 from __future__ import annotations
@@ -91,6 +91,11 @@ class TrainConfig:
     # early steps fit the low frequencies, which a quarter of the pixels carry at a quarter of the cost
     coarse_fraction: float = 0.0
     coarse_factor: int = 2
+    # over the last ``lr_cooldown`` of the run every learning rate but the means' (which decay all run) decays
+    # exponentially to ``lr_cooldown_ratio`` of its value: the run ends on a settled model rather than on one
+    # still jittering at full step size (0: off, 3DGS's constant rates)
+    lr_cooldown: float = 0.0
+    lr_cooldown_ratio: float = 0.1
 
     def run_length(self) -> RunLength:
         return RunLength(self.iterations, self.max_seconds)
@@ -236,6 +241,8 @@ def _schedule(config: TrainConfig, extent: float) -> Schedule:
         eval_points=config.eval_points,
         lr0=config.lr["means"] * extent,
         lr1=config.lr["means_final"] * extent,
+        cooldown=config.lr_cooldown,
+        cooldown_ratio=config.lr_cooldown_ratio,
     )
 
 
@@ -428,6 +435,9 @@ def train(
     if not (0 <= config.coarse_fraction <= 1 and int(config.coarse_factor) >= 1):
         raise ValueError(f"coarse_fraction must be in [0, 1] and coarse_factor >= 1, got {config.coarse_fraction} "
                          f"and {config.coarse_factor}")  # fmt: skip
+    if not (0 <= config.lr_cooldown <= 1 and 0 < config.lr_cooldown_ratio <= 1):
+        raise ValueError(f"lr_cooldown must be in [0, 1] and lr_cooldown_ratio in (0, 1], got {config.lr_cooldown} "
+                         f"and {config.lr_cooldown_ratio}")  # fmt: skip
     backend = resolve_backend(config.backend)
     device = torch.device("cuda" if backend == "cuda" else "cpu")
     extent = scene_extent(views_train)
@@ -507,7 +517,7 @@ def train(
     # the next step is expected to take the median of the last five (robust to one step stalled by a
     # busy machine): the run stops before a step that would end past the budget
     recent: deque[float] = deque(maxlen=5)
-    p, lr, degree = length.fraction(step, elapsed), schedule.means_lr(0.0), 0
+    p, lr, lr_scale, degree = length.fraction(step, elapsed), schedule.means_lr(0.0), 1.0, 0
     step_share = 1.0 / config.iterations if config.iterations else 0.0  # progress of one step (the last one's)
     try:
         while not length.finished(step, elapsed, float(np.median(recent)) if recent else 0.0):
@@ -521,6 +531,10 @@ def train(
                 view = coarse[index]
             lr = schedule.means_lr(p)
             optimizers["means"].param_groups[0]["lr"] = lr
+            lr_scale = schedule.lr_scale(p)
+            for k, o in optimizers.items():
+                if k != "means":
+                    o.param_groups[0]["lr"] = config.lr[k] * lr_scale
             degree = schedule.active_sh_degree(p)
             info: dict = {}
             try:
@@ -581,6 +595,7 @@ def train(
             "last_step_progress": p,
             "sh_degree": degree,
             "means_lr": lr,
+            "lr_scale": lr_scale,
             "refinements": [list(r) for r in schedule.refinements],
         },
     }
