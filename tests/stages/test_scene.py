@@ -117,6 +117,7 @@ def test_train_scene_minutes_is_bench_trains_budget(imported, tmp_path):
     """`m2m train-scene --minutes M` trains with budget_config, the configuration `m2m bench train` times (one
     code path), and uses the minutes: no step count planned ahead."""
     from mirage2matter.gaussians.budget import budget_config
+    from mirage2matter.gaussians.filter3d import FILTER_3D_VARIANCE
     from mirage2matter.gaussians.train import TrainConfig
 
     _, ws_src = imported
@@ -127,7 +128,9 @@ def test_train_scene_minutes_is_bench_trains_budget(imported, tmp_path):
     cfg = SceneConfig(minutes=0.15, downscale=4, max_gaussians=20000, checkpoint_every=0)
     m, _ = train_scene(ws, cfg)
     plan = json.loads((ws / "scene" / "plan.json").read_text())["train_config"]
-    expect = budget_config(0.15, TrainConfig(max_gaussians=20000, backend="cpu", checkpoint_every=0))
+    expect = budget_config(0.15, TrainConfig(max_gaussians=20000, backend="cpu", checkpoint_every=0,
+                                             filter_3d=FILTER_3D_VARIANCE))  # bench_train's default
+    assert SceneConfig().filter_3d == FILTER_3D_VARIANCE
     assert plan == json.loads(json.dumps(vars(expect)))
     # a step stalled by another process on the machine can end past the budget: at most a step's worth
     assert 0.9 <= m["train_minutes"] / 0.15 <= 1.0 + 2 * 0.15 * 60 / max(m["iterations"], 1)

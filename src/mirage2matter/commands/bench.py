@@ -56,6 +56,8 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     t.add_argument("--poses", default="given", choices=("given", "sfm"), help="given poses or our own SfM")
     t.add_argument("--work-dir", metavar="DIR", help="cache for the SfM used for initial points")
     t.add_argument("--max-gaussians", type=int_at_least(1000), default=150_000, metavar="N")
+    t.add_argument("--filter-3d", type=float, default=None, metavar="V",
+                   help="Mip-Splatting's 3D filter, a variance in squared pixels (default: train-scene's, 0.2; 0: off)")
     t.set_defaults(func=_train)
 
     d = bench_sub.add_parser(
@@ -157,6 +159,7 @@ def _train(args: argparse.Namespace) -> int:
     result = bench_train(
         args.data, minutes=args.minutes, downscale=args.downscale, poses=args.poses, work_dir=args.work_dir,
         max_gaussians=args.max_gaussians, progress=True,
+        **({} if args.filter_3d is None else {"filter_3d": args.filter_3d}),
     )  # fmt: skip
     keys = ("psnr_heldout", "ssim_heldout", "iterations", "gaussians", "minutes", "budget_used", "backend")
     info(json.dumps(result.get("curve", []), separators=(",", ":")))

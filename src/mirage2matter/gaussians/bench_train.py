@@ -17,6 +17,7 @@ import torch
 from ..geometry.camera import load_transforms_json
 from .budget import DENSIFY_FRACTION, budget_config
 from .dataset import build_views
+from .filter3d import FILTER_3D_VARIANCE
 from .train import TrainConfig, View, init_gaussians_from_points, train, view_loss
 
 __all__ = ["bench_train", "profile_step"]
@@ -58,6 +59,7 @@ def bench_train(
     progress: bool = False,
     curve_points: int = 12,
     profile: bool = True,
+    filter_3d: float = FILTER_3D_VARIANCE,
 ) -> dict[str, Any]:
     """Train on ``data_dir`` (``transforms.json`` + images) for ``minutes`` of training time at
     1/``downscale`` resolution and score the held-out views (every 8th, sorted by name).
@@ -90,7 +92,7 @@ def bench_train(
     views_train, views_eval = build_views(cams_used, image_dir, downscale)
     init = init_gaussians_from_points(points, np.asarray(colors, np.float64) / 255.0, sh_degree=3)
 
-    config = TrainConfig(backend=backend, max_gaussians=max_gaussians, checkpoint_every=0)
+    config = TrainConfig(backend=backend, max_gaussians=max_gaussians, checkpoint_every=0, filter_3d=filter_3d)
     config = budget_config(minutes, config, densify_fraction=densify_fraction, curve_points=curve_points)
     g, metrics = train(views_train, views_eval, init, config, progress=progress)
     out: dict[str, Any] = {

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from ..atomic import atomic_path
+from .filter3d import apply_3d_filter, max_sampling_rate
 from .losses import l1, psnr, ssim
 from .model import Gaussians
 from .render import gpu_out_of_memory, render, resolve_backend
@@ -96,6 +97,10 @@ class TrainConfig:
     # still jittering at full step size (0: off, 3DGS's constant rates)
     lr_cooldown: float = 0.0
     lr_cooldown_ratio: float = 0.1
+    # Mip-Splatting's 3D smoothing filter (``filter3d``): every Gaussian trained and returned convolved with an
+    # isotropic Gaussian of this variance in squared training pixels at the finest rate any view sampled it
+    # (0.2 in the paper), so closer or sharper views than the training ones do not sparkle (0: off)
+    filter_3d: float = 0.0
 
     def run_length(self) -> RunLength:
         return RunLength(self.iterations, self.max_seconds)
@@ -191,6 +196,8 @@ def init_gaussians_from_points(
 
 
 # ---- parameters <-> Gaussians -------------------------------------------------------------------
+FILTER_3D_EVERY = 100  # steps between recomputations of the 3D filter's sampling rates (and after refinements)
+
 # gsplat's strategy wants a flat dict of parameters with "means", "scales", "quats", "opacities";
 # we keep log scales and logit opacities under those names (as gsplat's own trainer does) and
 # split SH into DC and rest because they have different learning rates.
@@ -435,6 +442,9 @@ def train(
     if not (0 <= config.coarse_fraction <= 1 and int(config.coarse_factor) >= 1):
         raise ValueError(f"coarse_fraction must be in [0, 1] and coarse_factor >= 1, got {config.coarse_fraction} "
                          f"and {config.coarse_factor}")  # fmt: skip
+    if not 0 <= config.filter_3d <= 4:
+        raise ValueError(f"filter_3d is a variance in squared pixels in [0, 4] (0: off, 0.2: Mip-Splatting's), got "
+                         f"{config.filter_3d}")  # fmt: skip
     if not (0 <= config.lr_cooldown <= 1 and 0 < config.lr_cooldown_ratio <= 1):
         raise ValueError(f"lr_cooldown must be in [0, 1] and lr_cooldown_ratio in (0, 1], got {config.lr_cooldown} "
                          f"and {config.lr_cooldown_ratio}")  # fmt: skip
@@ -464,8 +474,21 @@ def train(
         schedule.load_state_dict(blob["schedule"])
         torch.set_rng_state(blob["torch_rng"])
 
+    nu: torch.Tensor | None = None  # the 3D filter's sampling rates [N], recomputed as the Gaussians change
+
+    def refresh_filter() -> None:
+        nonlocal nu
+        if config.filter_3d > 0:
+            nu = max_sampling_rate(params["means"], views_train)
+
+    def model(degree: int) -> Gaussians:
+        g = _to_gaussians(params, degree)
+        return g if nu is None else apply_3d_filter(g, nu, config.filter_3d)
+
     def g_now(degree: int | None = None) -> Gaussians:
-        return _to_gaussians(params, config.sh_degree if degree is None else degree)
+        return model(config.sh_degree if degree is None else degree)
+
+    refresh_filter()
 
     def checkpoint(at: int) -> None:
         if ckpt is not None:
@@ -538,11 +561,12 @@ def train(
             degree = schedule.active_sh_degree(p)
             info: dict = {}
             try:
-                loss, _ = view_loss(_to_gaussians(params, degree), view, config, info, backend)
+                loss, _ = view_loss(model(degree), view, config, info, backend)
                 loss.backward()
             except torch.cuda.OutOfMemoryError as e:
                 lower = "--max-gaussians (the densification cap) or the image size (--downscale)"
                 raise gpu_out_of_memory("training", len(params["means"]), view.width, view.height, lower) from e
+            refine = False
             if strategy is not None and schedule.densifying(p):
                 refine = schedule.refine_now(step + 1, p, step_share)
                 sinfo = _strategy_info(info, view, len(params["means"]))
@@ -554,6 +578,8 @@ def train(
                 o.step()
                 o.zero_grad(set_to_none=True)
             step += 1
+            if nu is not None and (refine or step % FILTER_3D_EVERY == 0):
+                refresh_filter()  # after a refinement (added / removed Gaussians) and as the means move
             dt = clock() - t0
             elapsed += dt
             recent.append(dt)

@@ -52,6 +52,10 @@ class Config:
     head_photo_mask  white where the head photo shows the scene, black where it shows what is not (the robot, a
                     person): those pixels are not trained on (default: every pixel)
     head_photo_repeat  times the head photo is trained on per pass over the keyframes (1: as one keyframe)
+    filter_3d       Mip-Splatting's 3D smoothing filter, a variance in squared training pixels (0.2 as in the
+                    paper; 0: off): no Gaussian is trained thinner than the finest pixel a keyframe saw it with, so
+                    views closer or sharper than the keyframes (the head photo at full size, a wrist camera) do not
+                    sparkle
     """
 
     minutes: float = 10.0
@@ -66,6 +70,8 @@ class Config:
     head_photo: Path | None = field(default=None, metadata=ADDED_LATER)
     head_photo_mask: Path | None = field(default=None, metadata=ADDED_LATER)
     head_photo_repeat: int = field(default=4, metadata=ADDED_LATER)
+    # gaussians.filter3d.FILTER_3D_VARIANCE (bench train's too); in every fingerprint: scenes trained before it retrain
+    filter_3d: float = 0.2
 
     def validate(self) -> None:
         if self.iterations < 0 or (self.iterations == 0 and not self.minutes > 0):
@@ -77,6 +83,9 @@ class Config:
             )
         if not 0 <= self.sh_degree <= 3:
             raise WorkspaceError(f"train-scene: sh_degree must be 0..3, got {self.sh_degree}")
+        if not 0 <= self.filter_3d <= 4:
+            raise WorkspaceError(f"train-scene: filter_3d is a variance in squared pixels in [0, 4] (0: off, 0.2: "
+                                 f"Mip-Splatting's), got {self.filter_3d}")  # fmt: skip
         if self.head_photo_repeat < 1:
             raise WorkspaceError(f"train-scene: head_photo_repeat must be >= 1, got {self.head_photo_repeat}")
         if self.head_photo_mask is not None and self.head_photo is None:
@@ -147,6 +156,7 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
 
     posed = ws.posed_capture()
     frame_note = _frame_note(ws, posed.frame)
+    frame_label = "SfM" if frame_note else posed.frame  # --unaligned files the SfM frame as the base's
     if frame_note:
         log(f"scene: {frame_note}")
     if len(posed.points) < 100:
@@ -166,7 +176,7 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
     init = init_gaussians_from_points(posed.points, posed.colors.astype(np.float64) / 255.0, config.sh_degree)
     base = TrainConfig(
         sh_degree=config.sh_degree, max_gaussians=config.max_gaussians, backend=backend, seed=config.seed,
-        checkpoint_every=config.checkpoint_every,
+        checkpoint_every=config.checkpoint_every, filter_3d=config.filter_3d,
     )  # fmt: skip
 
     if config.iterations:
@@ -182,7 +192,7 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
         + (f" + the head photo (x{n_photo})" if n_photo else "")
         + f" at "
         f"{views_train[0].width}x{views_train[0].height}, {len(init):,} initial Gaussians from SfM points, "
-        f"{posed.frame} frame, "
+        f"{frame_label} frame, "
         + (f"{train_cfg.iterations} iterations" if config.iterations else f"{config.minutes:g} minutes of training")
         + f" ({backend})"
     )
@@ -223,7 +233,7 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
         **{k: result[k] for k in keys}, "coverage": coverage.to_json(), "unaligned": bool(frame_note),
         "line": f"held-out PSNR {result['psnr_heldout']:.2f} dB / SSIM {result['ssim_heldout']:.3f} over "
         f"{len(views_eval)} keyframes, {result['iterations']} iterations, {result['gaussians']:,} Gaussians "
-        f"({result['train_minutes']:.1f} min, {posed.frame} frame){'; ' + frame_note if frame_note else ''}; "
+        f"({result['train_minutes']:.1f} min, {frame_label} frame){'; ' + frame_note if frame_note else ''}; "
         f"{coverage.line}",
     }  # fmt: skip
 
