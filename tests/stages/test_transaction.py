@@ -290,3 +290,30 @@ def test_policy_stages_run_side_by_side_and_one_output_is_run_once(tmp_path):
         pass
     assert run_stage(stage, ws, cfg(name="c"), log=lambda s: None)[0] == {"line": "c"}
     assert not _leftovers(ws.root) and not (ws.root / ".m2m").exists()
+
+
+def test_a_policy_stage_starting_during_another_runs_bookkeeping_waits_for_it(tmp_path):
+    """Seeds started together (sim2real's) meet each other's start or commit holding the workspace lock for a
+    moment: a policy stage's start waits it out instead of failing; a pipeline writer is still refused at once."""
+    stage = _side_stage()
+    ws = Workspace(tmp_path / "ws")
+    ws.root.mkdir()
+    held = tmp_path / "held"
+    pid = os.fork()
+    if pid == 0:  # another run's commit: the lock, alongside, for 1.5 s
+        try:
+            with workspace_lock(ws, "m2m train-policy (commit)", alongside=True):
+                held.write_text("held")
+                time.sleep(1.5)
+        finally:
+            os._exit(0)
+    try:
+        _wait_for(held)
+        with pytest.raises(WorkspaceBusy, match="train-policy \\(commit\\)"), workspace_lock(ws, "m2m sfm"):
+            pass
+        t0 = time.monotonic()
+        assert run_stage(stage, ws, stage.config(name="b"), log=lambda s: None) == ({"line": "b"}, False)
+        assert time.monotonic() - t0 >= 0.3  # it waited for the commit to finish
+    finally:
+        os.waitpid(pid, 0)
+    assert (ws.root / "side" / "b" / "out.txt").read_text() == "b"

@@ -121,6 +121,8 @@ def stage_fingerprint(stage: Stage, ws: Workspace, cfg: Any) -> str:
     return fingerprint(stage.name, fingerprinted(cfg), *[i.path for i in inputs])
 
 
+START_WAIT_S = 60.0  # how long a policy stage's start waits for the workspace lock before it is refused
+
 ADDED_LATER = {"fingerprint": "when_set"}
 """Field metadata of a setting added to a stage after workspaces were made: at its default it stays out of the
 stage's fingerprint, so a finished stage of an existing workspace is not rerun for a setting it never used."""
@@ -176,7 +178,9 @@ def run_stage(
         raise WorkspaceError(f"workspace {ws.root} exists and is not a folder; choose another with -w")
     stage_fingerprint(stage, ws, cfg)  # missing inputs are errors before anything is written
     alongside = not stage.pipeline and not holds_lock(ws)
-    with workspace_lock(ws, alongside=alongside):
+    # a policy stage's start, like its commit, waits out another's bookkeeping (seconds): seeds started together
+    # (sim2real's) otherwise find each other's start or commit holding the lock and fail
+    with workspace_lock(ws, alongside=alongside, wait_s=START_WAIT_S if alongside else 0.0):
         key = stage_fingerprint(stage, ws, cfg)  # under the lock: what the stage will read
         record_key = stage.record_key(ws, cfg)
         done = None if force else finished_record(stage, ws, cfg, key)
