@@ -86,3 +86,16 @@ def test_a_model_trained_with_the_filter_has_no_gaussian_thinner_than_its_pixel(
     assert float((torch.exp(g0.log_scales).min(dim=1).values < 0.5 * width.mean()).float().mean()) > 0.05
     with pytest.raises(ValueError, match="filter_3d"):
         train(views, views[:2], init, TrainConfig(iterations=1, filter_3d=-1.0), progress=False)
+
+
+def test_a_bad_filter_variance_is_a_clear_error_before_any_work(tmp_path, capsys):
+    from mirage2matter.cli import main
+    from mirage2matter.stages.scene import Config as SceneConfig
+    from mirage2matter.workspace import WorkspaceError
+
+    with pytest.raises(WorkspaceError, match=r"train-scene: filter_3d is a variance in squared pixels in \[0, 4\]"):
+        SceneConfig(filter_3d=5.0).validate()
+    SceneConfig(filter_3d=0.0).validate()
+    for bad in ("-1", "nan", "abc"):  # before any SfM or training: the data folder does not even exist
+        assert main(["bench", "train", "--data", str(tmp_path / "none"), "--filter-3d", bad]) == 2
+        assert "--filter-3d" in capsys.readouterr().err

@@ -56,7 +56,7 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     t.add_argument("--poses", default="given", choices=("given", "sfm"), help="given poses or our own SfM")
     t.add_argument("--work-dir", metavar="DIR", help="cache for the SfM used for initial points")
     t.add_argument("--max-gaussians", type=int_at_least(1000), default=150_000, metavar="N")
-    t.add_argument("--filter-3d", type=float, default=None, metavar="V",
+    t.add_argument("--filter-3d", type=_filter_variance, default=None, metavar="V",
                    help="Mip-Splatting's 3D filter, a variance in squared pixels (default: train-scene's, 0.2; 0: off)")
     t.set_defaults(func=_train)
 
@@ -150,6 +150,18 @@ def _render(args: argparse.Namespace) -> int:
     result = bench_render(cfg, log=info)
     print(json.dumps(result), flush=True)  # machine-readable: always the last line on stdout
     return 0
+
+
+def _filter_variance(text: str) -> float:
+    """--filter-3d's value, checked where training checks it (gaussians.filter3d), before any work."""
+    from ..gaussians.filter3d import check_variance
+
+    try:
+        value = float(text)
+        check_variance(value)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return value
 
 
 def _train(args: argparse.Namespace) -> int:

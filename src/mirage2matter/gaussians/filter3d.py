@@ -18,9 +18,16 @@ import torch
 
 from .model import Gaussians
 
-__all__ = ["FILTER_3D_VARIANCE", "apply_3d_filter", "max_sampling_rate"]
+__all__ = ["FILTER_3D_VARIANCE", "apply_3d_filter", "check_variance", "max_sampling_rate"]
 
 FILTER_3D_VARIANCE = 0.2  # squared training pixels (Mip-Splatting's)
+
+
+def check_variance(variance: float) -> None:
+    """ValueError unless ``variance`` is a usable filter variance: 0 (off) to 4 squared pixels (a 2-pixel blur)."""
+    if not 0 <= variance <= 4:
+        raise ValueError(f"filter_3d is a variance in squared pixels in [0, 4] (0: off, {FILTER_3D_VARIANCE}: "
+                         f"Mip-Splatting's), got {variance}")  # fmt: skip
 
 
 def max_sampling_rate(means: torch.Tensor, views: Sequence) -> torch.Tensor:

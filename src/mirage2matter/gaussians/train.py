@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from ..atomic import atomic_path
-from .filter3d import apply_3d_filter, max_sampling_rate
+from .filter3d import apply_3d_filter, check_variance, max_sampling_rate
 from .losses import l1, psnr, ssim
 from .model import Gaussians
 from .render import gpu_out_of_memory, render, resolve_backend
@@ -442,9 +442,7 @@ def train(
     if not (0 <= config.coarse_fraction <= 1 and int(config.coarse_factor) >= 1):
         raise ValueError(f"coarse_fraction must be in [0, 1] and coarse_factor >= 1, got {config.coarse_fraction} "
                          f"and {config.coarse_factor}")  # fmt: skip
-    if not 0 <= config.filter_3d <= 4:
-        raise ValueError(f"filter_3d is a variance in squared pixels in [0, 4] (0: off, 0.2: Mip-Splatting's), got "
-                         f"{config.filter_3d}")  # fmt: skip
+    check_variance(config.filter_3d)
     if not (0 <= config.lr_cooldown <= 1 and 0 < config.lr_cooldown_ratio <= 1):
         raise ValueError(f"lr_cooldown must be in [0, 1] and lr_cooldown_ratio in (0, 1], got {config.lr_cooldown} "
                          f"and {config.lr_cooldown_ratio}")  # fmt: skip

@@ -83,9 +83,12 @@ class Config:
             )
         if not 0 <= self.sh_degree <= 3:
             raise WorkspaceError(f"train-scene: sh_degree must be 0..3, got {self.sh_degree}")
-        if not 0 <= self.filter_3d <= 4:
-            raise WorkspaceError(f"train-scene: filter_3d is a variance in squared pixels in [0, 4] (0: off, 0.2: "
-                                 f"Mip-Splatting's), got {self.filter_3d}")  # fmt: skip
+        from ..gaussians.filter3d import check_variance
+
+        try:
+            check_variance(self.filter_3d)
+        except ValueError as e:
+            raise WorkspaceError(f"train-scene: {e}") from None
         if self.head_photo_repeat < 1:
             raise WorkspaceError(f"train-scene: head_photo_repeat must be >= 1, got {self.head_photo_repeat}")
         if self.head_photo_mask is not None and self.head_photo is None:
