@@ -51,11 +51,13 @@ def imported(tmp_path_factory):
 
 def test_train_scene_learns_the_scene_in_the_given_frame_and_skips_when_done(imported):
     tf, ws = imported
-    cfg = SceneConfig(iterations=150, downscale=2, max_gaussians=30_000, checkpoint_every=0)
+    # 300 steps, not fewer: after 150 the scene is a blur whose match with a moved camera is a draw of the threaded
+    # backward's summation order (0.9-3.6 dB worse over runs); after 300 it is 3.2-5.4 dB worse (5 runs).
+    cfg = SceneConfig(iterations=300, downscale=2, max_gaussians=30_000, checkpoint_every=0)
     logs = []
     m, skipped = train_scene(ws, cfg, log=logs.append)
     assert not skipped and m["frame"] == "sfm" and m["views"] == {"train": 14, "heldout": 2, "head_photo": 0}
-    assert m["iterations"] == 150
+    assert m["iterations"] == 300
     # training improves held-out views well beyond the initial point cloud
     assert m["psnr_heldout"] > m["initial"]["psnr"] + 3.0, m
     assert (ws / "scene" / "gaussians.ply").is_file() and (ws / "scene" / "heldout.png").is_file()
