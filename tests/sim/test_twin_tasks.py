@@ -349,6 +349,10 @@ def test_plan_around_an_obstacle(twin):
     # simplification after the search can push the total past any fixed bound (11.1 s beside a scene training)
     path = plan(twin, np.concatenate([qa, fingers]), qb, timeout=10.0)
     assert len(path) >= 3 and np.allclose(path[0], qa) and np.allclose(path[-1], qb)
+    # the path is a function of the plan's seed: not of the clock, nor of the plans made before it (an episode
+    # is a function of its seed, whichever worker runs it after whatever attempts)
+    plan(twin, np.concatenate([qa, fingers]), qb, timeout=10.0, seed=5)
+    assert np.array_equal(plan(twin, np.concatenate([qa, fingers]), qb, timeout=10.0), path)
     dense = time_parameterize(path, 0.01, 0.5, robot=twin.spec)
     with twin.restoring():
         for q in dense[::2]:

@@ -222,6 +222,12 @@ def _plan(twin: Twin, a: np.ndarray, b: np.ndarray, fingers: np.ndarray, timeout
     for i in range(n_arm):
         start[i], goal[i] = float(a[i]), float(b[i])
     ss.setStartAndGoalStates(start, goal)
+    # OMPL seeds every sampler it creates from one global seed generator, seeded from the clock unless set: seeded
+    # here, before this plan creates its samplers, the path is a function of the plan's seed (not of the clock, nor
+    # of how many plans this process made before). OMPL reports re-seeding after its first RNG as an error; muted.
+    ou.setLogLevel(ou.LogLevel.LOG_NONE)
+    ou.RNG.setSeed(int(np.random.SeedSequence([0x0A1B, int(seed)]).generate_state(1)[0]) or 1)
+    ou.setLogLevel(ou.LogLevel.LOG_WARN)
     ss.setPlanner(og.RRTConnect(si))
     t0 = time.perf_counter()
     solved = ss.solve(float(timeout))
@@ -230,7 +236,9 @@ def _plan(twin: Twin, a: np.ndarray, b: np.ndarray, fingers: np.ndarray, timeout
             f"RRTConnect found no collision-free path in {time.perf_counter() - t0:.1f} s ({solved}); the goal "
             "may be enclosed by obstacles"
         )
-    ss.simplifySolution(0.5)
+    # to convergence, not for a time: a time-bounded simplification (it was 0.5 s; ~1.1 s either way on the sample's
+    # pushes) stops at a different point in every run, and with it the path and the episode
+    ss.simplifySolution()
     p = ss.getSolutionPath()
     path = [np.array([p.getState(k)[i] for i in range(n_arm)]) for k in range(p.getStateCount())]
     path, verified = _shortcut(twin, path, fingers, allow, np.random.default_rng(seed))
