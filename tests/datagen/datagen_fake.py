@@ -6,6 +6,7 @@ slows every attempt down (for the kill test)."""
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 
@@ -13,6 +14,8 @@ import numpy as np
 
 from mirage2matter.datagen import Attempt
 from mirage2matter.export import DatasetSpec, EpisodeData
+
+BUILDS_ENV = "M2M_TEST_FAKE_BUILDS"  # a file to log every FakeSource built to (workers inherit the environment)
 
 # Any names do: the writers know no robot.
 SPEC = DatasetSpec(
@@ -26,6 +29,16 @@ class FakeSource:
         self.spec = SPEC
         self.delay = delay
         self.task = task
+        if os.environ.get(BUILDS_ENV):  # one line per source built (a worker pool's test counts them)
+            with open(os.environ[BUILDS_ENV], "a") as f:
+                f.write(f"{os.getpid()} {task}\n")
+
+    def retarget(self, factory) -> bool:
+        """Another task's episodes from this source (as the simulator's source: only the task may differ)."""
+        if not isinstance(factory, FakeFactory) or factory.delay != self.delay:
+            return False
+        self.task = factory.task
+        return True
 
     def run(self, attempt: int, seed: int) -> Attempt:
         time.sleep(self.delay)
@@ -49,6 +62,7 @@ class FakeSource:
 @dataclass(frozen=True)
 class FakeFactory:
     delay: float = 0.0
+    task: str = "grasp banana"
 
     def __call__(self) -> FakeSource:
-        return FakeSource(self.delay)
+        return FakeSource(self.delay, self.task)

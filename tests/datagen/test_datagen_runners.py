@@ -15,9 +15,9 @@ import av
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from datagen_fake import SPEC, FakeFactory
+from datagen_fake import BUILDS_ENV, SPEC, FakeFactory
 
-from mirage2matter.datagen import GenerateError, RunConfig, RunnerError, generate_dataset
+from mirage2matter.datagen import GenerateError, RunConfig, RunnerError, WorkerPool, generate_dataset
 from mirage2matter.export import staging_dir_for, validate
 
 FP = {"task": "grasp banana", "source": "fake"}
@@ -73,6 +73,36 @@ def test_inline_and_process_runners_write_the_same_dataset(tmp_path: Path) -> No
     assert _content(tmp_path / "other")["data"] != _content(tmp_path / "inline")["data"]
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_worker_pool_serves_several_tasks_building_each_source_once(tmp_path: Path, monkeypatch, workers) -> None:
+    """The generate stage's pool: each worker builds its source once and serves every task's dataset (the source
+    retargeted); the datasets are the ones a run with its own workers writes. A source that cannot take another
+    run's episodes over (here: another delay) is built anew."""
+    builds = tmp_path / "builds.txt"
+    monkeypatch.setenv(BUILDS_ENV, str(builds))
+    tasks = ("grasp banana", "press button", "grasp croissant")
+    cfg = RunConfig(episodes=4, seed=7, workers=workers)
+
+    def run(out: Path, factory: FakeFactory, pool: WorkerPool | None = None) -> dict:
+        return generate_dataset(out, factory, SPEC, cfg, {**FP, "task": factory.task}, log=lambda m: None,
+                                progress=False, pool=pool)  # fmt: skip
+
+    with WorkerPool(workers) as pool:
+        pooled = [run(tmp_path / "pool" / str(i), FakeFactory(task=t), pool) for i, t in enumerate(tasks)]
+        assert len(builds.read_text().splitlines()) == workers  # one build per worker for three datasets
+        run(tmp_path / "pool" / "slow", FakeFactory(delay=0.001, task="grasp banana"), pool)
+        assert 0 < len(builds.read_text().splitlines()) - workers <= workers  # not retargetable: built anew
+    if workers > 1:  # spawning the workers is the first run's start-up; the later runs have none
+        assert pooled[0]["startup_s"] > 0.2 and max(s["startup_s"] for s in pooled[1:]) < 0.05, pooled
+    for i, t in enumerate(tasks):
+        run(tmp_path / "own" / str(i), FakeFactory(task=t))
+        _same_dataset(tmp_path / "pool" / str(i), tmp_path / "own" / str(i))
+        assert pq.read_table(tmp_path / "pool" / str(i) / "meta" / "tasks.parquet").to_pydict()["task"] == [t]
+    assert validate(tmp_path / "pool" / "slow") == []
+    with pytest.raises(ValueError, match="pool runs"):  # a pool of another size is a caller's bug
+        run(tmp_path / "x", FakeFactory(), WorkerPool(workers + 1))
+
+
 def test_v21_format_and_output_folder_rules(tmp_path: Path) -> None:
     out = tmp_path / "ds"
     s = _generate(out, format="lerobot-v2.1", episodes=3)
@@ -122,7 +152,7 @@ _KILL_SCRIPT = """
 import sys
 sys.path.insert(0, {tests!r})
 from pathlib import Path
-from datagen_fake import SPEC, FakeFactory
+from datagen_fake import BUILDS_ENV, SPEC, FakeFactory
 from mirage2matter.datagen import RunConfig, generate_dataset
 generate_dataset(Path({out!r}), FakeFactory({delay}), SPEC, RunConfig(episodes={n}, seed=7, workers=2),
                  {fp!r}, progress=False)

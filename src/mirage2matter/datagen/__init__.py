@@ -2,12 +2,13 @@
 workers (processes or Ray) and written as a LeRobot dataset.
 
 ``generate(world, task, out, GenerateConfig(...))`` takes a loaded world and a parsed task (no workspace
-paths); ``generate_dataset`` is the procedure behind it for any episode source."""
+paths); ``generate_dataset`` is the procedure behind it for any episode source. Several tasks share one
+``worker_pool(cfg)`` (``generate(..., pool=pool)``): their workers build the twin once."""
 
 from .config import GenerateConfig, Randomization
 from .dataset import GenerateError, RunConfig, check_output, generate_dataset
-from .runner import Attempt, EpisodeSource, RunnerError, attempt_seed, connect_ray, run_attempts
-from .simulated import BENCH_KEYS, bench_datagen, dataset_fingerprint, generate, task_slug
+from .runner import Attempt, EpisodeSource, RunnerError, WorkerPool, attempt_seed, connect_ray, run_attempts
+from .simulated import BENCH_KEYS, bench_datagen, dataset_fingerprint, generate, task_slug, worker_pool
 
 __all__ = [
     "BENCH_KEYS",
@@ -18,6 +19,7 @@ __all__ = [
     "Randomization",
     "RunConfig",
     "RunnerError",
+    "WorkerPool",
     "attempt_seed",
     "bench_datagen",
     "check_output",
@@ -27,4 +29,5 @@ __all__ = [
     "generate_dataset",
     "run_attempts",
     "task_slug",
+    "worker_pool",
 ]

@@ -28,7 +28,7 @@ from ..export.lerobot import FORMATS
 from ..export.spec import DatasetSpec
 from ..export.staging import StagedEpisode, Staging, consolidate, staging_dir_for
 from .preview import write_preview
-from .runner import RunStats, SourceFactory, run_attempts
+from .runner import RunStats, SourceFactory, WorkerPool, run_attempts
 
 
 class GenerateError(M2MError, RuntimeError):
@@ -160,13 +160,18 @@ def generate_dataset(
     extra_summary: dict[str, Any] | None = None,
     log: Callable[[str], None] = print,
     progress: bool = True,
+    pool: WorkerPool | None = None,
 ) -> dict[str, Any]:
     """Generate ``cfg.episodes`` episodes from ``factory``'s source into ``out_dir``; returns summary.json.
 
     ``fingerprint`` names what is generated (task, world, render settings, seed, count, format): a
     rerun with the same fingerprint resumes a killed run or, if it finished, returns its summary.
+    ``pool``: workers kept across datasets (``runner.WorkerPool``, with ``cfg``'s workers); None: this run's own.
     """
     cfg.check()
+    if pool is not None and (pool.workers, pool.ray_address) != (cfg.workers, cfg.ray_address):
+        raise ValueError(f"the pool runs {pool.workers} worker(s) (ray: {pool.ray_address}), the run asks for "
+                         f"{cfg.workers} (ray: {cfg.ray_address})")  # a caller's bug, not input
     out_dir = Path(out_dir)
     fingerprint = run_fingerprint(fingerprint, cfg)
     existing = check_output(out_dir, fingerprint)
@@ -202,7 +207,7 @@ def generate_dataset(
 
         try:
             run = run_attempts(factory, staging, cfg.episodes, cfg.seed, cfg.attempts_limit, cfg.workers,
-                               cfg.ray_address, on_result)  # fmt: skip
+                               cfg.ray_address, on_result, pool)  # fmt: skip
         finally:
             if bar is not None:
                 bar.close()

@@ -11,6 +11,9 @@ the parent only keeps counts. Which attempts run is fixed by the seeds alone: at
 successes so far plus the attempts in flight are fewer than wanted. The attempts that run are then
 always the shortest prefix 0..K-1 holding the wanted number of successes, whatever the runner,
 the worker count or the timing, and a resumed run continues the same prefix.
+
+A :class:`WorkerPool` keeps its workers across runs (one dataset per task): a worker built for one run serves the
+next run's attempts by retargeting its source (``retarget``), so the start-up is paid once.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import os
 import queue
 import time
 import traceback
+import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -76,29 +80,62 @@ def _run_and_commit(source: EpisodeSource, staging_root: Path, attempt: int, see
     return committed
 
 
-# ---- backends: start (blocks until every worker has built its source), submit, next_result -------------
+# ---- backends: start(job) (blocks until every worker has built its source), submit, next_result -----------
+@dataclass(frozen=True)
+class Job:
+    """One run's attempts: the factory of its source, the staging folder its attempts are committed to, and a key
+    naming the run (a worker serving another key moves its source over)."""
+
+    factory: SourceFactory
+    staging_root: Path
+    key: str
+
+
+class _Server:
+    """A worker's source and the job it serves. A pool's workers serve one dataset's job after another: a source
+    with ``retarget(factory) -> bool`` takes the next job's episodes over when it can (the simulator: the same world
+    and frames, another task; nothing rebuilt), otherwise a new one is built from the job's factory."""
+
+    def __init__(self, job: Job):
+        self.source, self.key = job.factory(), job.key
+
+    def run(self, job: Job, attempt: int, seed: int) -> dict[str, Any]:
+        if job.key != self.key:
+            retarget = getattr(self.source, "retarget", None)
+            if retarget is None or not retarget(job.factory):
+                self.close()
+                self.source = job.factory()
+            self.key = job.key
+        return _run_and_commit(self.source, job.staging_root, attempt, seed)
+
+    def close(self) -> None:
+        close = getattr(self.source, "close", None)
+        if close is not None:
+            close()
+
+
 class _Inline:
     name = "inline"
 
-    def __init__(self, factory: SourceFactory, staging_root: Path):
-        self.factory, self.root = factory, staging_root
-        self.pending: list[tuple[int, int]] = []
+    def __init__(self):
+        self.pending: list[tuple[Job, int, int]] = []
 
-    def start(self) -> None:
-        self.source = self.factory()
+    def start(self, job: Job) -> None:
+        self.server = _Server(job)
 
-    def submit(self, attempt: int, seed: int) -> None:
-        self.pending.append((attempt, seed))
+    def submit(self, job: Job, attempt: int, seed: int) -> None:
+        self.pending.append((job, attempt, seed))
 
     def next_result(self) -> dict[str, Any]:
-        attempt, seed = self.pending.pop(0)
-        return _run_and_commit(self.source, self.root, attempt, seed)
+        return self.server.run(*self.pending.pop(0))
 
     def close(self) -> None:
-        pass
+        self.pending.clear()
+        if hasattr(self, "server"):
+            self.server.close()
 
 
-def _worker_main(factory, staging_root, threads, tasks, results, parent) -> None:  # runs in a worker process
+def _worker_main(job, threads, tasks, results, parent) -> None:  # runs in a worker process
     die_with_parent(parent)  # also exits if the parent died before prctl took effect
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     os.environ.setdefault("LP_NUM_THREADS", str(threads))  # Mesa llvmpipe: one GL thread per core we own
@@ -106,7 +143,7 @@ def _worker_main(factory, staging_root, threads, tasks, results, parent) -> None
         from .. import configure_threads
 
         configure_threads(threads)
-        source = factory()
+        server = _Server(job)
         results.put(("ready", os.getpid(), None))
     except BaseException:
         results.put(("error", os.getpid(), traceback.format_exc()))
@@ -116,7 +153,7 @@ def _worker_main(factory, staging_root, threads, tasks, results, parent) -> None
         if item is None:
             return
         try:
-            results.put(("result", os.getpid(), _run_and_commit(source, staging_root, *item)))
+            results.put(("result", os.getpid(), server.run(*item)))
         except BaseException:
             results.put(("error", os.getpid(), traceback.format_exc()))
             return
@@ -127,19 +164,19 @@ class _Processes:
 
     name = "process"
 
-    def __init__(self, factory: SourceFactory, staging_root: Path, workers: int):
+    def __init__(self, workers: int):
         import multiprocessing as mp
 
         self.ctx = mp.get_context("spawn")
-        self.factory, self.root, self.n = factory, staging_root, workers
+        self.n = workers
         self.tasks = self.ctx.Queue()
         self.results = self.ctx.Queue()
         self.procs: list = []
 
-    def start(self) -> None:
+    def start(self, job: Job) -> None:
         threads = max(1, (os.cpu_count() or 1) // self.n)
         for _ in range(self.n):
-            args = (self.factory, self.root, threads, self.tasks, self.results, os.getpid())
+            args = (job, threads, self.tasks, self.results, os.getpid())
             p = self.ctx.Process(target=_worker_main, args=args, daemon=True)
             p.start()
             self.procs.append(p)
@@ -161,8 +198,8 @@ class _Processes:
                     raise RunnerError(f"worker process {dead[0].pid} died (exit code {dead[0].exitcode}) "
                                       "without reporting an error; out of memory?") from None  # fmt: skip
 
-    def submit(self, attempt: int, seed: int) -> None:
-        self.tasks.put((attempt, seed))
+    def submit(self, job: Job, attempt: int, seed: int) -> None:
+        self.tasks.put((job, attempt, seed))
 
     def next_result(self) -> dict[str, Any]:
         kind, pid, payload = self._get()
@@ -184,40 +221,39 @@ class _Ray:
 
     name = "ray"
 
-    def __init__(self, factory: SourceFactory, staging_root: Path, workers: int, address: str):
-        self.factory, self.root, self.n, self.address = factory, staging_root, workers, address
+    def __init__(self, workers: int, address: str):
+        self.n, self.address = workers, address
         self.futures: dict = {}
         self.idle: list = []
 
-    def start(self) -> None:
+    def start(self, job: Job) -> None:
         self.ray = connect_ray(self.address, self.n)
 
         @self.ray.remote(num_cpus=1)
         class Worker:
-            def __init__(self, factory, root):
+            def __init__(self, job):
                 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
                 from mirage2matter import configure_threads
 
                 configure_threads(1)
-                self.source = factory()
-                self.root = root
+                self.server = _Server(job)
 
             def ready(self) -> int:
                 return os.getpid()
 
-            def run(self, attempt, seed):
-                return _run_and_commit(self.source, self.root, attempt, seed)
+            def run(self, job, attempt, seed):
+                return self.server.run(job, attempt, seed)
 
-        self.actors = [Worker.remote(self.factory, self.root) for _ in range(self.n)]
+        self.actors = [Worker.remote(job) for _ in range(self.n)]
         try:
             self.ray.get([a.ready.remote() for a in self.actors])
         except Exception as e:
             raise RunnerError(f"a Ray worker failed while starting: {e}") from None
         self.idle = list(self.actors)
 
-    def submit(self, attempt: int, seed: int) -> None:
+    def submit(self, job: Job, attempt: int, seed: int) -> None:
         actor = self.idle.pop()
-        self.futures[actor.run.remote(attempt, seed)] = actor
+        self.futures[actor.run.remote(job, attempt, seed)] = actor
 
     def next_result(self) -> dict[str, Any]:
         done, _ = self.ray.wait(list(self.futures), num_returns=1)
@@ -231,6 +267,58 @@ class _Ray:
     def close(self) -> None:
         for a in getattr(self, "actors", []):
             self.ray.kill(a)
+
+
+class WorkerPool:
+    """Workers (in-process, local processes, or Ray actors) kept for several runs, e.g. one dataset per task: each
+    worker builds its source once, on the first run's job, and moves it to a later run's job (``_Server``), so the
+    runs pay one start-up (Genesis build, kernel and renderer warm-up) instead of one each. Starts on the first
+    attempt handed to it (none at all when every dataset is already done); ``close`` (or leaving the ``with``)
+    stops the workers. A run that fails closes the pool (its workers may still hold the failed run's attempts); a
+    later run starts it again."""
+
+    def __init__(self, workers: int = 1, ray_address: str | None = None):
+        self.workers, self.ray_address = max(int(workers), 1), ray_address
+        self.backend: Any = None
+
+    @property
+    def name(self) -> str:
+        return "ray" if self.ray_address else "process" if self.workers > 1 else "inline"
+
+    def start(self, job: Job) -> bool:
+        """Start the workers on ``job`` unless they are running; whether this call started them."""
+        if self.backend is not None:
+            return False
+        if self.ray_address:
+            backend: Any = _Ray(self.workers, self.ray_address)
+        elif self.workers > 1:
+            backend = _Processes(self.workers)
+        else:
+            backend = _Inline()
+        try:
+            backend.start(job)
+        except BaseException:
+            backend.close()
+            raise
+        self.backend = backend
+        return True
+
+    def submit(self, job: Job, attempt: int, seed: int) -> None:
+        self.backend.submit(job, attempt, seed)
+
+    def next_result(self) -> dict[str, Any]:
+        return self.backend.next_result()
+
+    def close(self) -> None:
+        backend, self.backend = self.backend, None
+        if backend is not None:
+            backend.close()
+
+    def __enter__(self) -> WorkerPool:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 def connect_ray(address: str, workers: int = 1):
@@ -294,50 +382,52 @@ def run_attempts(
     workers: int = 1,
     ray_address: str | None = None,
     progress: Callable[[dict[str, Any]], None] | None = None,
+    pool: WorkerPool | None = None,
 ) -> RunStats:
     """Run attempts until ``episodes`` successes (or ``max_attempts`` attempts) are committed in
-    ``staging``; attempts already committed there (a killed earlier run) are not run again."""
+    ``staging``; attempts already committed there (a killed earlier run) are not run again. ``pool``: workers
+    kept across runs (then ``workers`` and ``ray_address`` are the pool's); None: this run's own, closed at its end."""
     done = staging.committed()
-    if ray_address:
-        backend: Any = _Ray(factory, staging.root, workers, ray_address)
-    elif workers > 1:
-        backend = _Processes(factory, staging.root, workers)
-    else:
-        backend = _Inline(factory, staging.root)
+    own = pool is None
+    if pool is None:
+        pool = WorkerPool(workers, ray_address)
+    job = Job(factory, Path(staging.root), uuid.uuid4().hex)
 
     def successes() -> int:
         return sum(1 for r in done.values() if r.get("success"))
 
     t0 = time.time()
+    t_ready = None
     in_flight: set[int] = set()
     new = 0
-    started = False
+    ok_exit = False
     try:
         nxt = 0
         while True:
-            while len(in_flight) < max(workers, 1) and nxt < max_attempts and successes() + len(in_flight) < episodes:
+            while len(in_flight) < pool.workers and nxt < max_attempts and successes() + len(in_flight) < episodes:
                 if nxt in done:
                     nxt += 1
                     continue
-                if not started:
-                    backend.start()
-                    started = True
+                if t_ready is None:
+                    pool.start(job)  # a no-op for a shared pool already running: no start-up in this run
                     t_ready = time.time()
-                backend.submit(nxt, attempt_seed(seed, nxt))
+                pool.submit(job, nxt, attempt_seed(seed, nxt))
                 in_flight.add(nxt)
                 nxt += 1
             if not in_flight:
                 break
-            r = backend.next_result()
+            r = pool.next_result()
             in_flight.discard(r["attempt"])
             done[r["attempt"]] = r
             new += 1
             if progress is not None:
                 progress(r)
+        ok_exit = True
     finally:
-        backend.close()
+        if own or not ok_exit:
+            pool.close()
     t_end = time.time()
-    if not started:
+    if t_ready is None:
         t_ready = t_end
     ok = sorted(a for a, r in done.items() if r.get("success"))[:episodes]
-    return RunStats(backend.name, max(workers, 1), t_ready - t0, t_end - t_ready, done, ok, new)
+    return RunStats(pool.name, pool.workers, t_ready - t0, t_end - t_ready, done, ok, new)

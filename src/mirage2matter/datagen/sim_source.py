@@ -106,12 +106,31 @@ class SimEpisodeSource:
         self.cfg = cfg
         self.spec = cfg.spec()
         self.task = cfg.task
+        self.splat_server = splat_server
         t0 = time.perf_counter()
         self.env = TwinEnv.from_config(replace(cfg.env_config(), splat_server=splat_server))
         self.twin = self.env.twin
         # the policy of a takeover, on the CPU: a small network beside the worker's rendering, no GPU context per worker
         self.policy = cfg.takeover.open("cpu") if cfg.takeover is not None else None
         self.build_s = time.perf_counter() - t0
+
+    def retarget(self, factory: Any) -> bool:
+        """Serve ``factory``'s episodes (another dataset of a worker pool) with this environment when only the task
+        differs - the same world, frames, randomisation, renderer settings and takeover: the task is swapped, nothing
+        is rebuilt (an episode is a function of its seed and task alone: measured bit-identical frames, states and
+        actions after other tasks' episodes). False: it cannot (build a new source)."""
+        if not isinstance(factory, SimSourceFactory) or (factory.splat_server, self.splat_server) != (None, None):
+            return False  # a splat server's handle belongs to one run
+        if _without_task(factory.cfg) != _without_task(self.cfg):
+            return False
+        self.env.set_task(factory.cfg.task)
+        self.cfg, self.task = factory.cfg, factory.cfg.task
+        self.spec = factory.cfg.spec()
+        return True
+
+    def close(self) -> None:
+        """Free the environment (Genesis scene, renderer)."""
+        self.env.close()
 
     def _policy_first(self, obs: dict, seed: int) -> tuple[dict, int, float, str]:
         """The takeover's policy acts from the episode's first observation for its drawn number of ticks ->
@@ -192,6 +211,14 @@ class SimEpisodeSource:
             action=np.stack(actions).astype(np.float32),
         )
         return Attempt(True, "", episode, record, timings)
+
+
+def _without_task(cfg: SimSourceConfig) -> str:
+    """Everything of a source's configuration but its task, comparable across processes (the world by content)."""
+    import json
+
+    rest = {k: v for k, v in cfg.to_json().items() if k != "task"}
+    return json.dumps({"world": cfg.world.to_dict(), **rest}, sort_keys=True, default=str)
 
 
 @dataclass(frozen=True)

@@ -20,12 +20,14 @@ from typing import TYPE_CHECKING, Any
 
 from .config import GenerateConfig
 from .dataset import GenerateError, RunConfig, generate_dataset, run_fingerprint
+from .runner import WorkerPool
 
 if TYPE_CHECKING:
     from ..sim.tasks import Task
     from ..world.config import WorldConfig
 
-__all__ = ["BENCH_KEYS", "bench_datagen", "dataset_fingerprint", "generate", "task_slug", "world_fingerprint"]
+__all__ = ["BENCH_KEYS", "bench_datagen", "dataset_fingerprint", "generate", "task_slug", "worker_pool",
+           "world_fingerprint"]
 
 BENCH_KEYS = ("demos_per_min", "success_rate", "episodes", "frames", "workers", "backend", "ms_per_frame")
 
@@ -124,10 +126,13 @@ def generate(
     cfg: GenerateConfig,
     log: Callable[[str], None] = print,
     progress: bool = True,
+    pool: WorkerPool | None = None,
 ) -> dict[str, Any]:
     """Generate ``cfg.episodes`` demonstrations of ``task`` in ``world`` into the dataset folder ``out``;
     returns the summary (summary.json) with ``"dataset"`` the dataset folder. A rerun of a finished run is a
-    no-op; a killed run resumes (the fingerprint: world content, task, frame settings, seed, count, format)."""
+    no-op; a killed run resumes (the fingerprint: world content, task, frame settings, seed, count, format).
+    ``pool``: workers kept across tasks (:func:`worker_pool`): each worker's twin is built once and serves every
+    task's episodes; not used with a splat server (its workers hold one run's server handle)."""
     from ..env.robot_proxy import render_robot_file
     from .sim_source import SimSourceFactory
 
@@ -138,12 +143,19 @@ def generate(
     render_robot_file(world.robot.file, source.hybrid.robot_render_faces)  # built once, before workers race for it
     fingerprint, extra = _source_fingerprint(world, source), {"task": task.text, "dataset": str(out)}
     if not cfg.splat_server:
-        return generate_dataset(out, SimSourceFactory(source), source.spec(), run, fingerprint, extra, log, progress)
+        return generate_dataset(out, SimSourceFactory(source), source.spec(), run, fingerprint, extra, log, progress,
+                                pool)  # fmt: skip
     with _splat_server(world, source, cfg, log) as (handle, server):
         summary = generate_dataset(out, SimSourceFactory(source, handle), source.spec(), run, fingerprint, extra, log,
                                    progress)  # fmt: skip
         summary["splat_server"] = server.close()
     return summary
+
+
+def worker_pool(cfg: GenerateConfig) -> WorkerPool:
+    """Workers for several tasks' ``generate`` calls with ``cfg`` (a context manager; they start with the first
+    attempt): the tasks then pay one twin build and warm-up instead of one each."""
+    return WorkerPool(cfg.workers, cfg.ray_address)
 
 
 @contextmanager

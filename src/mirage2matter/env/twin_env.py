@@ -20,6 +20,7 @@ from __future__ import annotations
 import inspect
 import os
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -220,6 +221,19 @@ class TwinEnv(gymnasium.Env):
             finally:
                 self.twin.close()
                 self.twin = None
+
+    def set_task(self, task: Task | str) -> None:
+        """Run ``task`` from the next ``reset`` on, in the same world, cameras and frames: the built twin and renderer
+        are kept (building them is most of an environment's start-up; a reset restores everything an episode
+        changed, so an episode does not depend on the tasks run before it)."""
+        if isinstance(task, str):
+            task = parse_task(task, self.config.world)
+        elif not isinstance(task, Task):
+            raise EnvError(f"task must be an instruction such as 'grasp banana' or a parsed Task, got {task!r}")
+        task.check(self.config.world)
+        self.config = replace(self.config, task=task)
+        self.task, self.instruction = task, task.instruction
+        self._monitor, self._obs = None, None  # step() needs a reset under the new task
 
     # ---- helpers -------------------------------------------------------------------------------------
     @property

@@ -156,7 +156,7 @@ def _finished(folder: Path, fingerprint: dict) -> dict | None:
 
 
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
-    from ..datagen import dataset_fingerprint, generate
+    from ..datagen import dataset_fingerprint, generate, worker_pool
     from ..export.validate import validate
     from ..sim.tasks import parse_task
     from ..world import load_world
@@ -165,13 +165,18 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     tasks = [parse_task(text, world) for text in cfg.task]  # every task checked before any generation
     generation = cfg.generation(ws.committed)  # once: a takeover's policies are read and hashed here
     per_task, lines = {}, []
-    for text, task in zip(cfg.task, tasks, strict=True):
-        done = _finished(_dataset_dir(ws.committed, cfg, text), dataset_fingerprint(world, task, generation))
-        if done is not None:  # the same dataset is already in the workspace: left in place, not rewritten
-            log(f"{text!r}: {done['dataset']} already holds this dataset")
-            s = done
-        else:
-            s = generate(world, task, _dataset_dir(ws, cfg, text), generation, log=log)
+    # one set of workers for every task: each builds its twin once (a splat server's run keeps its own)
+    with worker_pool(generation) as pool:
+        summaries = {}
+        for text, task in zip(cfg.task, tasks, strict=True):
+            done = _finished(_dataset_dir(ws.committed, cfg, text), dataset_fingerprint(world, task, generation))
+            if done is not None:  # the same dataset is already in the workspace: left in place, not rewritten
+                log(f"{text!r}: {done['dataset']} already holds this dataset")
+                summaries[text] = done
+            else:
+                summaries[text] = generate(world, task, _dataset_dir(ws, cfg, text), generation, log=log, pool=pool)
+    for text in cfg.task:
+        s = summaries[text]
         problems = validate(s["dataset"])
         per_task[text] = {**s, "validation_problems": problems}
         rate = s.get("success_rate")
