@@ -15,6 +15,7 @@ recorded from there (the policy's ticks are not recorded: their actions are not 
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import asdict, dataclass, field, fields, is_dataclass
 from typing import Any
@@ -215,8 +216,6 @@ class SimEpisodeSource:
 
 def _without_task(cfg: SimSourceConfig) -> str:
     """Everything of a source's configuration but its task, comparable across processes (the world by content)."""
-    import json
-
     rest = {k: v for k, v in cfg.to_json().items() if k != "task"}
     return json.dumps({"world": cfg.world.to_dict(), **rest}, sort_keys=True, default=str)
 
