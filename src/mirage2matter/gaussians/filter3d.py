@@ -36,7 +36,7 @@ def max_sampling_rate(means: torch.Tensor, views: Sequence) -> torch.Tensor:
     ``means`` [N,3]; points no view holds get the smallest rate of those held (0 if none is)."""
     m = means.detach().to("cpu", torch.float64)
     nu = torch.zeros(len(m), dtype=torch.float64)
-    for v in views:
+    for v in {id(v): v for v in views}.values():  # a view listed twice (the head photo, repeated) projects once
         vm = torch.as_tensor(v.viewmat, dtype=torch.float64).cpu()
         K = torch.as_tensor(v.K, dtype=torch.float64).cpu()
         pc = m @ vm[:3, :3].T + vm[:3, 3]
