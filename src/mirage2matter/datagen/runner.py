@@ -119,6 +119,7 @@ class _Inline:
 
     def __init__(self):
         self.pending: list[tuple[Job, int, int]] = []
+        self.server: _Server | None = None
 
     def start(self, job: Job) -> None:
         self.server = _Server(job)
@@ -131,7 +132,7 @@ class _Inline:
 
     def close(self) -> None:
         self.pending.clear()
-        if hasattr(self, "server"):
+        if self.server is not None:
             self.server.close()
 
 
@@ -285,10 +286,10 @@ class WorkerPool:
     def name(self) -> str:
         return "ray" if self.ray_address else "process" if self.workers > 1 else "inline"
 
-    def start(self, job: Job) -> bool:
-        """Start the workers on ``job`` unless they are running; whether this call started them."""
+    def start(self, job: Job) -> None:
+        """Start the workers on ``job`` unless they are running."""
         if self.backend is not None:
-            return False
+            return
         if self.ray_address:
             backend: Any = _Ray(self.workers, self.ray_address)
         elif self.workers > 1:
@@ -301,7 +302,6 @@ class WorkerPool:
             backend.close()
             raise
         self.backend = backend
-        return True
 
     def submit(self, job: Job, attempt: int, seed: int) -> None:
         self.backend.submit(job, attempt, seed)
@@ -400,7 +400,6 @@ def run_attempts(
     t_ready = None
     in_flight: set[int] = set()
     new = 0
-    ok_exit = False
     try:
         nxt = 0
         while True:
@@ -422,10 +421,11 @@ def run_attempts(
             new += 1
             if progress is not None:
                 progress(r)
-        ok_exit = True
-    finally:
-        if own or not ok_exit:
-            pool.close()
+    except BaseException:
+        pool.close()  # a shared pool too: its workers may still hold this run's attempts
+        raise
+    if own:
+        pool.close()
     t_end = time.time()
     if t_ready is None:
         t_ready = t_end
