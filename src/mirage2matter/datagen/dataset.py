@@ -184,15 +184,19 @@ def generate_dataset(
     t0 = time.time()
     with Staging.open(out_dir, spec, fingerprint) as staging:
         resumed = staging.committed()
+        ok = sum(1 for r in resumed.values() if r.get("success"))
         if resumed:
-            ok = sum(1 for r in resumed.values() if r.get("success"))
             log(f"resuming: {len(resumed)} attempts ({ok} successful) already committed in {staging.root}")
         bar = None
         if progress:
             from tqdm import tqdm
 
-            bar = tqdm(total=cfg.episodes, desc="episodes", unit="ep", dynamic_ncols=True,
-                       initial=min(cfg.episodes, sum(1 for r in resumed.values() if r.get("success"))))  # fmt: skip
+            # named for its task: a run of several tasks shows one bar each
+            bar = tqdm(total=cfg.episodes, desc=str((extra_summary or {}).get("task", "episodes")), unit="ep",
+                       dynamic_ncols=True, initial=min(cfg.episodes, ok))  # fmt: skip
+            # the workers build the twin before the first episode: ~15 s, more on a first run
+            if ok < cfg.episodes and (pool is None or pool.backend is None):
+                bar.set_postfix_str(f"starting {max(cfg.workers, 1)} worker(s)")
 
         fails = [0]
 
