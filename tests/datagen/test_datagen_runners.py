@@ -3,6 +3,7 @@ fake episode source (tests/datagen/datagen_fake.py, a test double: no simulator)
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -188,6 +189,78 @@ def test_sigkill_midway_then_rerun_gives_exactly_n_episodes(tmp_path: Path) -> N
     # Same episodes as a run that was never interrupted.
     _generate(tmp_path / "ref", episodes=n)
     _same_dataset(out, tmp_path / "ref")
+
+
+_POOL_KILL_SCRIPT = """
+import sys
+sys.path.insert(0, {tests!r})
+from pathlib import Path
+from datagen_fake import SPEC, FakeFactory
+from mirage2matter.datagen import RunConfig, WorkerPool, generate_dataset
+with WorkerPool(2) as pool:
+    for task in {tasks!r}:
+        generate_dataset(Path({out!r}) / task, FakeFactory({delay}, task), SPEC, RunConfig(episodes={n}, seed=7,
+                         workers=2), {{**{fp!r}, "task": task}}, progress=False, pool=pool)
+"""
+
+
+def _proc_stat(pid: int) -> tuple[str, int] | None:
+    """(state, parent pid) of a live process, None once it is gone (a zombie counts as gone)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (FileNotFoundError, ProcessLookupError):
+        return None
+    return None if fields[0] in "ZX" else (fields[0], int(fields[1]))
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads processes from /proc (Linux)")
+def test_a_pooled_run_killed_in_its_second_task_resumes_and_its_workers_die_with_it(tmp_path: Path) -> None:
+    """The generate stage's shape: one pool of 2 worker processes for two tasks' datasets. SIGKILL to the generator
+    alone (not its process group: what a killed terminal or an OOM kill of the parent does) while the second
+    task's attempts are being committed: the workers exit with it and commit nothing after it (orphans would keep
+    committing beside the rerun); the rerun keeps the first dataset, resumes the second, and both are the datasets
+    of runs never interrupted."""
+    out, n, tasks = tmp_path / "ds", 6, ("grasp banana", "press button")
+    script = _POOL_KILL_SCRIPT.format(tests=str(Path(__file__).parent), out=str(out), delay=0.3, n=n, fp=FP,
+                                      tasks=tasks)  # fmt: skip
+    proc = subprocess.Popen([sys.executable, "-c", script], start_new_session=True)
+    attempts = staging_dir_for(out / tasks[1]) / "attempts"
+    try:
+        deadline = time.time() + 120
+        while len(list(attempts.glob("attempt-*"))) < 2:
+            assert time.time() < deadline, "the generator committed no attempts of its second task within 120 s"
+            assert proc.poll() is None, "the generator ended before its second task's attempts"
+            time.sleep(0.02)
+        workers = [int(p.name) for p in Path("/proc").iterdir() if p.name.isdigit() and
+                   (st := _proc_stat(int(p.name))) and st[1] == proc.pid and
+                   b"spawn_main" in Path(f"/proc/{p.name}/cmdline").read_bytes()]  # fmt: skip
+        assert len(workers) == 2, workers
+        proc.send_signal(signal.SIGKILL)  # the generator only
+        proc.wait()
+        deadline = time.time() + 10
+        while any(_proc_stat(w) for w in workers):
+            assert time.time() < deadline, "the workers outlived the generator"
+            time.sleep(0.02)
+    finally:
+        with contextlib.suppress(ProcessLookupError):  # whatever of its session is left, if the test failed
+            os.killpg(proc.pid, signal.SIGKILL)
+    committed = len(list(attempts.glob("attempt-*")))
+    time.sleep(1.0)  # > 3 attempts' delay: a surviving worker would have committed by now
+    assert len(list(attempts.glob("attempt-*"))) == committed
+    assert (out / tasks[0] / "meta" / "info.json").is_file() and not (out / tasks[1]).exists()
+    first = (out / tasks[0] / "summary.json").stat().st_mtime_ns
+
+    cfg = RunConfig(episodes=n, seed=7, workers=2)
+    with WorkerPool(2) as pool:
+        again = [generate_dataset(out / t, FakeFactory(0.3, t), SPEC, cfg, {**FP, "task": t}, log=lambda m: None,
+                                  progress=False, pool=pool) for t in tasks]  # fmt: skip
+    assert (out / tasks[0] / "summary.json").stat().st_mtime_ns == first  # kept, not redone
+    assert again[1]["attempts_this_run"] == again[1]["attempts"] - committed  # nothing ran twice
+    for t in tasks:
+        assert validate(out / t) == []
+        generate_dataset(tmp_path / "ref" / t, FakeFactory(task=t), SPEC, RunConfig(episodes=n, seed=7),
+                         {**FP, "task": t}, log=lambda m: None, progress=False)  # fmt: skip
+        _same_dataset(out / t, tmp_path / "ref" / t)
 
 
 def test_killed_after_the_swap_before_cleanup(tmp_path: Path) -> None:
