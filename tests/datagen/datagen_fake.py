@@ -66,3 +66,12 @@ class FakeFactory:
 
     def __call__(self) -> FakeSource:
         return FakeSource(self.delay, self.task)
+
+
+@dataclass(frozen=True)
+class SpawnOnlyFactory(FakeFactory):
+    """A FakeFactory that also holds what pickles only into a process as it is spawned (a lock, as a splat server's
+    handle holds queues and shared buffers)."""
+
+    inherited: object = None
+

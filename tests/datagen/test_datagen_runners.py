@@ -263,6 +263,54 @@ def test_a_pooled_run_killed_in_its_second_task_resumes_and_its_workers_die_with
         _same_dataset(out / t, tmp_path / "ref" / t)
 
 
+_SPAWN_ONLY_SCRIPT = """
+import json, multiprocessing as mp, sys
+sys.path.insert(0, {tests!r})
+from pathlib import Path
+from datagen_fake import SPEC, FakeFactory, SpawnOnlyFactory
+from mirage2matter.datagen import RunConfig, RunnerError, WorkerPool, generate_dataset
+if __name__ == "__main__":
+    cfg = RunConfig(episodes=4, seed=7, workers=2)
+    lock = mp.get_context("spawn").Lock()
+    s = generate_dataset(Path({out!r}) / "own", SpawnOnlyFactory(inherited=lock), SPEC, cfg, {fp!r}, log=print,
+                         progress=False)
+    refused = None
+    with WorkerPool(2) as pool:
+        generate_dataset(Path({out!r}) / "first", FakeFactory(), SPEC, cfg, {fp!r}, log=print, progress=False,
+                         pool=pool)
+        try:
+            generate_dataset(Path({out!r}) / "second", SpawnOnlyFactory(task="press button", inherited=lock), SPEC,
+                             cfg, {{**{fp!r}, "task": "press button"}}, log=print, progress=False, pool=pool)
+        except RunnerError as e:
+            refused = str(e)
+    print(json.dumps({{"episodes": s["episodes"], "refused": refused}}))
+"""
+
+
+def test_a_source_that_pickles_only_at_spawn_runs_on_its_own_workers_and_is_refused_by_a_pool(tmp_path: Path) -> None:
+    """generate --splat-server's shape: a factory holding what pickles only into a process as it is spawned (the
+    server's queues and buffers; here a lock). Its own worker processes run it (its attempts must not carry it
+    through the task queue, whose feeder thread drops what it cannot pickle: the run waited forever), and a pool
+    started for another run refuses it with a clear error instead of hanging."""
+    out = tmp_path / "ds"
+    script = tmp_path / "spawn_only.py"
+    script.write_text(_SPAWN_ONLY_SCRIPT.format(tests=str(Path(__file__).parent), out=str(out), fp=FP))
+    proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        stdout, _ = proc.communicate(timeout=90)  # ~7 s here
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        pytest.fail("generation with a spawn-only source hung (its attempts never reached the workers)")
+    assert proc.returncode == 0, stdout
+    result = json.loads(stdout.strip().splitlines()[-1])
+    assert result["episodes"] == 4 and validate(out / "own") == []
+    _generate(tmp_path / "ref", episodes=4)
+    _same_dataset(out / "own", tmp_path / "ref")
+    assert result["refused"] and "cannot be sent to workers started for another run" in result["refused"]
+    assert not (out / "second").exists()
+
+
 def test_killed_after_the_swap_before_cleanup(tmp_path: Path) -> None:
     out = tmp_path / "ds"
     _generate(out, episodes=3)

@@ -195,7 +195,7 @@ def generate_dataset(
             bar = tqdm(total=cfg.episodes, desc=str((extra_summary or {}).get("task", "episodes")), unit="ep",
                        dynamic_ncols=True, initial=min(cfg.episodes, ok))  # fmt: skip
             # the workers build the twin before the first episode: ~15 s, more on a first run
-            if ok < cfg.episodes and (pool is None or pool.backend is None):
+            if ok < cfg.episodes and (pool is None or not pool.running):
                 bar.set_postfix_str(f"starting {max(cfg.workers, 1)} worker(s)")
 
         fails = [0]

@@ -153,8 +153,10 @@ def _worker_main(job, threads, tasks, results, parent) -> None:  # runs in a wor
         item = tasks.get()
         if item is None:
             return
+        job_or_key, attempt, seed = item
         try:
-            results.put(("result", os.getpid(), server.run(*item)))
+            results.put(("result", os.getpid(), server.run(job if isinstance(job_or_key, str) else job_or_key, attempt,
+                                                           seed)))  # fmt: skip
         except BaseException:
             results.put(("error", os.getpid(), traceback.format_exc()))
             return
@@ -175,6 +177,8 @@ class _Processes:
         self.procs: list = []
 
     def start(self, job: Job) -> None:
+        self.job = job  # the workers hold it from their spawn on: its attempts travel as its key
+        self._sendable: set[str] = set()
         threads = max(1, (os.cpu_count() or 1) // self.n)
         for _ in range(self.n):
             args = (job, threads, self.tasks, self.results, os.getpid())
@@ -200,6 +204,22 @@ class _Processes:
                                       "without reporting an error; out of memory?") from None  # fmt: skip
 
     def submit(self, job: Job, attempt: int, seed: int) -> None:
+        # The workers' own job goes by its key: its factory may hold what pickles only into a process as it is
+        # spawned (a splat server's queues and shared buffers). Another job (a pool's next run) travels whole, checked
+        # here once: the queue pickles in a feeder thread that drops what it cannot pickle, unseen, and the run would
+        # wait for that attempt forever.
+        if job.key == self.job.key:
+            self.tasks.put((job.key, attempt, seed))
+            return
+        if job.key not in self._sendable:
+            from multiprocessing.reduction import ForkingPickler
+
+            try:
+                ForkingPickler.dumps(job)
+            except Exception as e:
+                raise RunnerError(f"this run's episode source cannot be sent to workers started for another run "
+                                  f"({type(e).__name__}: {e}); give it workers of its own") from None  # fmt: skip
+            self._sendable.add(job.key)
         self.tasks.put((job, attempt, seed))
 
     def next_result(self) -> dict[str, Any]:
@@ -286,9 +306,14 @@ class WorkerPool:
     def name(self) -> str:
         return "ray" if self.ray_address else "process" if self.workers > 1 else "inline"
 
+    @property
+    def running(self) -> bool:
+        """Whether the workers are up (a run handed to it now pays no start-up)."""
+        return self.backend is not None
+
     def start(self, job: Job) -> None:
         """Start the workers on ``job`` unless they are running."""
-        if self.backend is not None:
+        if self.running:
             return
         if self.ray_address:
             backend: Any = _Ray(self.workers, self.ray_address)
