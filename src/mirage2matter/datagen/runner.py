@@ -154,9 +154,9 @@ def _worker_main(job, threads, tasks, results, parent) -> None:  # runs in a wor
         if item is None:
             return
         job_or_key, attempt, seed = item
+        this = job if isinstance(job_or_key, str) else job_or_key  # a key: the job this worker was spawned with
         try:
-            results.put(("result", os.getpid(), server.run(job if isinstance(job_or_key, str) else job_or_key, attempt,
-                                                           seed)))  # fmt: skip
+            results.put(("result", os.getpid(), server.run(this, attempt, seed)))
         except BaseException:
             results.put(("error", os.getpid(), traceback.format_exc()))
             return
