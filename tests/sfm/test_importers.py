@@ -49,6 +49,16 @@ def test_transforms_import_keeps_the_given_frame_and_triangulates_real_geometry(
         assert np.allclose(c.K, given[c.name].K, atol=1e-9)
 
 
+@needs_sample
+def test_transforms_import_with_two_threads_gives_the_same_points_twice(sample_transforms, tmp_path):
+    # extraction's threads numbered the images in the order they finished and matching's threads drew one
+    # generator in a varying order: every run triangulated other points, and the scene trained on them varied
+    two = SfMConfig(num_threads=2)
+    runs = [import_transforms(sample_transforms, tmp_path / k / "capture", tmp_path / k / "sfm", two) for k in "ab"]
+    assert len(runs[0].points) > 200
+    assert np.array_equal(runs[0].points, runs[1].points)
+
+
 def test_import_bad_inputs_name_the_problem_and_write_nothing(tmp_path):
     tf = tmp_path / "data" / "transforms.json"
     tf.parent.mkdir()

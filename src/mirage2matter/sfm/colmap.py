@@ -236,12 +236,18 @@ def extract_features(
     eo.num_threads = config.num_threads
     eo.sift.max_num_features = config.max_num_features
     eo.max_image_size = max(16, round(max_side * config.downscale))
+    mode = pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.PER_IMAGE
+    reader = {"options": _reader_options(config)} if single_camera else {}
+    # The images enter the database in name order first: extraction's threads would number them in the order
+    # they finish, and matching, triangulation and mapping follow the ids (same input, different points).
+    pycolmap.Database.open(str(db)).close()
+    pycolmap.import_images(db, image_dir, camera_mode=mode, image_names=sorted(names), **reader)
     pycolmap.extract_features(
         db,
         image_dir,
         image_names=names,
-        camera_mode=pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.PER_IMAGE,
-        **({"reader_options": _reader_options(config)} if single_camera else {}),
+        camera_mode=mode,
+        **({"reader_options": reader["options"]} if reader else {}),
         extraction_options=eo,
         device=pycolmap.Device.cpu,
     )
@@ -256,15 +262,22 @@ def match_features(db: Path, n_images: int, config: SfMConfig) -> str:
         matching = "exhaustive" if n_images < config.exhaustive_below else "sequential"
     mo = pycolmap.FeatureMatchingOptions()
     mo.num_threads = config.num_threads
+    vo = pycolmap.TwoViewGeometryOptions()
+    if config.num_threads != 1:
+        # one thread draws the global generator (seeded by extract_features) in pair order; with more, the
+        # threads' order varies, so each pair's RANSAC gets its own generator seeded the same
+        vo.ransac.random_seed = config.seed
     if matching == "exhaustive":
-        pycolmap.match_exhaustive(db, matching_options=mo, device=pycolmap.Device.cpu)
+        pycolmap.match_exhaustive(db, matching_options=mo, verification_options=vo, device=pycolmap.Device.cpu)
     else:
         po = pycolmap.SequentialPairingOptions()
         po.overlap = config.overlap
         po.loop_detection = config.loop_detection
         if config.loop_detection:
             po.vocab_tree_path = str(config.vocab_tree_path)
-        pycolmap.match_sequential(db, matching_options=mo, pairing_options=po, device=pycolmap.Device.cpu)
+        pycolmap.match_sequential(
+            db, matching_options=mo, pairing_options=po, verification_options=vo, device=pycolmap.Device.cpu
+        )
     return matching
 
 
