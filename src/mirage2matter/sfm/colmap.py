@@ -96,9 +96,11 @@ class SfMConfig:
     # not help (64: 2.94 mm, 96: 2.67 mm, fy and cy as far off): a bias, not noise. "auto" leaves a run with the
     # intrinsics held fixed (the bundled sample's demo) as it was: there the bias it removes is small already.
     robust_ba: str = "auto"
-    # One thread: multi-threaded COLMAP writes features and match results in completion order, so
-    # the model changes run to run (measured: 1 in 4 runs of the 16-keyframe sample converged 4 deg
-    # off); one thread is reproducible for ~1.5x the SfM time. -1 = all cores.
+    # One thread: the whole SfM is reproducible (~1.5x the time of all cores). With more, feature extraction and
+    # matching are too (images numbered by name, each pair's RANSAC seeded), but the incremental mapper's threads
+    # are not (10 keyframes of the sample, 2 threads: three runs, three models; earlier, 1 in 4 multi-threaded
+    # runs of 16 keyframes converged 4 deg off). A known-pose import (no mapper) with 2 threads gave one model in 7
+    # runs. -1 = all cores.
     num_threads: int = 1
     seed: int = 0
     verbose: bool = False
