@@ -239,17 +239,18 @@ def extract_features(
     eo.sift.max_num_features = config.max_num_features
     eo.max_image_size = max(16, round(max_side * config.downscale))
     mode = pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.PER_IMAGE
-    reader = {"options": _reader_options(config)} if single_camera else {}
+    ro = _reader_options(config) if single_camera else None
     # The images enter the database in name order first: extraction's threads would number them in the order
     # they finish, and matching, triangulation and mapping follow the ids (same input, different points).
     pycolmap.Database.open(str(db)).close()
-    pycolmap.import_images(db, image_dir, camera_mode=mode, image_names=sorted(names), **reader)
+    read = {"options": ro} if ro else {}
+    pycolmap.import_images(db, image_dir, camera_mode=mode, image_names=sorted(names), **read)
     pycolmap.extract_features(
         db,
         image_dir,
         image_names=names,
         camera_mode=mode,
-        **({"reader_options": reader["options"]} if reader else {}),
+        **({"reader_options": ro} if ro else {}),
         extraction_options=eo,
         device=pycolmap.Device.cpu,
     )
