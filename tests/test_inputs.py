@@ -13,6 +13,7 @@ from mirage2matter.inputs import (
     read_image_rgb,
     read_json,
     read_yaml,
+    read_yaml_lines,
 )
 
 
@@ -53,6 +54,13 @@ def test_json_and_yaml_readers_refuse_what_would_exhaust_the_machine(tmp_path):
     assert read_yaml(tmp_path / "ok.yaml") == {"a": [1, 2], "b": {"c": "d"}}
     (tmp_path / "empty.yaml").write_text("")
     assert read_yaml(tmp_path / "empty.yaml") == {}
+    # a character YAML does not allow (found by tests/test_fuzz.py: a file holding one NUL byte raised yaml's error)
+    for name, data in (("nul.yaml", b"\x00"), ("bell.yaml", b"a: 1\nb: \x07\n")):
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(InputError, match=rf"{name} is not valid YAML: unacceptable character"):
+            read_yaml(tmp_path / name)
+        with pytest.raises(InputError, match="not valid YAML"):
+            read_yaml_lines(tmp_path / name)
 
 
 def test_camera_checks():

@@ -129,7 +129,11 @@ def _parse_yaml(path: Path, what: str, lines: bool) -> tuple[Any, dict[tuple[str
     """The data of the YAML file (one parse with the alias-refusing safe loader) and, with ``lines``, its lines."""
     import yaml
 
-    loader = _no_alias_loader(path, what)(_read_text(path, what))
+    text = _read_text(path, what)
+    try:  # the reader checks the characters as the loader is made: a NUL byte is refused there
+        loader = _no_alias_loader(path, what)(text)
+    except yaml.YAMLError as e:
+        raise InputError(f"{what} {path} is not valid YAML: {e}") from None
     try:
         node = loader.get_single_node()
         data = None if node is None else loader.construct_document(node)
