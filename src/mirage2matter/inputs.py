@@ -130,19 +130,17 @@ def _parse_yaml(path: Path, what: str, lines: bool) -> tuple[Any, dict[tuple[str
     import yaml
 
     text = _read_text(path, what)
-    try:  # the reader checks the characters as the loader is made: a NUL byte is refused there
-        loader = _no_alias_loader(path, what)(text)
-    except yaml.YAMLError as e:
-        raise InputError(f"{what} {path} is not valid YAML: {e}") from None
     try:
-        node = loader.get_single_node()
-        data = None if node is None else loader.construct_document(node)
+        loader = _no_alias_loader(path, what)(text)  # its reader refuses characters YAML does not allow (a NUL)
+        try:
+            node = loader.get_single_node()
+            data = None if node is None else loader.construct_document(node)
+        finally:
+            loader.dispose()
     except yaml.YAMLError as e:
         raise InputError(f"{what} {path} is not valid YAML: {e}") from None
     except RecursionError:
         raise InputError(f"{what} {path}: nested deeper than Python can read") from None
-    finally:
-        loader.dispose()
     return data, (_node_lines(node, path, what) if lines else {})
 
 

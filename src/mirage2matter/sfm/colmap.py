@@ -239,18 +239,17 @@ def extract_features(
     eo.sift.max_num_features = config.max_num_features
     eo.max_image_size = max(16, round(max_side * config.downscale))
     mode = pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.PER_IMAGE
-    ro = _reader_options(config) if single_camera else None
+    ro = _reader_options(config) if single_camera else pycolmap.ImageReaderOptions()  # pycolmap's default
     # The images enter the database in name order first: extraction's threads would number them in the order
     # they finish, and matching, triangulation and mapping follow the ids (same input, different points).
     pycolmap.Database.open(str(db)).close()
-    read = {"options": ro} if ro else {}
-    pycolmap.import_images(db, image_dir, camera_mode=mode, image_names=sorted(names), **read)
+    pycolmap.import_images(db, image_dir, camera_mode=mode, image_names=sorted(names), options=ro)
     pycolmap.extract_features(
         db,
         image_dir,
         image_names=names,
         camera_mode=mode,
-        **({"reader_options": ro} if ro else {}),
+        reader_options=ro,
         extraction_options=eo,
         device=pycolmap.Device.cpu,
     )
