@@ -154,6 +154,16 @@ class Workspace:
         return self.path("calib", "overlay.png")
 
     @property
+    def robot_capture_file(self) -> Path:
+        """the robot as the capture saw it: capture joint state, whether the keyframes show it, its fit"""
+        return self.path("calib", "robot.json")
+
+    @property
+    def robot_points_file(self) -> Path:
+        """the SfM points on the robot (base frame), kept out of points_base.npy"""
+        return self.path("calib", "robot_points_base.npy")
+
+    @property
     def handeye_file(self) -> Path:
         return self.path("calib", "handeye.json")
 

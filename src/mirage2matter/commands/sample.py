@@ -36,6 +36,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     sm.add_argument("--robot", default=DEFAULT_ROBOT, metavar="ROBOT",
                     help="the robot holding the board in the hand-eye images: a registered robot "
                     f"({', '.join(ROBOTS)}) or a robot spec file (default {DEFAULT_ROBOT})")
+    sm.add_argument("--robot-in-view", action="store_true",
+                    help="film the robot standing at its base in the video, at a logged joint state (ground_truth.json "
+                    "robot.capture_joints, and align.capture_joints in the sample's m2m.yaml) with a look of its own "
+                    "(paint, rubber, wear), the board lying beside the base, as on a real capture")
     sm.set_defaults(func=run)
     he = sample_sub.add_parser(
         "handeye",
@@ -56,10 +60,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..sample.make import SampleConfig, make_sample, with_layout, with_lens, with_marker
+    from ..sample.make import SampleConfig, make_sample, with_layout, with_lens, with_marker, with_robot_in_view
 
     config = SampleConfig.short(args.seed) if args.short else SampleConfig(seed=args.seed)
     config = with_layout(with_lens(with_marker(config, args.marker), args.lens), args.layout)
+    if args.robot_in_view:
+        config = with_robot_in_view(config)
     if args.robot != config.robot:
         from dataclasses import replace
         from pathlib import Path

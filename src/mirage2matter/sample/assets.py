@@ -870,8 +870,17 @@ def _placements(
     raise RuntimeError(f"seed {seed}: no non-overlapping placement found in 200 draws")
 
 
+def place_board(asset: PlacedAsset, x: float, y: float, yaw_deg: float) -> PlacedAsset:
+    """The board slab ``asset`` lying on the table with its centre at (x, y), turned by ``yaw_deg``; its
+    ``meta["T_base_board"]`` follows."""
+    T = _translation(x, y, BOARD_THICKNESS / 2, yaw_deg)
+    meta = {**asset.meta, "T_base_board": (T @ np.asarray(asset.meta["T_obj_board"])).tolist()}
+    return PlacedAsset(asset.name, asset.mesh, T, asset.category, meta)
+
+
 def build_assets(
-    seed: int = 0, board: BoardSpec | None = None, include_ceiling: bool = False, layout: str = "nominal"
+    seed: int = 0, board: BoardSpec | None = None, include_ceiling: bool = False, layout: str = "nominal",
+    board_at: tuple[float, float, float] | None = None,
 ) -> list[PlacedAsset]:
     """All assets of the sample workspace, deterministic for ``seed`` (0 = the shipped sample) and ``layout`` (where
     the objects stand, one of LAYOUTS: "nominal" or "random").
@@ -883,6 +892,8 @@ def build_assets(
 
     include_ceiling: off by default because a renderer with shadow-casting directional lights would
     put the whole room in the ceiling's shadow.
+    board_at: (x, y, yaw in degrees) of the board's centre when it does not lie where the robot base stands (a
+    capture with the robot in it: the board beside the base)
     """
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
@@ -892,9 +903,17 @@ def build_assets(
     assets = [*_room(seed, include_ceiling), _table(seed)]
     table_board = board_asset(board)
     wm, hm = board.size_with_margin(BOARD_MARGIN_SQUARES)
-    board_box = np.array([[-wm / 2, -hm / 2], [wm / 2, hm / 2]])
-    if not (TABLE_X[0] < board_box[0, 0] and board_box[1, 0] < WORKSPACE_X[0] and TABLE_Y[0] < board_box[0, 1]):
-        raise ValueError(f"board {board} ({wm:.3f} x {hm:.3f} m) does not fit between the table edge and the workspace")
+    if board_at is None:
+        board_box = np.array([[-wm / 2, -hm / 2], [wm / 2, hm / 2]])
+        if not (TABLE_X[0] < board_box[0, 0] and board_box[1, 0] < WORKSPACE_X[0] and TABLE_Y[0] < board_box[0, 1]):
+            raise ValueError(f"board {board} ({wm:.3f} x {hm:.3f} m) does not fit between the table edge and the "
+                             "workspace")  # fmt: skip
+    else:
+        table_board = place_board(table_board, *board_at)
+        board_box = _footprint(table_board.mesh, table_board.T_base_obj)
+        if not (TABLE_X[0] < board_box[0, 0] and board_box[1, 0] < TABLE_X[1] and TABLE_Y[0] < board_box[0, 1]
+                and board_box[1, 1] < TABLE_Y[1]):  # fmt: skip
+            raise ValueError(f"board {board} ({wm:.3f} x {hm:.3f} m) at {board_at} leaves the table")
     assets.append(table_board)
 
     banana, croissant = _banana_mesh(_rng(seed, "banana")), _croissant_mesh(_rng(seed, "croissant"))

@@ -3,9 +3,10 @@
 Writes, into a new directory (built under a temporary name and renamed at the end, so a sample is
 never half-written):
 
-    scene.mp4            hand-held orbit around the table (no robot), H.264; through a phone-like lens with
-                         ``lens`` (distortion, off-centre principal point), else the renderer's pinhole
-    head_view.png        the fixed head camera's view of the same scene (no robot)
+    scene.mp4            hand-held orbit around the table, H.264 (the robot at its base, in its own look, only with
+                         ``robot_in_view``); through a phone-like lens with ``lens`` (distortion, off-centre principal
+                         point), else the renderer's pinhole
+    head_view.png        the fixed head camera's view of the same scene (the robot in it as in the video)
     handeye/images/*.png the head camera's view of a ChArUco board held by the robot's gripper
     handeye/joints.json  the joint angles of each hand-eye image
     handeye/board.json   the held board's spec
@@ -31,7 +32,8 @@ import numpy as np
 from ..atomic import atomic_dir
 from ..calib.board import BoardSpec, GridSpec, MarkerSpec
 from ..errors import M2MError
-from ..robots import DEFAULT_ROBOT
+from ..robots import DEFAULT_ROBOT, get_robot
+from ..robots.surface import check_capture_joints
 from .assets import LAYOUTS
 from .inspect import BUNDLED_SAMPLE
 from .lens import LENSES, LensConfig
@@ -68,6 +70,12 @@ class SampleConfig:
     # Where the objects stand (sample.assets.LAYOUTS): "nominal" (the shipped places, jittered for seeds != 0) or
     # "random" (drawn anywhere in the workspace for the seed)
     layout: str = "nominal"
+    # The robot in the video (`with_robot_in_view`): it stands at its base at ``capture_joints`` (arm joints, rad;
+    # None: sample.robot_look.capture_joints_for) with a look of its own (sample.robot_look), and the board lies
+    # beside the base at ``board_at`` (x, y, yaw deg) instead of where the base stands
+    robot_in_view: bool = False
+    capture_joints: tuple[float, ...] | None = None
+    board_at: tuple[float, float, float] | None = None
 
     @classmethod
     def short(cls, seed: int = 0) -> SampleConfig:
@@ -96,6 +104,21 @@ def with_layout(config: SampleConfig, layout: str) -> SampleConfig:
     if layout not in LAYOUTS:
         raise SampleError(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
     return replace(config, layout=layout)
+
+
+# The board beside the base when the robot stands in the video: 5.5 cm squares (the 7 cm board does not fit beside
+# the base on the table), lying left of the base, long side along x.
+ROBOT_IN_VIEW_BOARD = BoardSpec(square=0.055, marker=0.042, dictionary="DICT_4X4_50")
+ROBOT_IN_VIEW_BOARD_AT = (-0.08, 0.32, 90.0)
+
+
+def with_robot_in_view(config: SampleConfig, capture_joints: tuple[float, ...] | None = None) -> SampleConfig:
+    """``config`` filming the robot at its base (at ``capture_joints``, default the sample's pose), the board
+    beside it."""
+    board = ROBOT_IN_VIEW_BOARD if isinstance(config.board, BoardSpec) and config.board.kind == "charuco" else \
+        config.board  # fmt: skip
+    return replace(config, robot_in_view=True, capture_joints=capture_joints, board=board,
+                   board_at=ROBOT_IN_VIEW_BOARD_AT)  # fmt: skip
 
 
 def with_marker(config: SampleConfig, marker: str) -> SampleConfig:
@@ -145,11 +168,12 @@ def _robot_ref(robot: str, renderer: Any) -> str:
     return renderer.robot_file if robot == DEFAULT_ROBOT else robot
 
 
-def _write_settings(path: Path, config: SampleConfig, objects: list[str]) -> None:
+def _write_settings(path: Path, config: SampleConfig, objects: list[str], capture_joints=None) -> None:
     """The sample's m2m.yaml: the bundled one; with another robot, lens or layout, changed where they matter: the robot
     named where the stages take one (align, compose), no video intrinsics with a lens (SfM calibrates the camera
     itself, as on a phone video), the objects named nearest the base first (``objects``: the names in that order)."""
-    if config.robot == DEFAULT_ROBOT and config.lens is None and config.layout == "nominal":
+    bundled = config.robot == DEFAULT_ROBOT and config.lens is None and config.layout == "nominal"
+    if bundled and not config.robot_in_view:
         shutil.copyfile(BUNDLED_SAMPLE / "m2m.yaml", path)
         return
     import yaml
@@ -168,6 +192,10 @@ def _write_settings(path: Path, config: SampleConfig, objects: list[str]) -> Non
             del data["sfm"]
         notes.append(f"The video's lens ({config.lens.name}) is not given: SfM calibrates the camera itself "
                      "(ground_truth.json holds the true one under \"camera\").")  # fmt: skip
+    if config.robot_in_view:
+        data.setdefault("align", {})["capture_joints"] = [round(float(v), 6) for v in capture_joints]
+        notes.append("The robot stands in the video at capture_joints (ground_truth.json \"robot\"); the board lies "
+                     "beside its base (ground_truth.json \"board\").")  # fmt: skip
     if config.layout != "nominal":
         data.setdefault("objects", {})["names"] = list(objects)
         notes.append(f"Objects placed by layout {config.layout!r}, named nearest the robot base first.")
@@ -181,7 +209,7 @@ def _config_json(config: SampleConfig) -> dict:
     """The config as ground_truth.json records it; a field added since the bundled sample is left out at its default,
     so a default sample's ground truth stays as it was."""
     out = asdict(config)
-    for key in ("lens", "layout"):
+    for key in ("lens", "layout", "robot_in_view", "capture_joints", "board_at"):
         if out[key] == getattr(SampleConfig, key):
             del out[key]
     return out
@@ -203,16 +231,25 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
     from .assets import board_asset, build_assets, export_assets, ground_truth_entries
     from .lens import lens_rays, pinhole_cover, resample_through_lens
     from .render import RenderConfig, SampleRenderer, default_T_base_headcam, sample_handeye_configurations
+    from .robot_look import capture_joints_for, robot_look_assets
 
     t_start = time.perf_counter()
     with atomic_dir(out) as tmp:  # an existing out is empty (checked above)
         (tmp / "handeye" / "images").mkdir(parents=True)
         board = config.board
-        assets = build_assets(seed=config.seed, board=board, layout=config.layout)
+        assets = build_assets(seed=config.seed, board=board, layout=config.layout, board_at=config.board_at)
         board.save(tmp / "board.json")
         config.handeye_board.save(tmp / "handeye" / "board.json")
+        robot_assets, q_capture = [], None
+        if config.robot_in_view:  # the robot at its base, static while filmed, in its own look
+            spec = get_robot(config.robot)
+            q_capture = check_capture_joints(spec, config.capture_joints if config.capture_joints is not None
+                                             else capture_joints_for(spec), "sample capture_joints")  # fmt: skip
+            robot_assets = robot_look_assets(spec, q_capture, config.seed)
+            log(f"robot: {config.robot} in the video at {np.round(q_capture[: spec.n_arm], 3).tolist()}")
         # the pipeline settings of the sample layout (inputs by relative path), as `m2m demo --sample` reads them
-        _write_settings(tmp / "m2m.yaml", config, _nearest_first(assets))
+        _write_settings(tmp / "m2m.yaml", config, _nearest_first(assets),
+                        None if q_capture is None else q_capture[: get_robot(config.robot).n_arm])  # fmt: skip
         ground_truth_assets = [a for a in assets if a.category in ("board", "object", "button")]
         mesh_paths = export_assets(ground_truth_assets, tmp / "gt")
         log(f"assets: {len(assets)} meshes, ground truth for {', '.join(mesh_paths)}")
@@ -229,7 +266,7 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
             video_cfg = replace(render_cfg, width=width, height=height, fy=render_cfg.focal)
             crop = ((width - config.width) // 2, (height - config.height) // 2)  # the head camera's window of it
         tiles: list[np.ndarray] = []
-        with SampleRenderer(assets, video_cfg, workdir=tmp / ".render") as renderer:
+        with SampleRenderer(assets + robot_assets, video_cfg, workdir=tmp / ".render") as renderer:
             K = renderer.K if lens_camera is None else lens_camera.K
 
             def frames():
@@ -323,6 +360,12 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
             "world_extent": {"min": verts.min(0).tolist(), "max": verts.max(0).tolist()},
             "config": _config_json(config),
         }
+        if q_capture is not None:
+            ground_truth["robot"] = {
+                "name": config.robot, "in_view": True, "capture_joints": q_capture.tolist(),
+                "look": "mirage2matter.sample.robot_look (the sample's seed)",
+                "links": {a.meta["link"]: np.asarray(a.T_base_obj).tolist() for a in robot_assets},
+            }  # fmt: skip
         (tmp / "ground_truth.json").write_text(json.dumps(ground_truth, indent=1))
         _contact_sheet(tmp / "contact_sheet.jpg", tiles)
         for scratch in (".render", ".render_robot"):

@@ -4,10 +4,11 @@ points_base.npy, colors_base.npy, overlay.png)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -16,7 +17,7 @@ from ..calib.align import AlignError, align_scene, default_T_base_board, draw_ba
 from ..calib.board import load_target
 from ..robots import DEFAULT_ROBOT, is_spec_file
 from ..workspace import Workspace
-from .base import Input, Log
+from .base import ADDED_LATER, Input, Log
 
 
 @dataclass
@@ -33,6 +34,14 @@ class Config:
     robot        the robot (a name from `mirage2matter.robots` or a robot spec file) whose base footprint bounds
                  the ICP region and is drawn in the overlay; "none" for a 10 cm circle
     unaligned    no target: keep the SfM frame (not metric, not the robot's) for scene-only use
+    capture_joints  the robot's joint state while the capture was filmed: its arm joints in radians (and fingers, in
+                 the model's units), as the robot logged them; default: the robot's home. Where the keyframes show
+                 the robot, its links at this state are found in them: their SfM points are kept out of the scene
+                 and the objects, the scene is not trained on their pixels, and their surface is a second target
+                 that checks (and may refine) the board's alignment
+    robot_fit    "auto": refine the alignment with the robot's surface (board corners held) when that lowers the
+                 robot's residual by a quarter or more and keeps the corners within 1.5x (+0.5 mm) of the board's
+                 fit; "off": the board alone, the robot's residual reported
     """
 
     board: Path | None = None
@@ -40,11 +49,18 @@ class Config:
     icp: bool = False
     robot: str = DEFAULT_ROBOT
     unaligned: bool = False
+    capture_joints: list[float] | None = field(default=None, metadata=ADDED_LATER)
+    robot_fit: Literal["auto", "off"] = field(default="auto", metadata=ADDED_LATER)
 
     def validate(self) -> None:
         if self.board is None and not self.unaligned:
             raise AlignError("align-scene: no calibration target; give its spec JSON (--board, from `m2m board`), "
                              "or --unaligned to keep the SfM frame for a scene-only capture")  # fmt: skip
+        if self.capture_joints is not None and self.robot.lower() != "none":
+            from ..robots import get_robot
+            from ..robots.surface import check_capture_joints
+
+            check_capture_joints(get_robot(self.robot), self.capture_joints, "align capture_joints")
 
 
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
@@ -97,23 +113,102 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     footprint = _footprint(cfg.robot)
     result = align_scene(posed.cameras, images, posed.points, board, T_base_board, icp=cfg.icp,
                          footprint_xy=footprint)  # fmt: skip
+    robot = _robot_in_capture(cfg, result, posed, board, T_base_board, log)
+    if robot.get("correction") is not None:  # the robot's surface refined the board's alignment
+        from ..geometry.sim3 import Sim3
+
+        result = dataclasses.replace(result, sim3_sfm_to_base=Sim3.from_json(robot["correction"]) @
+                                     result.sim3_sfm_to_base, method=result.method + "+robot")  # fmt: skip
     sim = result.sim3_sfm_to_base
-    cameras_base = _save(ws, result, T_base_board, board, posed)
+    cameras_base = _save(ws, result, T_base_board, board, posed, robot)
     overlay = draw_base_overlay(images, cameras_base, result.triangulation.frames_with_board, footprint)
     with atomic_write(ws.overlay_png, "wb") as f:
         Image.fromarray(overlay).save(f, format="PNG")
     icp = "" if result.icp_rmse_mm is None else f", ICP {result.icp_rmse_mm:.1f} mm"
     return {
         "method": result.method, "note": result.note, "scale": sim.scale, "corner_rms_mm": result.corner_rms_mm,
-        "icp_rmse_mm": result.icp_rmse_mm,
+        "icp_rmse_mm": result.icp_rmse_mm, "robot": {k: v for k, v in robot.items() if k != "on_robot"},
         "line": f"SfM -> robot base ({board.describe()}): scale {sim.scale:.5f}, corners {result.corner_rms_mm:.2f} "
         f"mm RMS from {len(result.triangulation.ids)} corners in {len(result.triangulation.frames_with_board)} "
-        f"keyframes{icp}; {result.note}",
+        f"keyframes{icp}; {result.note}; {robot['line']}",
     }  # fmt: skip
 
 
-def _save(ws: Workspace, result, T_base_board: np.ndarray, board, posed) -> list:
-    """The alignment, the cameras and points in the base frame (each file atomically)."""
+# The robot's surface disagrees with the board's alignment past these (after the robot's own fit): a wrong
+# capture_joints or a board that moved. SfM points on a textured link scatter ~2-4 mm at the sample's distances.
+DISAGREE_RMS_MM = 8.0
+DISAGREE_MOVE_MM, DISAGREE_MOVE_DEG = 10.0, 1.0
+
+
+def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarray, log: Log) -> dict[str, Any]:
+    """Where the keyframes show the robot at ``cfg.capture_joints``: which SfM points are its own, how well its
+    surface agrees with the board's alignment, and (``robot_fit`` auto) the correction when it is better by the
+    measure above. Returns robot.json's record (``on_robot`` [N] bool over the SfM points, not saved as such)."""
+    if cfg.robot.lower() == "none":
+        return {"seen": False, "line": "robot: none given (align.robot none)", "on_robot": None}
+    from ..calib.align import apply_to_cameras
+    from ..calib.robot_view import POSE_MIN_ON_FRACTION, fit_to_robot, robot_points, robot_silhouettes
+    from ..robots import get_robot
+    from ..robots.surface import check_capture_joints, robot_surface
+
+    spec = get_robot(cfg.robot)
+    q = check_capture_joints(spec, cfg.capture_joints, "align capture_joints")
+    given = "given" if cfg.capture_joints is not None else "the robot's home: align.capture_joints not given"
+    links = robot_surface(spec, q)
+    sim = result.sim3_sfm_to_base
+    cameras = apply_to_cameras(sim, posed.cameras)
+    points = sim.apply(posed.points)
+    found = robot_points(points, links, cameras)
+    record: dict[str, Any] = {"robot": spec.name, "capture_joints": q.tolist(), "capture_joints_source": given,
+                              "seen": found.seen, "points_on_surface": found.on_surface,
+                              "on_fraction": found.on_fraction,
+                              "seen_fraction": found.seen_fraction, "per_link": found.per_link}  # fmt: skip
+    if not found.seen:
+        record["line"] = (f"robot: not in the keyframes ({found.on_surface} SfM points on its surface at "
+                          f"{given.split(':')[0]}); nothing removed")  # fmt: skip
+        return {**record, "on_robot": None}
+    # the visual hull too: points every view sees inside the robot are the robot's even off its model surface
+    silhouettes = robot_silhouettes([c.scaled(0.25) for c in cameras], links, dilate_px=1)
+    found = robot_points(points, links, [c.scaled(0.25) for c in cameras], silhouettes)
+    on = found.on_robot
+    tri = result.triangulation
+    corners_base = board.points_board(tri.ids) @ T_base_board[:3, :3].T + T_base_board[:3, 3]
+    near = on & (found.distance <= 0.03)
+    fit = fit_to_robot(points[near], links, anchors=(sim.apply(tri.points), corners_base)) if near.sum() >= 30 \
+        else None  # fmt: skip
+    record.update(points_removed=int(on.sum()), points_total=len(points))
+    line = (f"robot: in the keyframes ({found.on_surface} SfM points on its surface, {100 * found.seen_fraction:.0f} "
+            f"% of it reconstructed; capture joints {given.split(':')[0]}), {int(on.sum())} of {len(points)} SfM "
+            "points are its own and kept out of the scene")  # fmt: skip
+    if fit is not None:
+        record["fit"] = fit.to_json()
+        better = (fit.rms_after_mm <= 0.75 * fit.rms_before_mm
+                  and fit.corner_rms_mm <= 1.5 * result.corner_rms_mm + 0.5)  # fmt: skip
+        use = cfg.robot_fit == "auto" and better
+        record["used"] = "board+robot" if use else "board"
+        record["correction"] = fit.correction.to_json() if use else None
+        line += (f"; its surface {fit.rms_before_mm:.1f} mm RMS from the board's alignment, {fit.rms_after_mm:.1f} "
+                 f"after its own fit ({fit.rotation_deg:.2f} deg / {fit.translation_mm:.1f} mm, corners "
+                 f"{fit.corner_rms_mm:.2f} mm): {'used' if use else 'the board alone kept'}")  # fmt: skip
+        residual = fit.rms_after_mm if use else fit.rms_before_mm
+        beside = found.on_fraction < POSE_MIN_ON_FRACTION
+        if beside or residual > DISAGREE_RMS_MM or fit.translation_mm > DISAGREE_MOVE_MM \
+                or fit.rotation_deg > DISAGREE_MOVE_DEG:  # fmt: skip
+            record["warning"] = (
+                f"the robot's surface disagrees with the board's alignment ({residual:.1f} mm RMS, the fit moves it "
+                f"{fit.translation_mm:.1f} mm / {fit.rotation_deg:.2f} deg; of the SfM points around the robot "
+                f"{100 * found.on_fraction:.0f} % lie on it): check align.capture_joints (the joint state while "
+                f"filming, {given.split(':')[0]}) and that the board did not move while filming"
+            )
+            log(f"align-scene: WARNING: {record['warning']}")
+            line += f"; WARNING: {record['warning']}"
+    record["line"] = line
+    return {**record, "on_robot": on}
+
+
+def _save(ws: Workspace, result, T_base_board: np.ndarray, board, posed, robot: dict | None = None) -> list:
+    """The alignment, the cameras and points in the base frame (each file atomically); the robot's SfM points apart
+    from the rest."""
     from ..calib.align import apply_to_cameras
 
     ws.calib_dir.mkdir(parents=True, exist_ok=True)
@@ -124,10 +219,17 @@ def _save(ws: Workspace, result, T_base_board: np.ndarray, board, posed) -> list
     cameras_base = apply_to_cameras(sim, posed.cameras)
     with atomic_write(ws.cameras_base_file, "w", encoding="utf-8") as f:
         json.dump([c.to_json() for c in cameras_base], f, indent=1)
+    points, colors = sim.apply(posed.points), posed.colors
+    on = (robot or {}).get("on_robot")
+    on = np.zeros(len(points), bool) if on is None else on
     with atomic_write(ws.points_base_file, "wb") as f:
-        np.save(f, sim.apply(posed.points).astype(np.float32))
+        np.save(f, points[~on].astype(np.float32))
     with atomic_write(ws.colors_base_file, "wb") as f:
-        np.save(f, posed.colors.astype(np.uint8))
+        np.save(f, colors[~on].astype(np.uint8))
+    with atomic_write(ws.robot_points_file, "wb") as f:
+        np.save(f, points[on].astype(np.float32))
+    with atomic_write(ws.robot_capture_file, "w", encoding="utf-8") as f:
+        json.dump({k: v for k, v in (robot or {"seen": False}).items() if k != "on_robot"}, f, indent=1)
     return cameras_base
 
 
@@ -152,4 +254,5 @@ def outputs(ws: Workspace, cfg: Config) -> list[Path]:
 
 def writes(ws: Workspace, cfg: Config) -> list[Path]:
     """What the stage replaces (its transaction swaps these in together)."""
-    return [ws.alignment_file, ws.cameras_base_file, ws.points_base_file, ws.colors_base_file, ws.overlay_png]
+    return [ws.alignment_file, ws.cameras_base_file, ws.points_base_file, ws.colors_base_file, ws.overlay_png,
+            ws.robot_capture_file, ws.robot_points_file]

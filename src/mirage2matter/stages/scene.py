@@ -52,6 +52,9 @@ class Config:
     head_photo_mask  white where the head photo shows the scene, black where it shows what is not (the robot, a
                     person): those pixels are not trained on (default: every pixel)
     head_photo_repeat  times the head photo is trained on per pass over the keyframes (1: as one keyframe)
+    robot_margin_px  where align-scene found the robot in the keyframes, its silhouette at the capture joint state,
+                    grown by this many pixels, is not trained on (nor measured), and the Gaussians only those pixels
+                    saw are dropped: no frozen copy of the robot in the scene
     filter_3d       Mip-Splatting's 3D smoothing filter, a variance in squared training pixels (0.2 as in the
                     paper; 0: off): no Gaussian is trained thinner than the finest pixel a keyframe saw it with, so
                     views closer or sharper than the keyframes (the head photo at full size, a wrist camera) do not
@@ -72,6 +75,9 @@ class Config:
     head_photo_repeat: int = field(default=4, metadata=ADDED_LATER)
     # gaussians.filter3d.FILTER_3D_VARIANCE (bench train's too); in every fingerprint: scenes trained before it retrain
     filter_3d: float = 0.2
+    # pixels the robot's silhouette grows by before it is masked out of the keyframes (calib/robot.json): the link
+    # meshes are the model's and the cameras a few tenths of a pixel off
+    robot_margin_px: int = field(default=2, metadata=ADDED_LATER)
 
     def validate(self) -> None:
         if self.iterations < 0 or (self.iterations == 0 and not self.minutes > 0):
@@ -117,7 +123,7 @@ def _heldout_sheet(g, views, config, backend: str, max_views: int = 4) -> np.nda
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
     # after align-scene the base-frame cameras; before it, the SfM frame
     out = [Input(ws.sfm_file, made_by="sfm")]
-    out += [Input(p) for p in (ws.cameras_base_file, ws.points_base_file) if p.is_file()]
+    out += [Input(p) for p in (ws.cameras_base_file, ws.points_base_file, ws.robot_capture_file) if p.is_file()]
     if cfg.head_photo is not None:
         out += [Input(ws.handeye_file, made_by="calibrate-handeye"),
                 Input(Path(cfg.head_photo), field="scene head_photo")]  # fmt: skip
@@ -172,6 +178,10 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
 
     t0 = time.perf_counter()
     views_train, views_eval = build_views(posed.cameras, posed.image_dir, config.downscale, config.holdout_every)
+    # the keyframes only: a head photo shows the robot at another joint state (its own mask: head_photo_mask)
+    robot = _robot_masks(ws, views_train + views_eval, posed.frame, config.robot_margin_px)
+    if robot is not None:
+        log(f"scene: {robot['line']}")
     photo_key = None
     if config.head_photo is not None:
         views_train = views_train + [head_photo_view(ws, config, posed.frame)] * config.head_photo_repeat
@@ -200,6 +210,9 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
         + f" ({backend})"
     )
     g, metrics = train(views_train, views_eval, init, train_cfg, progress=True, checkpoint_path=ckpt, resume=resume)
+    if robot is not None:
+        g = _drop_robot_only(g, robot)
+        metrics["gaussians"] = len(g)
 
     write_ply(ws.scene_ply, g)
     if views_eval:
@@ -224,6 +237,7 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
         "config": to_dict(config),
         # head-view reads it to tell a fit from a new view (survives a moved or deleted photo)
         "head_photo_fingerprint": photo_key,
+        "robot": None if robot is None else {k: robot[k] for k in ("masked_fraction", "gaussians_pruned", "line")},
     }
     with atomic_write(ws.scene_metrics, "w", encoding="utf-8") as f:
         json.dump(result, f, indent=1)
@@ -232,13 +246,63 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
     from ..capture.coverage import scene_coverage
 
     coverage = scene_coverage(posed.cameras, posed.points)
+    robot_line = "" if robot is None else \
+        f"; {robot['line']}, {robot['gaussians_pruned']:,} Gaussians it alone saw dropped"  # fmt: skip
     return {
         **{k: result[k] for k in keys}, "coverage": coverage.to_json(), "unaligned": bool(frame_note),
+        "robot": result["robot"],
         "line": f"held-out PSNR {result['psnr_heldout']:.2f} dB / SSIM {result['ssim_heldout']:.3f} over "
         f"{len(views_eval)} keyframes, {result['iterations']} iterations, {result['gaussians']:,} Gaussians "
         f"({result['train_minutes']:.1f} min, {frame_label} frame){'; ' + frame_note if frame_note else ''}; "
-        f"{coverage.line}",
+        f"{coverage.line}{robot_line}",
     }  # fmt: skip
+
+
+def _robot_masks(ws: Workspace, views: list, frame: str, margin_px: int) -> dict[str, Any] | None:
+    """Where align-scene found the robot in the keyframes (calib/robot.json): its silhouette at the capture joint
+    state, grown by ``margin_px``, taken out of every view's valid pixels (training and held-out), so no Gaussian is
+    fitted to the robot and the held-out figures measure the scene alone. None when the keyframes do not show it."""
+    if frame != "base" or not ws.robot_capture_file.is_file():
+        return None
+    record = json.loads(ws.robot_capture_file.read_text(encoding="utf-8"))
+    if not record.get("seen"):
+        return None
+    import torch
+
+    from ..calib.robot_view import robot_silhouette
+    from ..geometry.camera import Camera
+    from ..geometry.sim3 import invert_rigid
+    from ..robots import get_robot
+    from ..robots.surface import robot_surface
+
+    links = robot_surface(get_robot(record["robot"]), record["capture_joints"])
+    cameras, silhouettes, masked = [], [], []
+    for v in views:
+        h, w = v.image.shape[:2]
+        cam = Camera(K=v.K.numpy().astype(np.float64), T_world_cam=invert_rigid(v.viewmat.numpy().astype(np.float64)),
+                     width=w, height=h, name=v.name)  # fmt: skip
+        sil = robot_silhouette(cam, links, margin_px)
+        keep = torch.from_numpy(~sil)
+        v.mask = keep if v.mask is None else v.mask & keep
+        cameras.append(cam)
+        silhouettes.append(sil)
+        masked.append(float(sil.mean()))
+    frac = float(np.mean(masked))
+    return {"cameras": cameras, "silhouettes": silhouettes, "masked_fraction": frac,
+            "line": f"the robot (calib/robot.json) masked out of every keyframe ({100 * frac:.1f} % of the pixels, "
+            f"{margin_px} px margin)"}  # fmt: skip
+
+
+def _drop_robot_only(g, robot: dict[str, Any]):
+    """``g`` without the Gaussians inside the robot's visual hull (every keyframe that sees one sees the robot there):
+    they never had a pixel to learn from but the robot's, which is masked out, so they keep what they started as."""
+    import torch
+
+    from ..calib.robot_view import visual_hull
+
+    hull = visual_hull(g.means.detach().cpu().numpy(), robot["cameras"], robot["silhouettes"])
+    robot["gaussians_pruned"] = int(hull.sum())
+    return g.select(torch.from_numpy(~hull).to(g.means.device))
 
 
 def _checkpoint_plan(out: Path, key: str, train_cfg) -> tuple[Path, bool]:

@@ -1,0 +1,221 @@
+"""The robot as the capture saw it: where it lies in each keyframe, which SfM points are on it, and how well its
+known surface agrees with the board's alignment.
+
+Every real capture films the robot bolted to the table, at the joint state it had while filming (its
+``capture_joints``). Once the board has placed the SfM scene in the base frame, the robot's link surfaces at that
+state (robots.surface) are known exactly there, and they give three things:
+
+- **Silhouettes** per keyframe (:func:`robot_silhouettes`): the pixels the robot covers, so the scene's Gaussians
+  are never fitted to them (a frozen "ghost" robot in every generated frame otherwise).
+- **The robot's SfM points** (:func:`robot_points`): points within a few millimetres of a link, or inside the robot's
+  visual hull (every keyframe that sees the point sees the robot there). They are kept out of the scene's initial
+  points and of the objects' clustering (the robot is the nearest "object" to the base otherwise).
+- **A second alignment target** (:func:`fit_to_robot`): the paper's ICP on the base, extended to every visible link:
+  rigid ICP of the robot's SfM points onto its surface, with the board corners as anchors. It reports how far the
+  robot's surface lies from the board's alignment; a large disagreement means a wrong ``capture_joints`` or a board
+  that moved.
+
+A capture whose keyframes do not show the robot (an empty table, the robot elsewhere) has few SfM points on its
+surface: :func:`robot_points` measures the fraction of the robot's visible surface the SfM reconstructed, and the
+align stage uses the robot only when it was seen.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..geometry.camera import Camera
+from ..geometry.icp import scaled_icp
+from ..geometry.rotation import rotation_angle
+from ..geometry.sim3 import Sim3
+from ..robots.surface import LinkSurface, sample_surface
+
+__all__ = ["RobotFit", "RobotPoints", "fit_to_robot", "robot_points", "robot_silhouette", "robot_silhouettes",
+           "visual_hull"]  # fmt: skip
+
+# A point this close (m) to a link's surface is the robot's: SfM noise on a textured link at ~1 m is a few mm, and
+# the link meshes are the model's, not the real casting (a few mm off in places).
+ON_ROBOT_M = 0.01
+# The robot was seen when at least this many SfM points (and this fraction of all) lie on its surface above the
+# table (3 cm up: the base's bottom face lies on the table, whose points are not the robot's evidence). A robot's
+# smooth paint gives SfM few features: the short robot sample (20 keyframes, 2,219 points) put 54 there; an empty
+# table has none in mid-air where the arm would be.
+SEEN_MIN_POINTS = 20
+NEAR_ROBOT_M = 0.08  # "around the robot" for RobotPoints.on_fraction
+POSE_MIN_ON_FRACTION = 0.85  # below it, the robot's points lie beside its model: a wrong joint state
+SEEN_POINT_FRACTION = 0.01
+
+
+def robot_silhouette(camera: Camera, links: Sequence[LinkSurface], dilate_px: int = 0) -> np.ndarray:
+    """bool [H,W]: the pixels ``camera`` (pinhole: its K, no lens) sees the robot's links in, whatever is in front
+    of them, grown by ``dilate_px`` pixels. Triangles reaching behind the camera's near plane are left out."""
+    import cv2
+
+    mask = np.zeros((camera.height, camera.width), np.uint8)
+    vm = camera.viewmat
+    shift = 4  # sub-pixel vertices: 1/16 px
+    for link in links:
+        pc = link.vertices @ vm[:3, :3].T + vm[:3, 3]
+        z = pc[:, 2]
+        tri = link.faces[np.all(z[link.faces] > 0.01, axis=1)]
+        if not len(tri):
+            continue
+        uv = (pc[:, :2] / z[:, None]) * [camera.K[0, 0], camera.K[1, 1]] + [camera.K[0, 2], camera.K[1, 2]]
+        uv = uv - 0.5  # our pixel centres are at +0.5, OpenCV's at integers
+        far = np.abs(uv).max(axis=1) > 4 * max(camera.width, camera.height)  # off-image vertices: fixed-point range
+        tri = tri[~np.any(far[tri], axis=1)]
+        # one triangle a call: fillPoly over many polygons fills their overlaps by parity, leaving holes
+        for poly in np.round(uv[tri] * (1 << shift)).astype(np.int32):
+            cv2.fillConvexPoly(mask, poly, 1, lineType=cv2.LINE_8, shift=shift)
+    if dilate_px > 0:
+        mask = cv2.dilate(mask, np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8))
+    return mask.astype(bool)
+
+
+def robot_silhouettes(cameras: Sequence[Camera], links: Sequence[LinkSurface], dilate_px: int = 0) -> list[np.ndarray]:
+    """:func:`robot_silhouette` of each camera."""
+    return [robot_silhouette(c, links, dilate_px) for c in cameras]
+
+
+def visual_hull(points: np.ndarray, cameras: Sequence[Camera], silhouettes: Sequence[np.ndarray],
+                min_views: int = 2) -> np.ndarray:
+    """bool [N]: points that every camera seeing them (in front, inside the image) sees inside its silhouette, and
+    at least ``min_views`` cameras see. Such a point is never seen by a pixel outside the robot: nothing but the
+    robot can be learnt there."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    inside = np.ones(len(points), bool)
+    seen = np.zeros(len(points), np.int64)
+    for cam, sil in zip(cameras, silhouettes, strict=True):
+        uv, z = cam.project(points)
+        u, v = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
+        ok = (z > 0) & (u >= 0) & (v >= 0) & (u < cam.width) & (v < cam.height)
+        hit = np.zeros(len(points), bool)
+        hit[ok] = sil[v[ok], u[ok]]
+        inside &= hit | ~ok
+        seen += ok
+    return inside & (seen >= min_views)
+
+
+@dataclass
+class RobotPoints:
+    """Which SfM points (base frame) are the robot's.
+
+    on_robot         [N] bool: within ``ON_ROBOT_M`` of a link, or inside the robot's visual hull
+    distance         [N] metres from the nearest link surface
+    on_surface       points within ON_ROBOT_M of a link and 3 cm or more above the table
+    seen_fraction    of the robot's surface the cameras see, the fraction the SfM reconstructed (5 mm cells with a
+                     point within ON_ROBOT_M)
+    seen             the capture shows the robot: on_surface >= SEEN_MIN_POINTS and SEEN_POINT_FRACTION of the points
+    per_link         {link: seen fraction}
+    on_fraction      of the points above the table within NEAR_ROBOT_M of the robot, the fraction on its surface:
+                     near 1 when the joint state is right; a robot posed elsewhere leaves its points beside the
+                     model's surface (the short robot sample: 0.96 at its capture joints, 0.73 with the first joint
+                     0.35 rad off)
+    """
+
+    on_robot: np.ndarray
+    distance: np.ndarray
+    on_surface: int
+    seen_fraction: float
+    seen: bool
+    per_link: dict[str, float] = field(default_factory=dict)
+    on_fraction: float = 1.0
+
+
+def _visible_samples(samples: np.ndarray, cameras: Sequence[Camera]) -> np.ndarray:
+    """[M] bool: surface samples inside at least two cameras' images, in front of them."""
+    n = np.zeros(len(samples), np.int64)
+    for cam in cameras:
+        uv, z = cam.project(samples)
+        n += (z > 0) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] < cam.height)
+    return n >= 2
+
+
+def robot_points(points: np.ndarray, links: Sequence[LinkSurface], cameras: Sequence[Camera],
+                 silhouettes: Sequence[np.ndarray] | None = None, on_robot_m: float = ON_ROBOT_M) -> RobotPoints:
+    """Classify SfM points [N,3] (base frame) against the robot's links at the capture joint state."""
+    from scipy.spatial import cKDTree
+
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    samples, owner = sample_surface(links, 0.005)
+    dist, _ = cKDTree(samples).query(points, distance_upper_bound=0.5, workers=-1) if len(points) else \
+        (np.zeros(0), None)  # fmt: skip
+    dist = np.minimum(dist, 0.5)
+    near = dist <= on_robot_m
+    if silhouettes is not None and len(points):
+        near |= visual_hull(points, cameras, silhouettes)
+    # above the table only: the base's bottom face lies on the board, whose points are not the robot's evidence
+    visible = _visible_samples(samples, cameras) & (samples[:, 2] > 0.03)
+    covered = np.zeros(len(samples), bool)
+    if len(points):
+        d, _ = cKDTree(points).query(samples, distance_upper_bound=on_robot_m, workers=-1)
+        covered = np.isfinite(d)
+    frac = float(covered[visible].mean()) if visible.any() else 0.0
+    per_link = {}
+    for i, link in enumerate(links):
+        sel = visible & (owner == i)
+        if sel.sum() >= 20:
+            per_link[link.link] = float(covered[sel].mean())
+    above = points[:, 2] > 0.03
+    on_surface = int(np.sum((dist <= on_robot_m) & above))
+    around = int(np.sum((dist <= NEAR_ROBOT_M) & above))
+    seen = on_surface >= max(SEEN_MIN_POINTS, SEEN_POINT_FRACTION * len(points))
+    return RobotPoints(near, dist, on_surface, frac, seen, per_link, on_surface / max(around, 1))
+
+
+@dataclass
+class RobotFit:
+    """The robot's surface as a second alignment target, after the board's alignment.
+
+    correction      base -> base rigid transform that ICP found (identity: the board's alignment agrees)
+    rotation_deg    its rotation angle
+    translation_mm  its translation at the robot (the shift of the points it moved, median)
+    rms_before_mm   robot points to the surface (trimmed RMS) with the board's alignment
+    rms_after_mm    the same after the correction
+    corner_rms_mm   the board's corners after the correction (the board alone: AlignResult.corner_rms_mm)
+    points          robot points used
+    """
+
+    correction: Sim3
+    rotation_deg: float
+    translation_mm: float
+    rms_before_mm: float
+    rms_after_mm: float
+    corner_rms_mm: float
+    points: int
+
+    def to_json(self) -> dict:
+        keys = ("rotation_deg", "translation_mm", "rms_before_mm", "rms_after_mm", "corner_rms_mm", "points")
+        return {"correction": self.correction.to_json(), **{k: getattr(self, k) for k in keys}}
+
+
+def _trimmed_rms(d: np.ndarray, keep: float = 0.8) -> float:
+    d = np.sort(np.asarray(d))
+    d = d[: max(1, int(round(keep * len(d))))]
+    return float(np.sqrt(np.mean(d**2)))
+
+
+def fit_to_robot(points_base: np.ndarray, links: Sequence[LinkSurface], anchors: tuple[np.ndarray, np.ndarray],
+                 anchor_weight: float = 1.0) -> RobotFit:
+    """Rigid ICP of the robot's SfM points [N,3] (base frame, by the board) onto its link surfaces, with the board's
+    triangulated corners (base frame) held to their known places (``anchors`` = (triangulated [K,3], known [K,3]))
+    at ``anchor_weight`` times the surface's total weight. Scale stays the board's: the robot's meshes are a model,
+    the board is printed to size."""
+    from scipy.spatial import cKDTree
+
+    points_base = np.asarray(points_base, np.float64).reshape(-1, 3)
+    samples, _ = sample_surface(links, 0.002)
+    before = cKDTree(samples).query(points_base, workers=-1)[0]
+    result = scaled_icp(points_base, samples, with_scale=False, trim_fraction=0.8, max_distance=3 * ON_ROBOT_M,
+                        anchors=anchors, anchor_weight=anchor_weight)  # fmt: skip
+    corr = result.sim3
+    moved = corr.apply(points_base)
+    after = cKDTree(samples).query(moved, workers=-1)[0]
+    corners = corr.apply(np.asarray(anchors[0], np.float64))
+    corner_rms = float(1000 * np.sqrt(np.mean(np.sum((corners - np.asarray(anchors[1])) ** 2, axis=1))))
+    return RobotFit(corr, float(np.degrees(rotation_angle(corr.rotation))),
+                    float(1000 * np.median(np.linalg.norm(moved - points_base, axis=1))),
+                    1000 * _trimmed_rms(before), 1000 * _trimmed_rms(after), corner_rms, len(points_base))  # fmt: skip
