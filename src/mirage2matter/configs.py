@@ -3,8 +3,9 @@
 Every stage's Config is a dataclass whose fields carry the defaults and whose class docstring documents
 each field on a line of its own (``name   what it is``, continuation lines indented further). From that:
 
-- :func:`add_flags` adds one ``--field-name`` flag per field (nested dataclasses as ``--outer.field``) with
-  the field's doc and default in ``--help``; the flags default to *absent*, so :func:`from_flags` starts
+- :func:`add_flags` adds one ``--field-name`` flag per field (nested dataclasses as ``--outer.field``, optionally
+  one help section per nested dataclass) with the field's doc (reStructuredText markup stripped) and default in
+  ``--help`` (once: not when the doc already says it); the flags default to *absent*, so :func:`from_flags` starts
   from a base config (the Config's defaults, or the workspace's ``m2m.yaml``) and changes only what was
   given. ``m2m <stage>``, ``m2m init``, ``m2m demo`` and ``m2m run`` therefore cannot drift apart.
 - :func:`from_dict` / :func:`to_dict` read and write the same fields as YAML-ready mappings: unknown keys
@@ -353,6 +354,36 @@ def _key_value_parser(tp: Any, where: str):
     return parse
 
 
+_ROLE = re.compile(r":[\w:]+:`([^`]+)`")  # :class:`~a.B`, :func:`.f`, :meth:`title <target>`
+_LITERAL = re.compile(r"``(.+?)``")
+_SAYS_DEFAULT = re.compile(r"\bdefault\b", re.IGNORECASE)
+
+
+def _plain(text: str) -> str:
+    """A docstring's text for ``--help``: reStructuredText roles as their name (``:class:`~a.b.C``` -> C), a
+    literal as itself (a phrase of several words in single backquotes, as the hand-written help quotes commands)."""
+
+    def role(m: re.Match) -> str:
+        target = m.group(1).strip()
+        if "<" in target:  # :role:`title <target>`
+            return target.split("<")[0].strip()
+        return target.split(".")[-1] if target.startswith("~") else target.lstrip(".")
+
+    text = _ROLE.sub(role, text)
+    return _LITERAL.sub(lambda m: f"`{m.group(1)}`" if " " in m.group(1) else m.group(1), text)
+
+
+def _help_text(doc: str, value: Any, own_default: Any) -> str:
+    """A flag's help: its doc and default, the default said once. A doc that speaks of the default (``(default: the
+    joints file's)``, ``Off by default``) already explains the field's own; only a base's other value is added."""
+    doc, shown = _plain(doc), _default_text(value)
+    if not _SAYS_DEFAULT.search(doc):
+        return f"{doc} (default: {shown})".strip()
+    if shown == "none" or value == own_default:
+        return doc
+    return f"{doc} (here: {shown})"
+
+
 def _default_text(value: Any) -> str:
     if isinstance(value, tuple | list):
         return " ".join(map(str, value)) if value else "none"
@@ -361,22 +392,35 @@ def _default_text(value: Any) -> str:
     return "none" if value is None else str(value)
 
 
-def add_flags(parser: argparse.ArgumentParser, cls: type, prefix: str = "", base: Any = None) -> None:
+def add_flags(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup,
+    cls: type,
+    prefix: str = "",
+    base: Any = None,
+    sections: bool = False,
+) -> dict[str, argparse._ArgumentGroup]:
     """One flag per field of ``cls`` (recursively), documented from the docstring; ``base`` supplies the
-    defaults shown in ``--help`` (default: ``cls()``)."""
+    defaults shown in ``--help`` (default: ``cls()``). With ``sections`` each nested Config field of ``cls`` gets
+    a help section (argument group) of its own, described by its doc; returns them, {field: group}."""
     base = cls() if base is None else base
+    own = cls()  # the defaults the docs describe
     docs, hints = field_docs(cls), _hints(cls)
+    groups: dict[str, argparse._ArgumentGroup] = {}
     for f in dataclasses.fields(cls):
         if f.metadata.get("flag", True) is False:
             continue
         tp, _ = _unwrap_optional(hints[f.name])
         default = getattr(base, f.name)
         if _is_config(tp):
-            add_flags(parser, tp, f"{prefix}{f.name}.", default)
+            target = parser
+            if sections:
+                title = f"{f.name} settings (--{(prefix + f.name).replace('_', '-')}.*)"
+                doc = _plain(docs.get(f.name, "")) or None
+                target = groups[f.name] = parser.add_argument_group(title, doc)
+            add_flags(target, tp, f"{prefix}{f.name}.", default)
             continue
         dest, where = prefix + f.name, _flag(prefix, f.name)
-        doc = docs.get(f.name, "")
-        help_text = f"{doc} (default: {_default_text(default)})".strip()
+        help_text = _help_text(docs.get(f.name, ""), default, getattr(own, f.name))
         kw: dict[str, Any] = {"dest": dest, "default": argparse.SUPPRESS, "help": help_text.replace("%", "%%")}
         origin, args = typing.get_origin(tp), typing.get_args(tp)
         if tp is bool:
@@ -397,6 +441,7 @@ def add_flags(parser: argparse.ArgumentParser, cls: type, prefix: str = "", base
             parser.add_argument(dest, **{k: v for k, v in kw.items() if k not in ("metavar", "dest")})
         else:
             parser.add_argument(where, **kw)
+    return groups
 
 
 def from_flags(cls: type, ns: argparse.Namespace, base: Any = None, prefix: str = "") -> Any:

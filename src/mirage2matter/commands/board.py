@@ -15,7 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "board", help="a printable calibration target at true scale (PDF + PNG) and its JSON spec",
         description="Write a calibration target to print: a ChArUco board (the default; the most accurate), a "
         "single ArUco marker or AprilTag (what many labs already have taped down), or an ArUco grid. Sizes in "
-        "metres; a marker's size is the outer edge of its black border. Print at 100%% and measure it.",
+        "metres; a marker's size is the outer edge of its black border. Print at 100% and measure it.",
     )  # fmt: skip
     bd.add_argument("--out", required=True, metavar="PDF", help="output .pdf (a .png and .json go beside it)")
     bd.add_argument("--type", choices=tuple(_DEFAULT_DICT), default="charuco", help="the kind of target (charuco)")

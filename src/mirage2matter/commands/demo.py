@@ -12,10 +12,11 @@ import argparse
 import json
 from pathlib import Path
 
-from ..configs import add_flags, from_flags
+from ..configs import from_flags
 from ..sample.inspect import BUNDLED_SAMPLE
 from ..stages import PIPELINE
 from ..workspace import Workspace, WorkspaceError
+from .args import Formatter, add_settings
 
 
 def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
@@ -29,18 +30,23 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
             "budget; --<stage>.<field> changes any setting. Each stage is recorded in pipeline.json; a rerun (e.g. "
             "after an interruption) skips the finished ones."
         ),
+        formatter_class=Formatter,
+        add_help=False,
     )
-    d.add_argument("-w", "--workspace", default="workspaces/demo", metavar="DIR", help="default ./workspaces/demo")
+    d.add_argument("-w", "--workspace", default="workspaces/demo", metavar="DIR", help="the workspace folder "
+                   "(default: ./workspaces/demo)")  # fmt: skip
     d.add_argument("--sample", type=Path, default=BUNDLED_SAMPLE, metavar="DIR",
                    help="a capture in the bundled sample's layout, with its m2m.yaml (default: the bundled one)")
     names = [s.name for s in PIPELINE]
     d.add_argument("--until", choices=names, help="last stage to run (default: all)")
     d.add_argument("--from", dest="start", choices=names, help="first stage to run (default: the first)")
-    if full:  # every stage's settings as --<stage>.<field> (imports every stage's libraries)
+    base = None
+    if full:  # the defaults --help shows: the bundled sample's settings
         from ..stages.pipeline import PipelineConfig
 
         bundled = BUNDLED_SAMPLE / "m2m.yaml"
-        add_flags(d, PipelineConfig, base=PipelineConfig.load(bundled) if bundled.is_file() else None)
+        base = PipelineConfig.load(bundled) if bundled.is_file() else None
+    add_settings(d, full, base)  # every stage's settings as --<stage>.<field> (when full: imports their libraries)
     d.set_defaults(func=run)
 
 

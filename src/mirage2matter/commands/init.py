@@ -2,7 +2,8 @@
 
 The file holds every stage's section with every field, at its default unless given, each under its doc as
 a comment (:meth:`~..stages.pipeline.PipelineConfig.save`). The common inputs have short flags (``--video``,
-``--board``, ``--handeye-images``, ``--task`` ...); any field can be given as ``--<stage>.<field>``. Every input
+``--board``, ``--handeye-images``, ``--task`` ...); any field can be given as ``--<stage>.<field>`` (``--help``
+lists the short ones, ``--help STAGE`` a stage's fields, ``--help-all`` every flag). Every input
 is checked before the file is written: a missing file, a board spec or a calibration that cannot be read, an
 unknown robot, a hand-eye calibration without the head camera's intrinsics are errors naming the flag.
 
@@ -18,10 +19,10 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from ..configs import add_flags, from_flags
+from ..configs import from_flags
 from ..errors import M2MError
 from ..workspace import Workspace, WorkspaceError
-from .args import CliError, int_at_least, show
+from .args import CliError, Formatter, add_settings, int_at_least, show
 
 __all__ = ["register"]
 
@@ -35,9 +36,10 @@ SHORT = {
 
 EXAMPLE = """example:
   m2m init -w ws --video table.mp4 --board board.json --intrinsics phone.json \\
-      --handeye-images he/images --handeye-poses he/joints.json --handeye-board he/board.json \\
-      --handeye-intrinsics head_cam.yaml --head-photo head.png \\
-      --objects banana croissant button --task "grasp banana" "press button" --episodes 50
+      --handeye-images he/images --handeye-poses he/joints.json \\
+      --handeye-board he/board.json --handeye-intrinsics head_cam.yaml \\
+      --head-photo head.png --objects banana croissant button \\
+      --task "grasp banana" "press button" --episodes 50
   m2m run -w ws
 """
 
@@ -50,25 +52,26 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
             "Write <workspace>/m2m.yaml for `m2m run`: every stage's section with every field, at its default unless "
             "given, each explained in a comment; edit it to change any setting. The inputs are checked first (files "
             "exist, the board and calibrations read). Paths are written relative to the workspace when inside it, "
-            "else absolute. Without hand-eye images the run skips the hand-eye calibration, the head-view check and "
-            "the world; without a head-camera photo, the head-view check; without tasks, the demonstrations."
+            "else absolute. Without hand-eye images the run skips the hand-eye "
+            "calibration, the head-view check and the world; without a head-camera photo, the head-view check; "
+            "without tasks, the demonstrations."
         ),
         epilog=EXAMPLE,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=Formatter,
+        add_help=False,
     )
-    p.add_argument("-w", "--workspace", required=True, metavar="DIR", help="the workspace folder (created)")
-    p.add_argument("--force", action="store_true", help="replace the workspace's m2m.yaml if it has one")
     g = p.add_argument_group("your inputs (paths relative to the current folder)")
+    g.add_argument("-w", "--workspace", required=True, metavar="DIR", help="the workspace folder (created)")
     source = g.add_mutually_exclusive_group()
     source.add_argument("--video", type=Path, metavar="FILE", help="the capture: a video orbiting the table "
                         "(mp4/mov/mkv)")  # fmt: skip
     source.add_argument("--images", type=Path, metavar="DIR", help="the capture as a folder of images instead")
-    g.add_argument("--intrinsics", type=Path, metavar="FILE", help="the capture camera's calibration (any format "
-                   "`m2m intrinsics FILE` reads), held fixed in SfM; without it SfM estimates one")  # fmt: skip
     g.add_argument("--board", type=Path, metavar="FILE", help="spec JSON of the calibration target at the robot base "
                    "(from `m2m board`)")  # fmt: skip
     g.add_argument("--board-pose", type=Path, metavar="FILE", help="a JSON with T_base_board when the target is not "
                    "centred on the base with its x along base x")  # fmt: skip
+    g.add_argument("--intrinsics", type=Path, metavar="FILE", help="the capture camera's calibration (any format "
+                   "`m2m intrinsics FILE` reads), held fixed in SfM; without it SfM estimates one")  # fmt: skip
     g.add_argument("--handeye-images", type=Path, metavar="DIR", help="the head camera's images of a board the robot "
                    "holds (hand-eye calibration); without them no head camera, so no world")  # fmt: skip
     g.add_argument("--handeye-poses", type=Path, metavar="FILE", help="the robot's pose per hand-eye image (JSON: "
@@ -78,17 +81,15 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     g.add_argument("--handeye-intrinsics", type=Path, metavar="FILE", help="the head camera's calibration")
     g.add_argument("--head-photo", type=Path, metavar="FILE", help="a photo the head camera took of the table (the "
                    "head-view check compares the scene with it; without one the check is skipped)")  # fmt: skip
-    g.add_argument("--robot", metavar="NAME", help="the robot at the base (a registered robot name; default: the "
-                   "default robot): sets align.robot and world.robot, and the hand-eye's robot model")  # fmt: skip
     g.add_argument("--objects", nargs="+", metavar="NAME", help="the objects on the table, nearest the base first "
                    "(default: every object found, named object_0, object_1, ...)")  # fmt: skip
     g.add_argument("--task", nargs="+", action="extend", metavar="TEXT", help='task instructions, e.g. "grasp banana" '
                    '"press button" (default: none, no demonstrations)')  # fmt: skip
     g.add_argument("--episodes", type=int_at_least(1), metavar="N", help="successful episodes per task")
-    if full:  # every field as --<stage>.<field> (imports every stage's libraries)
-        from ..stages.pipeline import PipelineConfig
-
-        add_flags(p, PipelineConfig)
+    g.add_argument("--robot", metavar="NAME", help="the robot at the base, a registered robot name (else the default "
+                   "one): sets align.robot and world.robot, and the hand-eye's robot model")  # fmt: skip
+    p.add_argument("--force", action="store_true", help="replace the workspace's m2m.yaml if it has one")
+    add_settings(p, full)  # every field as --<stage>.<field> (when full: imports every stage's libraries)
     p.set_defaults(func=run)
 
 

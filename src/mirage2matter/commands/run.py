@@ -18,7 +18,7 @@ from typing import Any
 from .. import __version__
 from ..stages import PIPELINE
 from ..workspace import Workspace, WorkspaceError
-from .args import info, show
+from .args import Formatter, info, show
 
 __all__ = ["print_summary", "register", "run_workspace"]
 
@@ -35,11 +35,15 @@ def register(sub: argparse._SubParsersAction) -> None:
             "stage is recorded in pipeline.json: a rerun skips it while its settings and input files are unchanged, "
             "so a run that was killed resumes at the stage it was in."
         ),
+        epilog="every setting: <workspace>/m2m.yaml, each explained; as flags:\n  m2m init --help-all",
+        formatter_class=Formatter,
+        add_help=False,
     )
     p.add_argument("-w", "--workspace", required=True, metavar="DIR", help="the workspace folder (with its m2m.yaml)")
     p.add_argument("--until", choices=names, metavar="STAGE", help="last stage to run (default: all)")
     p.add_argument("--from", dest="start", choices=names, metavar="STAGE", help="first stage to run (default: the "
                    "first); the earlier stages' outputs must be in the workspace")  # fmt: skip
+    p.add_argument("-h", "--help", action="help", help="show this help")
     p.set_defaults(func=run)
 
 
