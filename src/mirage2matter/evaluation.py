@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from .progress import progress_bar
+
 __all__ = ["contact_sheet", "evaluate_policy", "frame_of", "wilson_interval"]
 
 
@@ -64,13 +66,11 @@ def evaluate_policy(
     ``max_episode_seconds``: an episode still running after that
     much wall-clock time ends there as a failure with ``reason`` saying so and ``cut: true`` (the summary counts
     them in ``cut``): a world that renders pathologically slowly in one pose cannot hold an evaluation for hours."""
-    from tqdm import tqdm
-
     rows = list(done or [])
     seen = {int(r["seed"]) for r in rows}
     kept: list[list[np.ndarray]] = []
     todo = [seed + i for i in range(episodes) if seed + i not in seen]
-    bar = tqdm(todo, desc="evaluation", unit="ep", disable=not progress, leave=False)
+    bar = progress_bar(todo, desc="evaluation", unit="ep", disable=not progress, leave=False)
     for s in bar:
         t0 = clock()
         obs, _ = env.reset(seed=s)

@@ -27,6 +27,7 @@ from ..errors import M2MError
 from ..export.lerobot import FORMATS
 from ..export.spec import DatasetSpec
 from ..export.staging import StagedEpisode, Staging, consolidate, staging_dir_for
+from ..progress import progress_bar
 from .preview import write_preview
 from .runner import RunStats, SourceFactory, WorkerPool, run_attempts
 
@@ -189,11 +190,9 @@ def generate_dataset(
             log(f"resuming: {len(resumed)} attempts ({ok} successful) already committed in {staging.root}")
         bar = None
         if progress:
-            from tqdm import tqdm
-
             # named for its task: a run of several tasks shows one bar each
-            bar = tqdm(total=cfg.episodes, desc=str((extra_summary or {}).get("task", "episodes")), unit="ep",
-                       dynamic_ncols=True, initial=min(cfg.episodes, ok))  # fmt: skip
+            bar = progress_bar(total=cfg.episodes, desc=str((extra_summary or {}).get("task", "episodes")), unit="ep",
+                               dynamic_ncols=True, initial=min(cfg.episodes, ok))  # fmt: skip
             # the workers build the twin before the first episode: ~15 s, more on a first run
             if ok < cfg.episodes and (pool is None or not pool.running):
                 bar.set_postfix_str(f"starting {max(cfg.workers, 1)} worker(s)")

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from ..atomic import atomic_path
+from ..progress import progress_bar
 from .filter3d import apply_3d_filter, check_variance, max_sampling_rate
 from .losses import l1, psnr, ssim
 from .model import Gaussians
@@ -529,10 +530,8 @@ def train(
 
     bar = None
     if progress:
-        from tqdm import tqdm
-
         total = config.iterations if config.max_seconds is None else None  # a time budget: no step count
-        bar = tqdm(total=total, initial=step, desc="train", dynamic_ncols=True)
+        bar = progress_bar(total=total, initial=step, desc="train", dynamic_ncols=True)
     n_views = len(views_train)
     coarse: dict[int, View] = {}  # training views at 1/coarse_factor, made on first use
     # the next step is expected to take the median of the last five (robust to one step stalled by a

@@ -35,6 +35,7 @@ import torch
 
 from ..atomic import atomic_path, atomic_write
 from ..fingerprint import fingerprint
+from ..progress import progress_bar
 from .augment import augment, drop_cameras
 from .config import CHECKPOINT_FILE, CHECKPOINT_FORMAT, POLICY_FILE, AugmentConfig, PolicyTrainConfig
 from .data import Demonstrations, PolicyError, chunk_indices, load_episodes, normalization_stats
@@ -281,12 +282,11 @@ def train_policy(
     train_idx = torch.from_numpy(train_frames)
     bar = None
     if progress:
-        from tqdm import tqdm
-
         if total:
-            bar = tqdm(total=total, initial=step, desc="train-policy", unit="step", dynamic_ncols=True)
+            bar = progress_bar(total=total, initial=step, desc="train-policy", unit="step", dynamic_ncols=True)
         else:  # the budget is time: the bar counts seconds
-            bar = tqdm(total=round(budget_s), initial=round(elapsed), desc="train-policy", unit="s", dynamic_ncols=True)
+            bar = progress_bar(total=round(budget_s), initial=round(elapsed), desc="train-policy", unit="s",
+                               dynamic_ncols=True)
     run_start, run_steps = step, 0
     t_run = clock()
     try:

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ...progress import progress_bar
 from ..planning import PlanningError
 from ..twin import Twin
 from .base import Task
@@ -60,10 +61,8 @@ def run_task(
 def evaluate(twin: Twin, task: Task, episodes: int, seed: int = 0, progress: bool = False) -> dict:
     """Run ``task`` on ``episodes`` randomised starts (``twin.reset(seed + i)``). Returns a JSON-ready summary:
     success rate, timings (simulated and wall seconds per episode) and every episode's outcome."""
-    from tqdm import tqdm
-
     rows = []
-    bar = tqdm(range(episodes), desc=task.instruction, unit="ep", disable=not progress, leave=False)
+    bar = progress_bar(range(episodes), desc=task.instruction, unit="ep", disable=not progress, leave=False)
     for i in bar:
         t0 = time.perf_counter()
         twin.reset(seed=seed + i)
