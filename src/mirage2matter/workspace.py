@@ -185,6 +185,11 @@ class Workspace:
         return self.path("scene", "gaussians.ply")
 
     @property
+    def robot_gaussians_dir(self) -> Path:
+        """the robot as the capture saw it: <link>.ply (link frame) per link + robot.json"""
+        return self.path("scene", "robot")
+
+    @property
     def scene_metrics(self) -> Path:
         return self.path("scene", "metrics.json")
 

@@ -36,12 +36,14 @@ class LinkSurface:
     vertices_link  [V,3] the link's own frame (m): what moves with it
     faces          [F,3] vertex indices (triangles)
     T_base_link    [4,4] the link's pose at the joint state
+    face_rgb       [F,3] the model's colour of each face (its geom's material or rgba, 0..1): the mesh look
     """
 
     link: str
     vertices_link: np.ndarray
     faces: np.ndarray
     T_base_link: np.ndarray
+    face_rgb: np.ndarray | None = None
 
     @property
     def vertices(self) -> np.ndarray:
@@ -141,30 +143,37 @@ def robot_surface(spec: RobotSpec, q: Sequence[float]) -> list[LinkSurface]:
         R_body, R_geom = data.xmat[body].reshape(3, 3), data.geom_xmat[g].reshape(3, 3)
         R = R_body.T @ R_geom
         t = R_body.T @ (data.geom_xpos[g] - data.xpos[body])
-        parts.setdefault(body, []).append((v @ R.T + t, f))
+        mat = int(model.geom_matid[g])
+        rgb = np.asarray(model.mat_rgba[mat][:3] if mat >= 0 else model.geom_rgba[g][:3], np.float64)
+        parts.setdefault(body, []).append((v @ R.T + t, f, rgb))
     out = []
     for body in sorted(parts):
-        verts, faces, n = [], [], 0
-        for v, f in parts[body]:
+        verts, faces, colours, n = [], [], [], 0
+        for v, f, rgb in parts[body]:
             verts.append(v)
             faces.append(f + n)
+            colours.append(np.tile(rgb, (len(f), 1)))
             n += len(v)
         T = np.eye(4)
         T[:3, :3] = data.xmat[body].reshape(3, 3)
         T[:3, 3] = data.xpos[body]
-        out.append(LinkSurface(model.body(body).name, np.concatenate(verts), np.concatenate(faces), T))
+        out.append(LinkSurface(model.body(body).name, np.concatenate(verts), np.concatenate(faces), T,
+                               np.concatenate(colours)))  # fmt: skip
     if not out:
         raise RobotSpecError(f"{spec.name}: its model {spec.model} has no geometry to draw the robot from")
     return out
 
 
-def sample_surface(links: Sequence[LinkSurface], spacing: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Points on the links' surfaces, about one per ``spacing`` x ``spacing`` metres of area: (points [M,3], the
-    index of each point's link in ``links`` [M]). Deterministic for a seed."""
+def sample_surface(links: Sequence[LinkSurface], spacing: float, seed: int = 0, frame: str = "base",
+                   with_faces: bool = False) -> tuple[np.ndarray, ...]:
+    """Points on the links' surfaces, about one per ``spacing`` x ``spacing`` metres of area: (points [M,3] in the
+    base frame, or each in its link's frame with ``frame="link"``; the index of each point's link in ``links`` [M];
+    with ``with_faces`` also the index of its face in its link [M]). Deterministic for a seed."""
     rng = np.random.default_rng(seed)
-    pts, owner = [], []
+    pts, owner, face = [], [], []
     for i, link in enumerate(links):
-        a, b, c = (link.vertices[link.faces[:, k]] for k in range(3))
+        verts = link.vertices if frame == "base" else link.vertices_link
+        a, b, c = (verts[link.faces[:, k]] for k in range(3))
         area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
         n = int(math.ceil(area.sum() / spacing**2))
         if n == 0 or area.sum() <= 0:
@@ -175,4 +184,6 @@ def sample_surface(links: Sequence[LinkSurface], spacing: float, seed: int = 0) 
         p = (1 - s)[:, None] * a[tri] + (s * (1 - r2))[:, None] * b[tri] + (s * r2)[:, None] * c[tri]
         pts.append(p)
         owner.append(np.full(n, i))
-    return np.concatenate(pts), np.concatenate(owner)
+        face.append(tri)
+    out = (np.concatenate(pts), np.concatenate(owner))
+    return (*out, np.concatenate(face)) if with_faces else out

@@ -55,6 +55,8 @@ class Config:
     robot_margin_px  where align-scene found the robot in the keyframes, its silhouette at the capture joint state,
                     grown by this many pixels, is not trained on (nor measured), and the Gaussians only those pixels
                     saw are dropped: no frozen copy of the robot in the scene
+    robot_iterations  steps fitting the colours of the robot's own Gaussians (per link, on its meshes) to the
+                    keyframes' robot pixels, the scene in front: the robot drawn as the capture saw it (scene/robot/)
     filter_3d       Mip-Splatting's 3D smoothing filter, a variance in squared training pixels (0.2 as in the
                     paper; 0: off): no Gaussian is trained thinner than the finest pixel a keyframe saw it with, so
                     views closer or sharper than the keyframes (the head photo at full size, a wrist camera) do not
@@ -78,6 +80,7 @@ class Config:
     # pixels the robot's silhouette grows by before it is masked out of the keyframes (calib/robot.json): the link
     # meshes are the model's and the cameras a few tenths of a pixel off
     robot_margin_px: int = field(default=2, metadata=ADDED_LATER)
+    robot_iterations: int = field(default=300, metadata=ADDED_LATER)
 
     def validate(self) -> None:
         if self.iterations < 0 or (self.iterations == 0 and not self.minutes > 0):
@@ -95,6 +98,9 @@ class Config:
             check_variance(self.filter_3d)
         except ValueError as e:
             raise WorkspaceError(f"train-scene: {e}") from None
+        if self.robot_margin_px < 0 or self.robot_iterations < 0:
+            raise WorkspaceError(f"train-scene: robot_margin_px and robot_iterations must be >= 0, got "
+                                 f"{self.robot_margin_px}, {self.robot_iterations}")  # fmt: skip
         if self.head_photo_repeat < 1:
             raise WorkspaceError(f"train-scene: head_photo_repeat must be >= 1, got {self.head_photo_repeat}")
         if self.head_photo_mask is not None and self.head_photo is None:
@@ -178,10 +184,7 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
 
     t0 = time.perf_counter()
     views_train, views_eval = build_views(posed.cameras, posed.image_dir, config.downscale, config.holdout_every)
-    # the keyframes only: a head photo shows the robot at another joint state (its own mask: head_photo_mask)
-    robot = _robot_masks(ws, views_train + views_eval, posed.frame, config.robot_margin_px)
-    if robot is not None:
-        log(f"scene: {robot['line']}")
+    robot = _robot_masks(ws, views_train + views_eval, posed.frame, config.robot_margin_px, log)  # keyframes only
     photo_key = None
     if config.head_photo is not None:
         views_train = views_train + [head_photo_view(ws, config, posed.frame)] * config.head_photo_repeat
@@ -210,9 +213,10 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
         + f" ({backend})"
     )
     g, metrics = train(views_train, views_eval, init, train_cfg, progress=True, checkpoint_path=ckpt, resume=resume)
-    if robot is not None:
+    if robot is not None:  # out of the scene, and into its own Gaussians
         g = _drop_robot_only(g, robot)
-        metrics["gaussians"] = len(g)
+        _robot_gaussians(ws, g, robot, views_train, views_eval, config, backend, log)
+    metrics["gaussians"] = len(g)
 
     write_ply(ws.scene_ply, g)
     if views_eval:
@@ -237,7 +241,7 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
         "config": to_dict(config),
         # head-view reads it to tell a fit from a new view (survives a moved or deleted photo)
         "head_photo_fingerprint": photo_key,
-        "robot": None if robot is None else {k: robot[k] for k in ("masked_fraction", "gaussians_pruned", "line")},
+        "robot": _robot_summary(robot),
     }
     with atomic_write(ws.scene_metrics, "w", encoding="utf-8") as f:
         json.dump(result, f, indent=1)
@@ -246,27 +250,37 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
     from ..capture.coverage import scene_coverage
 
     coverage = scene_coverage(posed.cameras, posed.points)
-    robot_line = "" if robot is None else \
-        f"; {robot['line']}, {robot['gaussians_pruned']:,} Gaussians it alone saw dropped"  # fmt: skip
     return {
         **{k: result[k] for k in keys}, "coverage": coverage.to_json(), "unaligned": bool(frame_note),
         "robot": result["robot"],
         "line": f"held-out PSNR {result['psnr_heldout']:.2f} dB / SSIM {result['ssim_heldout']:.3f} over "
         f"{len(views_eval)} keyframes, {result['iterations']} iterations, {result['gaussians']:,} Gaussians "
         f"({result['train_minutes']:.1f} min, {frame_label} frame){'; ' + frame_note if frame_note else ''}; "
-        f"{coverage.line}{robot_line}",
+        f"{coverage.line}{'' if robot is None else '; ' + result['robot']['line']}",
     }  # fmt: skip
 
 
-def _robot_masks(ws: Workspace, views: list, frame: str, margin_px: int) -> dict[str, Any] | None:
+def _robot_summary(robot: dict[str, Any] | None) -> dict[str, Any] | None:
+    """metrics.json's "robot": what was masked and dropped, the robot's look figures, the stage line's words."""
+    if robot is None:
+        return None
+    out = {k: robot.get(k) for k in ("masked_fraction", "gaussians_pruned", "psnr_mesh_look", "psnr_captured")}
+    out["line"] = (f"{robot['line']}, {robot['gaussians_pruned']:,} Gaussians it alone saw dropped; "
+                   f"{robot['gaussians_line']}")  # fmt: skip
+    return out
+
+
+def _robot_masks(ws: Workspace, views: list, frame: str, margin_px: int, log: Log) -> dict[str, Any] | None:
     """Where align-scene found the robot in the keyframes (calib/robot.json): its silhouette at the capture joint
     state, grown by ``margin_px``, taken out of every view's valid pixels (training and held-out), so no Gaussian is
-    fitted to the robot and the held-out figures measure the scene alone. None when the keyframes do not show it."""
+    fitted to the robot and the held-out figures measure the scene alone. None when the keyframes do not show it.
+    ``views``: the keyframes' (a head photo shows the robot at another joint state; its own mask: head_photo_mask)."""
     if frame != "base" or not ws.robot_capture_file.is_file():
         return None
     record = json.loads(ws.robot_capture_file.read_text(encoding="utf-8"))
     if not record.get("seen"):
         return None
+    import cv2
     import torch
 
     from ..calib.robot_view import robot_silhouette
@@ -276,21 +290,68 @@ def _robot_masks(ws: Workspace, views: list, frame: str, margin_px: int) -> dict
     from ..robots.surface import robot_surface
 
     links = robot_surface(get_robot(record["robot"]), record["capture_joints"])
-    cameras, silhouettes, masked = [], [], []
+    cameras, silhouettes, exacts, valid, masked = [], [], [], [], []
     for v in views:
         h, w = v.image.shape[:2]
         cam = Camera(K=v.K.numpy().astype(np.float64), T_world_cam=invert_rigid(v.viewmat.numpy().astype(np.float64)),
                      width=w, height=h, name=v.name)  # fmt: skip
-        sil = robot_silhouette(cam, links, margin_px)
+        exact = robot_silhouette(cam, links)
+        sil = cv2.dilate(exact.astype(np.uint8), np.ones((2 * margin_px + 1,) * 2, np.uint8)).astype(bool) \
+            if margin_px > 0 else exact  # fmt: skip
         keep = torch.from_numpy(~sil)
+        valid.append(v.mask)  # before the robot is taken out: the robot's own fit reads its pixels
         v.mask = keep if v.mask is None else v.mask & keep
         cameras.append(cam)
         silhouettes.append(sil)
+        exacts.append(exact)
         masked.append(float(sil.mean()))
     frac = float(np.mean(masked))
-    return {"cameras": cameras, "silhouettes": silhouettes, "masked_fraction": frac,
+    log(f"scene: the robot (calib/robot.json) masked out of every keyframe ({100 * frac:.1f} % of the pixels)")
+    return {"cameras": cameras, "silhouettes": silhouettes, "exact": exacts, "valid": valid, "links": links,
+            "record": record,
+            "masked_fraction": frac,
             "line": f"the robot (calib/robot.json) masked out of every keyframe ({100 * frac:.1f} % of the pixels, "
             f"{margin_px} px margin)"}  # fmt: skip
+
+
+def _robot_gaussians(ws: Workspace, scene, robot: dict[str, Any], views_train: list, views_eval: list, config: Config,
+                     backend: str, log: Log) -> None:
+    """The robot as the capture saw it (gaussians.robot): per-link Gaussians on its meshes, their colours fitted to
+    the keyframes' robot pixels with the scene in front, written to scene/robot/ (<link>.ply in the link's frame,
+    robot.json: the capture joints, how much of each link the keyframes saw, held-out PSNR on the robot's pixels of
+    the mesh look and of the captured one)."""
+    from ..gaussians.ply import write_ply
+    from ..gaussians.robot import fit_robot_colours, mesh_gaussians
+
+    links = robot["links"]
+    n_train = len(views_train) - (config.head_photo_repeat if config.head_photo is not None else 0)
+    exact = robot["exact"]
+    # the keyframes with their robot pixels back (train-scene masked them out)
+    views = [replace(v, mask=m) for v, m in zip(views_train[:n_train] + views_eval, robot["valid"], strict=True)]
+    fit = fit_robot_colours(
+        mesh_gaussians(links), {link.link: link.T_base_link for link in links}, scene, views[:n_train],
+        exact[:n_train], views[n_train:], exact[n_train:], iterations=config.robot_iterations, backend=backend,
+        seed=config.seed,
+    )  # fmt: skip
+    out = ws.robot_gaussians_dir
+    out.mkdir(parents=True, exist_ok=True)
+    for name, g in fit.link_gaussians.items():
+        write_ply(out / f"{name}.ply", g)
+    record = robot["record"]
+    summary = {"robot": record["robot"], "capture_joints": record["capture_joints"], "frame": "each link's own",
+               "links": {name: f"{name}.ply" for name in fit.link_gaussians}, "seen_fraction": fit.seen_fraction,
+               "psnr_mesh_look": fit.psnr_mesh, "psnr_captured": fit.psnr_captured,
+               "iterations": fit.iterations}  # fmt: skip
+    with atomic_write(out / "robot.json", "w", encoding="utf-8") as f:
+        json.dump(summary, f, indent=1)
+    seen = sum(fit.seen_fraction[n] * len(g) for n, g in fit.link_gaussians.items()) / \
+        max(sum(len(g) for g in fit.link_gaussians.values()), 1)  # fmt: skip
+    figures = "" if fit.psnr_mesh is None else \
+        f", held-out robot pixels {fit.psnr_mesh:.1f} dB in the mesh look -> {fit.psnr_captured:.1f} dB"  # fmt: skip
+    robot["gaussians_line"] = (f"the robot's Gaussians (scene/robot/): {100 * seen:.0f} % seen by the keyframes"
+                               f"{figures}")  # fmt: skip
+    robot.update(psnr_mesh_look=fit.psnr_mesh, psnr_captured=fit.psnr_captured)
+    log(f"scene: {robot['gaussians_line']}")
 
 
 def _drop_robot_only(g, robot: dict[str, Any]):
