@@ -91,6 +91,7 @@ class GenerateConfig:
                    drawn whole (not over a cached background); local worker processes only (not with Ray)
     supersample    the splat layer drawn at s x the frame size and box-averaged down (``SplatRenderOptions``):
                    objects far smaller than the frame's pixels keep their true area (~s^2 the splat time)
+    robot_look     how the robot is drawn (``env.config.HybridOptions.robot_look``): "auto", "gaussians", "mesh"
     takeover       None: the expert acts from each episode's start; a :class:`Takeover`: a trained policy acts
                    first and the expert takes over from where it left the world
     """
@@ -109,4 +110,5 @@ class GenerateConfig:
     objects: str = "gaussians"
     splat_server: bool = False
     supersample: int = 1
+    robot_look: str = "auto"
     takeover: Takeover | None = None

@@ -89,6 +89,8 @@ class SimSourceConfig:
             del out["hybrid"]["objects"]
         if out["hybrid"]["splat"].get("supersample") == 1:  # likewise
             del out["hybrid"]["splat"]["supersample"]
+        if out["hybrid"].get("robot_look") == "auto":  # likewise (a world without robot Gaussians draws the mesh)
+            del out["hybrid"]["robot_look"]
         for key in ("object_shrink", "table_texture", "start_regions"):  # likewise
             if not out["randomization"].get(key):
                 del out["randomization"][key]

@@ -55,7 +55,8 @@ def _source(world: WorldConfig, task: Task, cfg: GenerateConfig):
 
     return SimSourceConfig(
         world=world, task=task, size=tuple(cfg.size), fps=cfg.fps, cameras=tuple(cfg.cameras),
-        randomization=cfg.randomization, hybrid=hybrid_options(cfg.objects, cfg.supersample), takeover=cfg.takeover,
+        randomization=cfg.randomization, hybrid=hybrid_options(cfg.objects, cfg.supersample, cfg.robot_look),
+        takeover=cfg.takeover,
     )  # fmt: skip
 
 
@@ -164,7 +165,8 @@ def _splat_server(world: WorldConfig, source, cfg: GenerateConfig, log: Callable
     from ..env.hybrid import splat_parts
     from ..render.splat_server import SplatServer
 
-    server = SplatServer(splat_parts(world, objects=cfg.objects == "gaussians"), source.hybrid.splat,
+    server = SplatServer(splat_parts(world, objects=cfg.objects == "gaussians",
+                                     robot=source.hybrid.robot_gaussians(world)), source.hybrid.splat,
                          slots=max(cfg.workers, 1), cameras=len(source.cameras), size=tuple(source.size),
                          background=source.hybrid.background, table_z=world.table_z)  # fmt: skip
     handle = server.start()

@@ -99,12 +99,14 @@ def _fast_splats() -> SplatRenderOptions:
     return SplatRenderOptions(sh_degree=1, min_opacity=0.02)
 
 
-def hybrid_options(objects: str = "gaussians", supersample: int = 1) -> HybridOptions:
+def hybrid_options(objects: str = "gaussians", supersample: int = 1, robot_look: str = "auto") -> HybridOptions:
     """The hybrid renderer's settings with generation's splat settings, objects drawn as ``objects``, the splat layer
-    supersampled ``supersample`` x (what ``generate`` and ``eval-policy`` expose)."""
+    supersampled ``supersample`` x, the robot drawn as ``robot_look`` (what ``generate`` and ``eval-policy``
+    expose)."""
     from dataclasses import replace
 
-    return HybridOptions(splat=replace(_fast_splats(), supersample=int(supersample)), objects=objects)
+    return HybridOptions(splat=replace(_fast_splats(), supersample=int(supersample)), objects=objects,
+                         robot_look=robot_look)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -121,6 +123,10 @@ class HybridOptions:
                              hand and fingers do not move in such a camera; only their shading would, slightly)
     objects                  how objects are drawn: "gaussians" (their 3DGS, the method) or "meshes" (Genesis draws
                              their meshes, vertex-coloured from their Gaussians: the paper's mesh-only ablation)
+    robot_look               how the robot is drawn: "gaussians" (its own per-link Gaussians as the capture saw it,
+                             posed by forward kinematics in the same splat pass as the world: no compositing seam,
+                             no Genesis camera), "mesh" (Genesis renders its model's meshes, composited over the
+                             splats), "auto" (gaussians when the world has them, ``robot.gaussians``, else mesh)
     """
 
     splat: SplatRenderOptions = field(default_factory=_fast_splats)
@@ -129,6 +135,17 @@ class HybridOptions:
     robot_render_faces: int | None = 1500
     reuse_hand_camera_robot: bool = True
     objects: str = "gaussians"
+    robot_look: str = "auto"
+
+    def robot_gaussians(self, world: Any) -> bool:
+        """Whether the robot is drawn from its Gaussians in ``world`` (a WorldConfig)."""
+        if self.robot_look not in ("auto", "gaussians", "mesh"):
+            raise ValueError(f"robot_look must be auto, gaussians or mesh, got {self.robot_look!r}")
+        has = world.robot.gaussians is not None
+        if self.robot_look == "gaussians" and not has:
+            raise ValueError("robot_look gaussians: the world has no robot Gaussians (robot.gaussians in world.yaml: "
+                             "train-scene writes them when the capture shows the robot); use robot_look mesh")
+        return has and self.robot_look != "mesh"
 
 
 @dataclass(frozen=True, eq=False)

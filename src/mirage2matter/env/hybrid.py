@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from ..world.config import WorldConfig
     from .episode import EpisodeDraw
 
-__all__ = ["TIMING_KEYS", "HybridRenderer", "build_hybrid", "render_K", "splat_parts"]
+__all__ = ["ROBOT_PART", "TIMING_KEYS", "HybridRenderer", "build_hybrid", "render_K", "robot_links", "splat_parts"]
 
 TIMING_KEYS = ("pose_splats", "splat_render", "robot_render", "composite")
 
@@ -49,6 +49,8 @@ class HybridRenderer:
 
         world = twin.cfg
         self.twin, self.cameras, self.size, self.options = twin, tuple(cameras), tuple(size), options
+        # the robot's own Gaussians, posed per link in the splat pass; else Genesis draws its meshes over the splats
+        self.robot_links = robot_links(world) if options.robot_gaussians(world) else []
         self.static_cameras = {c for c in cameras if world.cameras[c].mount == "base"}
         self.hand_cameras = {c for c in cameras if world.cameras[c].mount == world.robot.ee_link}
         self.remote = None
@@ -59,7 +61,7 @@ class HybridRenderer:
         else:  # with mesh objects Genesis draws them, in the robot layer (``build_hybrid``)
             from ..render.splat_world import SplatWorld
 
-            parts = splat_parts(world, objects=options.objects == "gaussians")
+            parts = splat_parts(world, objects=options.objects == "gaussians", robot=bool(self.robot_links))
             self.splat = SplatWorld.from_files(parts, options.splat)
             self._placement_scales = [p.scale for p in self.splat.parts]
         self._table = None  # TableGaussians, found when an episode first re-colours them
@@ -120,7 +122,10 @@ class HybridRenderer:
         for c in self.cameras:
             T_base_cam, K, cw, ch = self.twin.camera(c)
             views[c] = (invert_rigid(T_base_cam), render_K(K, cw, ch, w, h))
-        return self.twin.object_poses(), views
+        poses = self.twin.object_poses()
+        for link in self.robot_links:  # forward kinematics of this tick
+            poses[f"{ROBOT_PART}{link}"] = self.twin.T_base_link(link)
+        return poses, views
 
     def render(self) -> dict[str, np.ndarray]:
         """{camera: uint8 [H,W,3]} hybrid frames of the twin's current state."""
@@ -149,6 +154,10 @@ class HybridRenderer:
             else:
                 rgb, alpha, depth = self.splat.render_camera(c, view, Kr, w, h, opt.background)
             t2 = time.perf_counter()
+            if self.robot_links:  # the robot was in the splat pass
+                frames[c] = to_uint8(self.jitter.apply(rgb))
+                self.timings["splat_render"] += t2 - t1
+                continue
             robot = self._robot_layer(c, state)
             t3 = time.perf_counter()
             splat8 = to_uint8(self.jitter.apply(rgb))
@@ -170,16 +179,35 @@ class HybridRenderer:
             self.remote.close()
 
 
-def splat_parts(world: WorldConfig, objects: bool = True) -> dict[str, Any]:
+ROBOT_PART = "robot/"  # a robot link's movable part: robot/<link>
+
+
+def robot_links(world: WorldConfig) -> list[str]:
+    """The links whose Gaussians the world's robot has (``robot.gaussians``/robot.json), in its order."""
+    import json
+
+    if world.robot.gaussians is None:
+        return []
+    info = json.loads((world.robot.gaussians / "robot.json").read_text(encoding="utf-8"))
+    return list(info["links"])
+
+
+def splat_parts(world: WorldConfig, objects: bool = True, robot: bool = False) -> dict[str, Any]:
     """The Gaussian files of ``world``'s splat layer: {"scene": path or None, "parts": [[name, path, scale], ...]},
     each object's and articulated asset's (base and cap) a movable part named as its physics pose is
-    (``objects=False``: the scene alone, the objects being drawn elsewhere)."""
+    (``objects=False``: the scene alone, the objects being drawn elsewhere); with ``robot``, each robot link's
+    Gaussians too (``robot/<link>``, posed by forward kinematics)."""
     parts = []
     if objects:
         parts = [[o.name, str(o.part.gaussians), float(o.placement.scale)] for o in world.objects]
         for a in world.articulated:
             parts.append([a.name, str(a.base.gaussians), float(a.placement.scale)])
             parts.append([f"{a.name}/cap", str(a.cap.gaussians), float(a.placement.scale)])
+    if robot:
+        import json
+
+        info = json.loads((world.robot.gaussians / "robot.json").read_text(encoding="utf-8"))
+        parts += [[f"{ROBOT_PART}{link}", str(world.robot.gaussians / f), 1.0] for link, f in info["links"].items()]
     scene = str(world.scene_gaussians) if world.scene_gaussians is not None else None
     return {"scene": scene, "parts": parts}
 
@@ -198,7 +226,9 @@ def build_hybrid(cfg: EnvConfig) -> tuple[Twin, HybridRenderer]:
         world = cfg.world.copy()
     world.robot.file = render_robot_file(world.robot.file, cfg.hybrid.robot_render_faces)
     w, h = cfg.size
-    options = TwinOptions(backend=cfg.backend, render=True, camera_sizes={c: (w, h) for c in cfg.cameras},
+    # a Gaussian robot with Gaussian objects: nothing left for Genesis to draw, no camera in the per-frame loop
+    render = meshes or not cfg.hybrid.robot_gaussians(world)
+    options = TwinOptions(backend=cfg.backend, render=render, camera_sizes={c: (w, h) for c in cfg.cameras},
                           draw_scene=False, draw_objects=meshes)  # fmt: skip
     twin = Twin.build(world, options)
     try:

@@ -12,7 +12,7 @@ from typing import Any, Literal
 from ..datagen import GenerateConfig, GenerateError, task_slug
 from ..datagen.config import Randomization, Takeover, takeover_steps_problem
 from ..workspace import Workspace
-from .base import Input, Log
+from .base import ADDED_LATER, Input, Log
 
 
 @dataclass
@@ -42,6 +42,9 @@ class Config:
                  than a pixel then add their area instead of swelling to the rasterizer's minimum footprint (at
                  128 px the reconstructed banana covers 1.8x its true area in the head camera, 1.2x with 4); the
                  splat time grows ~s^2 (1: off)
+    robot_look   the robot in the frames: gaussians (its own per-link Gaussians as the capture saw it, posed by forward
+                 kinematics in the same splat pass as the world), mesh (Genesis renders its model's meshes, composited
+                 over the splats: the look before the capture's), auto (gaussians when the world has them)
     start_region  one or more boxes "object:x_min,x_max,y_min,y_max" (m, robot-base frame): every episode starts with
                  that object's centre inside one of its boxes (the rest of the layout as usual) - more demonstrations
                  where a policy fails, e.g. "banana:0.55,0.62,-0.3,-0.2"
@@ -66,6 +69,7 @@ class Config:
     table_texture: float = 0.0
     splat_server: bool = False
     supersample: int = 1
+    robot_look: Literal["auto", "gaussians", "mesh"] = field(default="auto", metadata=ADDED_LATER)
     start_region: tuple[str, ...] = ()
     takeover: str | None = None
     # within the approach: the sample's grasps take ~42 ticks, and with 10,60 a trained policy finished the task on its
@@ -126,7 +130,7 @@ class Config:
         return GenerateConfig(
             episodes=self.episodes, workers=self.workers, ray_address=self.ray_address, format=self.format,
             seed=self.seed, size=(self.size, self.size), fps=self.fps, objects=self.objects,
-            splat_server=self.splat_server, supersample=self.supersample,
+            splat_server=self.splat_server, supersample=self.supersample, robot_look=self.robot_look,
             randomization=Randomization(object_shrink=self.object_shrink, table_texture=self.table_texture,
                                         start_regions=self.start_regions()),
             takeover=takeover,

@@ -86,8 +86,9 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
         optional = [Input(p) for p in (ws.handeye_file, ws.scene_ply) if p.is_file()]
         truth = [Input(Path(cfg.sample) / n, field="compose sample") for n in ("ground_truth.json", "gt")]
         return truth + optional + robot
+    look = [Input(ws.robot_gaussians_dir / "robot.json")] if (ws.robot_gaussians_dir / "robot.json").is_file() else []
     return [Input(ws.handeye_file, made_by="calibrate-handeye"), Input(ws.scene_ply, made_by="train-scene"),
-            Input(ws.objects_summary, made_by="objects"), *robot]  # fmt: skip
+            Input(ws.objects_summary, made_by="objects"), *robot, *look]  # fmt: skip
 
 
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
@@ -103,6 +104,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     else:
         world = world_from_reconstruction(ws.world_dir, _head_camera(ws), ws.scene_ply, _object_dirs(ws),
                                           cfg.options(), log)  # fmt: skip
+    robot_note = _robot_gaussians(ws, world, cfg)
     save_world(world.relocated(ws.world_dir, ws.committed.world_dir), ws.world_yaml, home=ws.committed.world_dir)
     write_world_ply(world)
     cons = {k: 1000 * v for k, v in consistency(world).items()}
@@ -113,7 +115,21 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
                                "check objects/<name>/figure.png")  # fmt: skip
     return {"consistency_mm": cons, "details": details,
             "line": f"{len(world.objects)} objects, {len(world.articulated)} articulated; Gaussians vs meshes "
-                    f"<= {worst:.2f} mm (median per part)"}  # fmt: skip
+                    f"<= {worst:.2f} mm (median per part); {robot_note}"}  # fmt: skip
+
+
+def _robot_gaussians(ws: Workspace, world, cfg: Config) -> str:
+    """The robot as the capture saw it (train-scene's scene/robot/) into the world, when it is this world's robot;
+    the words for the stage's line."""
+    info = ws.committed.robot_gaussians_dir / "robot.json"
+    if not info.is_file():
+        return "the robot in its model's look (the capture did not show it)"
+    robot = json.loads(info.read_text(encoding="utf-8")).get("robot")
+    if robot != world.robot.spec.name:
+        return f"the robot in its model's look (the capture's robot Gaussians are of {robot}, the world's robot is " \
+               f"{world.robot.spec.name})"  # fmt: skip
+    world.robot.gaussians = info.parent
+    return "the robot as the capture saw it (scene/robot/)"
 
 
 def outputs(ws: Workspace, cfg: Config) -> list[Path]:

@@ -165,7 +165,12 @@ def _robot(data: Any, root: Path) -> RobotConfig:
         home = tuple(check_joints(home, spec.arm_joints, None, "robot.home").tolist())
     except InputError as e:
         raise WorldConfigError(f"{e} (rad)") from None
-    return RobotConfig(name=ref, file=robot_file, ee_link=str(r.get("ee_link") or spec.ee_link), home=home)
+    gaussians = _path(r.get("gaussians"), root, "robot.gaussians")
+    if gaussians is not None and not (gaussians / "robot.json").is_file():
+        raise WorldConfigError(f"robot.gaussians: {gaussians} holds no robot.json (the robot's Gaussians that "
+                               "train-scene writes to scene/robot/); fix the path or remove the key")  # fmt: skip
+    return RobotConfig(name=ref, file=robot_file, ee_link=str(r.get("ee_link") or spec.ee_link), home=home,
+                       gaussians=gaussians)  # fmt: skip
 
 
 # ---- the dataclasses -----------------------------------------------------------------------------
@@ -178,12 +183,15 @@ class RobotConfig:
     file     MJCF/URDF path, or a path inside Genesis' bundled assets (empty: the spec's model)
     ee_link  the link the gripper TCP hangs off (empty: the spec's)
     home     the arm's rest joints [n_arm] (rad) (empty: the spec's)
+    gaussians  the robot as the capture saw it: a folder of per-link Gaussians (robot.json + <link>.ply, each in its
+             link's frame, ``train-scene``'s scene/robot/); None: the robot is drawn from its model's meshes
     """
 
     name: str = DEFAULT_ROBOT
     file: str = ""
     ee_link: str = ""
     home: tuple[float, ...] = ()
+    gaussians: Path | None = None
 
     def __post_init__(self) -> None:
         if is_spec_file(self.name):
@@ -204,7 +212,10 @@ class RobotConfig:
         out: dict[str, Any] = {"name": _rel(Path(self.name), root) if is_spec_file(self.name) else self.name}
         if self.file != spec.model or not Path(self.file).is_absolute():
             out["file"] = self.file
-        return {**out, "ee_link": self.ee_link, "home": list(self.home)}
+        out = {**out, "ee_link": self.ee_link, "home": list(self.home)}
+        if self.gaussians is not None:
+            out["gaussians"] = _rel(self.gaussians, root)
+        return out
 
 
 @dataclass
