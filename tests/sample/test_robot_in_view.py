@@ -18,20 +18,53 @@ def _m2m(*args: str) -> None:
     assert main(list(args)) == 0, args
 
 
+@pytest.fixture(scope="module")
+def robot_sample(tmp_path_factory):
+    from mirage2matter.sample.make import SampleConfig, make_sample, with_robot_in_view
+
+    sample = tmp_path_factory.mktemp("robot_sample") / "sample"
+    gt = make_sample(sample, with_robot_in_view(SampleConfig.short()), log=lambda _m: None)
+    return sample, gt
+
+
 @pytest.mark.slow
-def test_the_robot_in_the_capture_is_found_aligned_to_and_kept_out_of_the_scene(tmp_path):
+def test_the_ground_truth_world_draws_the_robot_in_the_videos_look(robot_sample):
+    """The ground-truth world at a video frame's pose and the capture joints renders that frame, robot included (to
+    what H.264 leaves of it); with the robot taken out its pixels are the room's."""
+    import av
+
+    from mirage2matter.env.ground_truth import GroundTruthRenderer
+
+    sample, gt = robot_sample
+    with av.open(str(sample / "scene.mp4")) as c:
+        video = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
+    K = np.asarray(gt["camera"]["K"])
+    with GroundTruthRenderer(sample, {"v": (K, gt["camera"]["width"], gt["camera"]["height"])}) as r:
+        for i in (0, len(video) // 2):
+            T = {"v": np.asarray(gt["frames"][i]["T_base_cam"])}
+            img = r.render(T, robot_q=gt["robot"]["capture_joints"])["v"]
+            robot = r.mask(r.segmentation(T)["v"], "robot")
+            assert robot.mean() > 0.02
+            err = (img.astype(float) - video[i].astype(float)) ** 2
+            assert 10 * np.log10(255.0**2 / err[robot].mean()) > 30.0
+            r.set_state(robot_visible=False)
+            hidden = r.render(T)["v"]
+            r.set_state(robot_visible=True)
+            assert np.abs(hidden.astype(float) - img.astype(float))[robot].mean() > 20.0
+
+
+@pytest.mark.slow
+def test_the_robot_in_the_capture_is_found_aligned_to_and_kept_out_of_the_scene(tmp_path, robot_sample):
     from mirage2matter.calib.robot_view import visual_hull  # noqa: F401 (imports the calib layer once)
     from mirage2matter.gaussians.ply import read_ply
     from mirage2matter.inputs import read_yaml
     from mirage2matter.robots import get_robot
     from mirage2matter.robots.surface import robot_surface, sample_surface
-    from mirage2matter.sample.make import SampleConfig, make_sample, with_robot_in_view
     from mirage2matter.stages.align import compare
     from mirage2matter.stages.pipeline import PipelineConfig
     from mirage2matter.workspace import Workspace
 
-    sample = tmp_path / "sample"
-    gt = make_sample(sample, with_robot_in_view(SampleConfig.short()), log=lambda _m: None)
+    sample, gt = robot_sample
     spec = get_robot("panda")
     q = np.asarray(gt["robot"]["capture_joints"])
     settings = read_yaml(sample / "m2m.yaml")
@@ -81,3 +114,11 @@ def test_the_robot_in_the_capture_is_found_aligned_to_and_kept_out_of_the_scene(
     d = cKDTree(surface).query(means)[0]
     on_robot = (d < 0.01) & (means[:, 2] > 0.03) & opaque
     assert on_robot.sum() <= 0.002 * len(g), (on_robot.sum(), len(g))
+
+    # the robot as the capture saw it: per-link Gaussians on its meshes, in its paint, not the model's white
+    robot_dir = ws / "scene" / "robot"
+    look = json.loads((robot_dir / "robot.json").read_text())
+    assert set(look["links"]) >= {spec.ee_link, *spec.finger_links}
+    assert all((robot_dir / f).is_file() for f in look["links"].values())
+    assert look["psnr_captured"] > look["psnr_mesh_look"] + 3.0, look
+    assert look["seen_fraction"]["link0"] > 0.5

@@ -224,7 +224,10 @@ class GroundTruthRenderer:
             board = target_from_json(gt["board"]["spec"])
         except (KeyError, TypeError, ValueError) as exc:
             raise GroundTruthError(f"{self.sample_dir / 'ground_truth.json'}: bad board spec ({exc})") from None
-        assets = build_assets(seed=int(gt["seed"]), board=board)
+        board_at = (gt.get("config") or {}).get("board_at")  # a sample with the robot in it: the board beside it
+        assets = build_assets(seed=int(gt["seed"]), board=board, board_at=tuple(board_at) if board_at else None)
+        # a sample whose video filmed the robot in a look of its own (sample.robot_look): the robot is drawn so
+        look = (gt.get("robot") or {}).get("look") if self.spec is not None else None
         try:
             self._check_assets_match(assets, gt)
             self._twin_names, self._movable = self._object_names(assets, gt)
@@ -248,10 +251,13 @@ class GroundTruthRenderer:
             for i, asset in enumerate(assets):  # the sample maker's order: same scene, same pixels
                 self._register(asset.name, add_asset(self._scene, asset, self._workdir / f"{i:03d}_{asset.name}"))
             self.robot = None
+            self._look: dict[str, Any] = {}  # link -> its entity in the sample's robot look
             if self.spec is not None:
                 keep = (self.spec.ee_link, *self.spec.finger_links)
                 self.robot = self._scene.add_entity(genesis_morph(gs, resolve_model(self.spec.model), keep_links=keep))
                 self._register("robot", self.robot)
+                if look:
+                    self._add_robot_look(int(gt["seed"]), add_asset)
             self._cams: dict[str, Any] = {}
             for name, K in self._K.items():
                 w, h = self._size[name]
@@ -275,11 +281,39 @@ class GroundTruthRenderer:
                     )
                 self.robot.set_qpos(self.spec.home_q())
             self._robot_visible = self.robot is not None
+            if self._look:  # the model's robot computes the links' poses out of sight; the look draws them
+                self.robot.set_pos(np.array([0.0, 0.0, _HIDDEN_ROBOT_Z]))
+                self._place_look()
         except BaseException:
             self.close()
             raise
 
     # ---- construction helpers --------------------------------------------------------------------
+    def _add_robot_look(self, seed: int, add_asset: Any) -> None:
+        """The sample's robot in its own look: each link's textured mesh (sample.robot_look, the video's) as an
+        entity of its own, moved to the link's pose whenever the state changes (:meth:`_place_look`)."""
+        from ..robots.surface import robot_surface
+        from ..sample.robot_look import ROBOT_LOOK_PREFIX, robot_look_meshes
+        from ..sample.types import PlacedAsset
+
+        links = robot_surface(self.spec, self.spec.home_q())
+        for link, mesh in robot_look_meshes(self.spec, links, seed).items():
+            T = next(x.T_base_link for x in links if x.link == link)
+            name = f"{ROBOT_LOOK_PREFIX}{link}"
+            entity = add_asset(self._scene, PlacedAsset(name, mesh, T, "robot"), self._workdir / name)
+            self._register(name, entity)
+            self._look[link] = entity
+
+    def _place_look(self) -> None:
+        """Every link of the robot's look at the model's link pose (under the floor while the robot is hidden)."""
+        for link, entity in self._look.items():
+            T = self.robot_link_pose(link)
+            if not self._robot_visible:
+                T[2, 3] += _HIDDEN_ROBOT_Z
+            pos, quat = self._pos_quat(T)
+            entity.set_pos(pos)
+            entity.set_quat(quat)
+
     def _check_assets_match(self, assets: list, gt: dict) -> None:
         """The assets rebuilt from the seed must be the sample's (else this code's asset maker drifted)."""
         built = {a.name: np.asarray(a.T_base_obj, dtype=np.float64) for a in assets}
@@ -375,7 +409,7 @@ class GroundTruthRenderer:
         pos, quat = np.asarray(lk.get_pos(), dtype=np.float64), np.asarray(lk.get_quat(), dtype=np.float64)
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = quat_to_matrix(quat / np.linalg.norm(quat)), pos
-        if not self._robot_visible:
+        if self._look or not self._robot_visible:
             T[2, 3] -= _HIDDEN_ROBOT_Z  # where it would be at the origin
         return T
 
@@ -422,10 +456,13 @@ class GroundTruthRenderer:
                 if robot_visible:
                     raise GroundTruthError("robot_visible=True, but this renderer was built with with_robot=False")
             else:
-                self.robot.set_pos(np.array([0.0, 0.0, 0.0 if robot_visible else _HIDDEN_ROBOT_Z]))
+                if not self._look:  # with the look the model's robot stays out of sight
+                    self.robot.set_pos(np.array([0.0, 0.0, 0.0 if robot_visible else _HIDDEN_ROBOT_Z]))
                 self._robot_visible = bool(robot_visible)
         if q is not None:
             self.robot.set_qpos(q)
+        if self._look and (q is not None or robot_visible is not None):
+            self._place_look()
         for asset, T in poses.items():
             pos, quat = self._pos_quat(T)
             entity = self._entities[asset]
@@ -486,6 +523,11 @@ class GroundTruthRenderer:
     def mask(self, labels: np.ndarray, name: str) -> np.ndarray:
         """bool [H,W] of a :meth:`segmentation` label image where object ``name`` (twin or asset name, or
         "robot") is the visible surface."""
+        if name == "robot" and self._look:  # the robot's look: every link's entity
+            from ..sample.robot_look import ROBOT_LOOK_PREFIX
+
+            ids = [self.entity_names.index(f"{ROBOT_LOOK_PREFIX}{link}") for link in self._look]
+            return np.isin(np.asarray(labels), ids)
         asset = "robot" if name == "robot" else self._aliases.get(name)
         if asset is None or asset not in self.entity_names:
             raise GroundTruthError(f"unknown object {name!r}; known: {sorted(self._aliases)} and 'robot'")
