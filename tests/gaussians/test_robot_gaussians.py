@@ -74,3 +74,26 @@ def test_fitted_colours_are_the_captures_where_seen_and_the_meshs_elsewhere(robo
         assert 0.0 < fit.seen_fraction[name] <= 1.0 or name in ("left_finger", "right_finger")
         assert abs(float(changed.float().mean()) - fit.seen_fraction[name]) < 1e-6
     assert min(fit.seen_fraction.values()) < 0.9  # the back of the robot was not seen, and kept the mesh's colour
+
+
+def test_a_keyframe_where_the_robot_stood_elsewhere_is_named(robot):
+    """One keyframe filmed the robot at another joint state (it moved while filming): the fit names that view."""
+    links, T = robot
+    lg = mesh_gaussians(links, spacing=0.008)
+    spec = get_robot("panda")
+    q = np.asarray(spec.home, float)
+    q[0] += 0.25
+    q[3] += 0.4
+    moved = {link.link: link.T_base_link for link in robot_surface(spec, q)}
+    K = np.array([[150.0, 0, 80.0], [0, 150.0, 60.0], [0, 0, 1]])
+    views, sils = [], []
+    for i, a in enumerate(np.linspace(-0.9, 0.9, 6)):
+        cam = Camera(K, look_at_pose((0.2 + 1.4 * np.cos(a), 1.4 * np.sin(a), 0.7), (0.1, 0.0, 0.35)), 160, 120, f"k{i}")
+        pose = moved if i == 4 else T
+        with torch.no_grad():
+            img = render(posed_robot(lg, pose), torch.tensor(cam.viewmat, dtype=torch.float32),
+                         torch.tensor(cam.K, dtype=torch.float32), 160, 120, torch.zeros(3), "cpu").rgb  # fmt: skip
+        views.append(make_view(cam, img.numpy()))
+        sils.append(robot_silhouette(cam, links))  # where the capture joints put the robot
+    fit = fit_robot_colours(lg, T, None, views, sils, iterations=60)
+    assert fit.disagreeing == ["k4"], fit.view_error

@@ -72,3 +72,19 @@ def test_a_capture_joint_state_that_does_not_fit_the_robot_is_named(values, word
     assert "align capture_joints" in str(e.value)
     for w in words:
         assert w in str(e.value)
+
+
+@pytest.mark.parametrize(
+    ("joints", "words"),
+    [(["0", "1"], "2 values given"), (["0", "-45", "0", "-135", "0", "90", "45"], "reads as degrees")],
+)
+def test_align_scene_refuses_a_bad_capture_joint_state_before_anything_is_written(tmp_path, capsys, joints, words):
+    from fixtures import SAMPLE
+    from mirage2matter.cli import main
+
+    ws = tmp_path / "ws"
+    ws.mkdir()
+    assert main(["align-scene", "-w", str(ws), "--board", str(SAMPLE / "board.json"), "--capture-joints", *joints]) == 2
+    err = capsys.readouterr().err
+    assert "align capture_joints" in err and words in err and "Traceback" not in err
+    assert not any(ws.iterdir())

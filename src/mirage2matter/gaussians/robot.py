@@ -12,7 +12,7 @@ mesh's colour.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -78,6 +78,9 @@ class RobotFitResult:
     psnr_mesh        PSNR (dB) on the robot's pixels of the held-out keyframes, the mesh look (the fallback)
     psnr_captured    the same with the fitted colours
     iterations       steps taken
+    view_error       {training view: mean |fitted - photo| on its robot pixels}
+    disagreeing      training views whose error is past DISAGREE_FACTOR x the median (and DISAGREE_MIN): the robot
+                     there is not where the capture joints put it (it moved while filming, or the view's pose is off)
     """
 
     link_gaussians: dict[str, Gaussians]
@@ -85,6 +88,14 @@ class RobotFitResult:
     psnr_mesh: float | None
     psnr_captured: float | None
     iterations: int
+    view_error: dict[str, float] = field(default_factory=dict)
+    disagreeing: list[str] = field(default_factory=list)
+
+
+# A view whose robot pixels the fitted colours explain this much worse than the median view's, and by at least this
+# mean absolute error (colour units 0..1), disagrees with the rest.
+DISAGREE_FACTOR = 3.0
+DISAGREE_MIN = 0.08
 
 
 def _robot_pixels(silhouette: np.ndarray, valid: torch.Tensor | None) -> torch.Tensor:
@@ -164,6 +175,14 @@ def fit_robot_colours(
     sh = torch.cat([dc.detach()[:, None], robot0.sh[:, 1:]], dim=1)
     fitted = Gaussians(robot0.means, robot0.quats, robot0.log_scales, robot0.logit_opacities, sh)
     psnr_captured = _psnr(views_eval, silhouettes_eval, scene, fitted, backend, bg)
+    view_error = {}
+    with torch.no_grad():
+        for i in usable:
+            v = views_train[i]
+            m = _robot_pixels(silhouettes_train[i], v.mask)
+            view_error[v.name] = float((_render(scene, fitted, v, backend, bg) - v.image).abs()[m].mean())
+    median = float(np.median(list(view_error.values()))) if view_error else 0.0
+    disagreeing = [n for n, e in view_error.items() if e > max(DISAGREE_FACTOR * median, DISAGREE_MIN)]
     out, frac, start = {}, {}, 0
     for name, size in zip(names, sizes, strict=True):
         g = link_gaussians[name]
@@ -173,4 +192,4 @@ def fit_robot_colours(
                               new_sh)  # fmt: skip
         frac[name] = float(seen[start : start + size].float().mean())
         start += size
-    return RobotFitResult(out, frac, psnr_mesh, psnr_captured, steps)
+    return RobotFitResult(out, frac, psnr_mesh, psnr_captured, steps, view_error, disagreeing)

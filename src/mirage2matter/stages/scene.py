@@ -341,7 +341,8 @@ def _robot_gaussians(ws: Workspace, scene, robot: dict[str, Any], views_train: l
     summary = {"robot": record["robot"], "capture_joints": record["capture_joints"], "frame": "each link's own",
                "links": {name: f"{name}.ply" for name in fit.link_gaussians}, "seen_fraction": fit.seen_fraction,
                "psnr_mesh_look": fit.psnr_mesh, "psnr_captured": fit.psnr_captured,
-               "iterations": fit.iterations}  # fmt: skip
+               "iterations": fit.iterations, "view_error": fit.view_error,
+               "disagreeing_views": fit.disagreeing}  # fmt: skip
     with atomic_write(out / "robot.json", "w", encoding="utf-8") as f:
         json.dump(summary, f, indent=1)
     seen = sum(fit.seen_fraction[n] * len(g) for n, g in fit.link_gaussians.items()) / \
@@ -350,6 +351,12 @@ def _robot_gaussians(ws: Workspace, scene, robot: dict[str, Any], views_train: l
         f", held-out robot pixels {fit.psnr_mesh:.1f} dB in the mesh look -> {fit.psnr_captured:.1f} dB"  # fmt: skip
     robot["gaussians_line"] = (f"the robot's Gaussians (scene/robot/): {100 * seen:.0f} % seen by the keyframes"
                                f"{figures}")  # fmt: skip
+    if fit.disagreeing:
+        warning = (f"WARNING: the robot in keyframe(s) {', '.join(fit.disagreeing)} disagrees with the rest (its "
+                   "colours there are explained far worse): did the robot move while filming? Its joint state must "
+                   "be the same in every keyframe (align.capture_joints); remove those keyframes or film again")
+        robot["gaussians_line"] += f"; {warning}"
+        log(f"scene: {warning}")
     robot.update(psnr_mesh_look=fit.psnr_mesh, psnr_captured=fit.psnr_captured)
     log(f"scene: {robot['gaussians_line']}")
 
