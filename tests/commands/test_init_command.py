@@ -92,3 +92,21 @@ def test_bad_inputs_are_named_by_their_flag_and_nothing_is_written(tmp_path, cap
     err = capsys.readouterr().err
     assert err.startswith("m2m: error: ") and re.search(message, err), err
     assert not ws.exists()
+
+
+def test_init_takes_the_robots_joint_state_while_filming(tmp_path, capsys):
+    """--capture-joints lands in align.capture_joints and the summary says it; without it, the home pose is said."""
+    from fixtures import SAMPLE
+    from mirage2matter.cli import main
+    from mirage2matter.stages.pipeline import PipelineConfig
+
+    q = ["0.1", "-0.785", "0", "-2.356", "0", "1.571", "0.785"]
+    ws = tmp_path / "ws"
+    args = ["init", "-w", str(ws), "--video", str(SAMPLE / "scene.mp4"), "--board", str(SAMPLE / "board.json")]
+    assert main([*args, "--capture-joints", *q]) == 0
+    assert PipelineConfig.load(ws / "m2m.yaml").align.capture_joints == [float(v) for v in q]
+    assert "while filming: [0.1," in capsys.readouterr().out
+    assert main([*args, "--force"]) == 0
+    assert "its home pose (give --capture-joints" in capsys.readouterr().out
+    assert main([*args, "--force", "--capture-joints", "0", "1"]) == 2
+    assert "2 values given" in capsys.readouterr().err

@@ -32,6 +32,7 @@ SHORT = {
     "board_pose": "align.board_pose", "handeye_images": "handeye.images", "handeye_poses": "handeye.joints",
     "handeye_board": "handeye.board", "handeye_intrinsics": "handeye.intrinsics", "head_photo": "head_view.photo",
     "robot": "align.robot", "objects": "objects.names", "task": "generate.task", "episodes": "generate.episodes",
+    "capture_joints": "align.capture_joints",
 }  # fmt: skip
 
 EXAMPLE = """example:
@@ -88,6 +89,9 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     g.add_argument("--episodes", type=int_at_least(1), metavar="N", help="successful episodes per task")
     g.add_argument("--robot", metavar="NAME", help="the robot at the base, a registered robot name (else the default "
                    "one): sets align.robot and world.robot, and the hand-eye's robot model")  # fmt: skip
+    g.add_argument("--capture-joints", nargs="+", type=float, metavar="RAD", help="the robot's joint angles while "
+                   "you filmed (radians, as it logged them; default: its home pose): how align-scene and train-scene "
+                   "find the robot in the capture")  # fmt: skip
     p.add_argument("--force", action="store_true", help="replace the workspace's m2m.yaml if it has one")
     add_settings(p, full)  # every field as --<stage>.<field> (when full: imports every stage's libraries)
     p.set_defaults(func=run)
@@ -112,6 +116,8 @@ def _settings(args: argparse.Namespace) -> Any:
         value = getattr(args, name, None)
         if value is not None:
             given[field] = value.resolve() if isinstance(value, Path) else value
+    if args.capture_joints is not None:
+        given["align.capture_joints"] = list(args.capture_joints)
     if args.handeye_images is not None and args.handeye_board is None and args.board is not None:
         given["handeye.board"] = args.board.resolve()  # one board for both, unless a second is named
     if args.robot is not None:
@@ -200,6 +206,10 @@ def run(args: argparse.Namespace) -> int:
     lines = [f"m2m init: wrote {show(ws.config_file)} (every setting, each explained; edit it to change any)",
              f"  m2m run will run  {', '.join(runs)}"]  # fmt: skip
     lines += [f"  and skip {name:<9} {why}" for name, why in plan.items() if why is not None]
+    if not cfg.align.unaligned and cfg.align.robot.lower() != "none":
+        joints = cfg.align.capture_joints
+        lines.append(f"  the robot ({cfg.align.robot}) while filming: " + (
+            f"{list(joints)} rad" if joints else "its home pose (give --capture-joints if it stood elsewhere)"))
     lines.append(f"next: m2m run -w {show(ws.root)}")
     print("\n".join(lines))
     return 0
