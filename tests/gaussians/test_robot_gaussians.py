@@ -88,7 +88,8 @@ def test_a_keyframe_where_the_robot_stood_elsewhere_is_named(robot):
     K = np.array([[150.0, 0, 80.0], [0, 150.0, 60.0], [0, 0, 1]])
     views, sils = [], []
     for i, a in enumerate(np.linspace(-0.9, 0.9, 6)):
-        cam = Camera(K, look_at_pose((0.2 + 1.4 * np.cos(a), 1.4 * np.sin(a), 0.7), (0.1, 0.0, 0.35)), 160, 120, f"k{i}")
+        eye = (0.2 + 1.4 * np.cos(a), 1.4 * np.sin(a), 0.7)
+        cam = Camera(K, look_at_pose(eye, (0.1, 0.0, 0.35)), 160, 120, f"k{i}")
         pose = moved if i == 4 else T
         with torch.no_grad():
             img = render(posed_robot(lg, pose), torch.tensor(cam.viewmat, dtype=torch.float32),
