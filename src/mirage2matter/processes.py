@@ -152,8 +152,9 @@ class TimedWorker:
         if self.proc is None:
             return
         try:
-            self._conn.send(None)
-            self.proc.join(timeout=30)
+            if self._conn is not None:  # None when the start failed before the pipe was kept
+                self._conn.send(None)
+                self.proc.join(timeout=30)
         except (OSError, BrokenPipeError):
             pass
         self._kill()
