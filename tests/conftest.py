@@ -27,6 +27,21 @@ def fox_dir() -> Path:
 
 
 @pytest.fixture(scope="session")
+def turned_panda():
+    """(spec, links): the Franka Panda's link surfaces at home turned 0.35 rad about its base (the robot samples'
+    capture pose), shared by the robot-view and robot-Gaussian tests (MuJoCo FK, ~0.5 s)."""
+    import numpy as np
+
+    from mirage2matter.robots import get_robot
+    from mirage2matter.robots.surface import robot_surface
+
+    spec = get_robot("panda")
+    q = np.asarray(spec.home, float)
+    q[0] -= 0.35
+    return spec, robot_surface(spec, q)
+
+
+@pytest.fixture(scope="session")
 def sample_world_ws(tmp_path_factory, sample_dir):
     """``make(**sample_world options) -> workspace`` whose ``world/`` is the sample's ground truth (assets in
     ``world/assets``), built once per set of options in this session (CoACD takes a few seconds)."""

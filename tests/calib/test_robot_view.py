@@ -9,16 +9,12 @@ from mirage2matter.calib.robot_view import fit_to_robot, robot_points, robot_sil
 from mirage2matter.geometry.camera import Camera, look_at_pose
 from mirage2matter.geometry.rotation import axis_angle_to_matrix
 from mirage2matter.geometry.sim3 import Sim3
-from mirage2matter.robots import get_robot
-from mirage2matter.robots.surface import robot_surface, sample_surface
+from mirage2matter.robots.surface import sample_surface
 
 
 @pytest.fixture(scope="module")
-def scene():
-    spec = get_robot("panda")
-    q = np.asarray(spec.home, float)
-    q[0] -= 0.35
-    links = robot_surface(spec, q)
+def scene(turned_panda):
+    spec, links = turned_panda
     K = np.array([[260.0, 0, 160.5], [0, 260.0, 120.0], [0, 0, 1]])
     cams = [Camera(K, look_at_pose((0.2 + 1.3 * np.cos(a), 1.3 * np.sin(a), 0.8), (0.15, 0.0, 0.3)), 320, 240, f"c{i}")
             for i, a in enumerate(np.linspace(-2.2, 2.2, 10))]  # fmt: skip

@@ -18,11 +18,8 @@ from mirage2matter.robots.surface import robot_surface
 
 
 @pytest.fixture(scope="module")
-def robot():
-    spec = get_robot("panda")
-    q = np.asarray(spec.home, float)
-    q[0] -= 0.35
-    links = robot_surface(spec, q)
+def robot(turned_panda):
+    _, links = turned_panda
     return links, {link.link: link.T_base_link for link in links}
 
 

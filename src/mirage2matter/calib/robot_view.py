@@ -33,8 +33,8 @@ from ..geometry.rotation import rotation_angle
 from ..geometry.sim3 import Sim3
 from ..robots.surface import LinkSurface, sample_surface
 
-__all__ = ["RobotFit", "RobotPoints", "fit_to_robot", "robot_points", "robot_silhouette", "robot_silhouettes",
-           "visual_hull"]  # fmt: skip
+__all__ = ["RobotFit", "RobotPoints", "fit_to_robot", "grow_mask", "robot_points", "robot_silhouette",
+           "robot_silhouettes", "visual_hull"]  # fmt: skip
 
 # A point this close (m) to a link's surface is the robot's: SfM noise on a textured link at ~1 m is a few mm, and
 # the link meshes are the model's, not the real casting (a few mm off in places).
@@ -47,6 +47,15 @@ SEEN_MIN_POINTS = 20
 NEAR_ROBOT_M = 0.08  # "around the robot" for RobotPoints.on_fraction
 POSE_MIN_ON_FRACTION = 0.85  # below it, the robot's points lie beside its model: a wrong joint state
 SEEN_POINT_FRACTION = 0.01
+
+
+def grow_mask(mask: np.ndarray, px: int) -> np.ndarray:
+    """bool [H,W]: ``mask`` grown by ``px`` pixels (a square neighbourhood; 0: as it is)."""
+    import cv2
+
+    if px <= 0:
+        return np.asarray(mask, bool)
+    return cv2.dilate(np.asarray(mask, np.uint8), np.ones((2 * px + 1, 2 * px + 1), np.uint8)).astype(bool)
 
 
 def robot_silhouette(camera: Camera, links: Sequence[LinkSurface], dilate_px: int = 0) -> np.ndarray:
@@ -70,9 +79,7 @@ def robot_silhouette(camera: Camera, links: Sequence[LinkSurface], dilate_px: in
         # one triangle a call: fillPoly over many polygons fills their overlaps by parity, leaving holes
         for poly in np.round(uv[tri] * (1 << shift)).astype(np.int32):
             cv2.fillConvexPoly(mask, poly, 1, lineType=cv2.LINE_8, shift=shift)
-    if dilate_px > 0:
-        mask = cv2.dilate(mask, np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8))
-    return mask.astype(bool)
+    return grow_mask(mask, dilate_px)
 
 
 def robot_silhouettes(cameras: Sequence[Camera], links: Sequence[LinkSurface], dilate_px: int = 0) -> list[np.ndarray]:

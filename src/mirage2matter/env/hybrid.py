@@ -17,6 +17,8 @@ from .config import EnvConfig, HybridOptions
 from .robot_proxy import render_robot_file
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from ..sim.twin import Twin
     from ..world.config import WorldConfig
     from .episode import EpisodeDraw
@@ -182,14 +184,19 @@ class HybridRenderer:
 ROBOT_PART = "robot/"  # a robot link's movable part: robot/<link>
 
 
-def robot_links(world: WorldConfig) -> list[str]:
-    """The links whose Gaussians the world's robot has (``robot.gaussians``/robot.json), in its order."""
+def robot_link_files(world: WorldConfig) -> dict[str, Path]:
+    """{link: its Gaussians' PLY} of the world's robot (``robot.gaussians``/robot.json), in its order; {} without."""
     import json
 
     if world.robot.gaussians is None:
-        return []
+        return {}
     info = json.loads((world.robot.gaussians / "robot.json").read_text(encoding="utf-8"))
-    return list(info["links"])
+    return {link: world.robot.gaussians / f for link, f in info["links"].items()}
+
+
+def robot_links(world: WorldConfig) -> list[str]:
+    """The links whose Gaussians the world's robot has, in its order."""
+    return list(robot_link_files(world))
 
 
 def splat_parts(world: WorldConfig, objects: bool = True, robot: bool = False) -> dict[str, Any]:
@@ -204,10 +211,7 @@ def splat_parts(world: WorldConfig, objects: bool = True, robot: bool = False) -
             parts.append([a.name, str(a.base.gaussians), float(a.placement.scale)])
             parts.append([f"{a.name}/cap", str(a.cap.gaussians), float(a.placement.scale)])
     if robot:
-        import json
-
-        info = json.loads((world.robot.gaussians / "robot.json").read_text(encoding="utf-8"))
-        parts += [[f"{ROBOT_PART}{link}", str(world.robot.gaussians / f), 1.0] for link, f in info["links"].items()]
+        parts += [[f"{ROBOT_PART}{link}", str(path), 1.0] for link, path in robot_link_files(world).items()]
     scene = str(world.scene_gaussians) if world.scene_gaussians is not None else None
     return {"scene": scene, "parts": parts}
 

@@ -147,7 +147,7 @@ def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarra
     if cfg.robot.lower() == "none":
         return {"seen": False, "line": "robot: none given (align.robot none)", "on_robot": None}
     from ..calib.align import apply_to_cameras
-    from ..calib.robot_view import POSE_MIN_ON_FRACTION, fit_to_robot, robot_points, robot_silhouettes
+    from ..calib.robot_view import POSE_MIN_ON_FRACTION, fit_to_robot, robot_points, robot_silhouettes, visual_hull
     from ..robots import get_robot
     from ..robots.surface import check_capture_joints, robot_surface
 
@@ -167,10 +167,10 @@ def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarra
         record["line"] = (f"robot: not in the keyframes ({found.on_surface} SfM points on its surface at "
                           f"{given.split(':')[0]}); nothing removed")  # fmt: skip
         return {**record, "on_robot": None}
-    # the visual hull too: points every view sees inside the robot are the robot's even off its model surface
-    silhouettes = robot_silhouettes([c.scaled(0.25) for c in cameras], links, dilate_px=1)
-    found = robot_points(points, links, [c.scaled(0.25) for c in cameras], silhouettes)
-    on = found.on_robot
+    # the visual hull too (only now: the silhouettes cost ~0.3 s a keyframe): points every view sees inside the robot
+    # are the robot's even off its model surface
+    small = [c.scaled(0.25) for c in cameras]
+    on = found.on_robot | visual_hull(points, small, robot_silhouettes(small, links, dilate_px=1))
     tri = result.triangulation
     corners_base = board.points_board(tri.ids) @ T_base_board[:3, :3].T + T_base_board[:3, 3]
     near = on & (found.distance <= 0.03)

@@ -280,10 +280,9 @@ def _robot_masks(ws: Workspace, views: list, frame: str, margin_px: int, log: Lo
     record = json.loads(ws.robot_capture_file.read_text(encoding="utf-8"))
     if not record.get("seen"):
         return None
-    import cv2
     import torch
 
-    from ..calib.robot_view import robot_silhouette
+    from ..calib.robot_view import grow_mask, robot_silhouette
     from ..geometry.camera import Camera
     from ..geometry.sim3 import invert_rigid
     from ..robots import get_robot
@@ -295,9 +294,8 @@ def _robot_masks(ws: Workspace, views: list, frame: str, margin_px: int, log: Lo
         h, w = v.image.shape[:2]
         cam = Camera(K=v.K.numpy().astype(np.float64), T_world_cam=invert_rigid(v.viewmat.numpy().astype(np.float64)),
                      width=w, height=h, name=v.name)  # fmt: skip
-        exact = robot_silhouette(cam, links)
-        sil = cv2.dilate(exact.astype(np.uint8), np.ones((2 * margin_px + 1,) * 2, np.uint8)).astype(bool) \
-            if margin_px > 0 else exact  # fmt: skip
+        exact = robot_silhouette(cam, links)  # rasterized once: grown for the mask, exact for the robot's own fit
+        sil = grow_mask(exact, margin_px)
         keep = torch.from_numpy(~sil)
         valid.append(v.mask)  # before the robot is taken out: the robot's own fit reads its pixels
         v.mask = keep if v.mask is None else v.mask & keep
@@ -306,12 +304,11 @@ def _robot_masks(ws: Workspace, views: list, frame: str, margin_px: int, log: Lo
         exacts.append(exact)
         masked.append(float(sil.mean()))
     frac = float(np.mean(masked))
-    log(f"scene: the robot (calib/robot.json) masked out of every keyframe ({100 * frac:.1f} % of the pixels)")
+    line = (f"the robot (calib/robot.json) masked out of every keyframe ({100 * frac:.1f} % of the pixels, {margin_px} "
+            "px margin)")  # fmt: skip
+    log(f"scene: {line}")
     return {"cameras": cameras, "silhouettes": silhouettes, "exact": exacts, "valid": valid, "links": links,
-            "record": record,
-            "masked_fraction": frac,
-            "line": f"the robot (calib/robot.json) masked out of every keyframe ({100 * frac:.1f} % of the pixels, "
-            f"{margin_px} px margin)"}  # fmt: skip
+            "record": record, "masked_fraction": frac, "line": line}  # fmt: skip
 
 
 def _robot_gaussians(ws: Workspace, scene, robot: dict[str, Any], views_train: list, views_eval: list, config: Config,
