@@ -5,8 +5,8 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
-# Mesa EGL/GL for Genesis' headless cameras, libusb for open3d.
-APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libgl1 libglib2.0-0 libusb-1.0-0
+# Mesa EGL/GL for Genesis' headless cameras, libusb for open3d, chromium + its driver for the browser tests.
+APT_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libgl1 libglib2.0-0 libusb-1.0-0 chromium chromium-driver
 
 .PHONY: setup apt demo test test-slow bench lint clean
 
@@ -19,7 +19,7 @@ apt:
 	  sudo=$$([ "$$(id -u)" = 0 ] || echo sudo); \
 	  echo "apt: installing $$missing"; \
 	  ( $$sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$sudo apt-get install -y -qq --no-install-recommends $$missing >/dev/null ) \
-	  || echo "WARNING: could not install apt packages ($$missing); rendering robots with Genesis will need them"; \
+	  || echo "WARNING: could not install apt packages ($$missing); rendering robots with Genesis and the browser tests will need them"; \
 	fi
 
 $(STAMP): pyproject.toml constraints.txt
