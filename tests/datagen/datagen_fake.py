@@ -2,17 +2,21 @@
 
 Episodes are smooth synthetic pictures and random state/action arrays drawn from the attempt seed,
 so the same seed gives the same bytes; attempts whose seed is divisible by 4 "fail". ``delay``
-slows every attempt down (for the kill test)."""
+slows every attempt down (for the kill test). ``texture``: a file of the "world" the pictures depend on (read where
+the source is built: shipped to Ray workers as content, ``portable``); ``die_at``: the worker running that attempt
+exits at once, the first time only (``die_marker`` remembers it), as a killed worker does."""
 
 from __future__ import annotations
 
 import os
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from mirage2matter.datagen import Attempt
+from mirage2matter.datagen.shipping import ShippedFactory, pack
 from mirage2matter.export import DatasetSpec, EpisodeData
 
 BUILDS_ENV = "M2M_TEST_FAKE_BUILDS"  # a file to log every FakeSource built to (workers inherit the environment)
@@ -25,10 +29,13 @@ SPEC = DatasetSpec(
 
 
 class FakeSource:
-    def __init__(self, delay: float = 0.0, task: str = "grasp banana"):
+    def __init__(self, delay: float = 0.0, task: str = "grasp banana", texture: str = "", die_at: int = -1,
+                 die_marker: str = ""):  # fmt: skip
         self.spec = SPEC
         self.delay = delay
         self.task = task
+        self.shift = sum(Path(texture).read_bytes()) % 40 if texture else 0
+        self.die_at, self.die_marker = die_at, die_marker
         if os.environ.get(BUILDS_ENV):  # one line per source built (a worker pool's test counts them)
             with open(os.environ[BUILDS_ENV], "a") as f:
                 f.write(f"{os.getpid()} {task}\n")
@@ -42,6 +49,12 @@ class FakeSource:
 
     def run(self, attempt: int, seed: int) -> Attempt:
         time.sleep(self.delay)
+        if attempt == self.die_at:
+            try:
+                os.close(os.open(self.die_marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+                os._exit(1)  # the worker dies mid-attempt, once
+            except FileExistsError:
+                pass
         rng = np.random.default_rng(seed)
         if seed % 4 == 0:
             return Attempt(False, "fake failure", record={"seed_mod4": 0})
@@ -49,7 +62,7 @@ class FakeSource:
         images = {}
         for cam, (h, w) in SPEC.cameras.items():
             yy, xx = np.mgrid[0:h, 0:w]
-            base = rng.uniform(20, 200, 3)
+            base = rng.uniform(20, 200, 3) + self.shift
             frames = [np.clip(base + 30 * np.stack([xx / w, yy / h, np.full_like(xx, i / t, float)], -1), 0, 255)
                       for i in range(t)]  # fmt: skip
             images[cam] = np.stack(frames).astype(np.uint8)
@@ -63,9 +76,17 @@ class FakeSource:
 class FakeFactory:
     delay: float = 0.0
     task: str = "grasp banana"
+    texture: str = ""  # a file in a workspace (shipped from <workspace>, the folder above its folder)
+    die_at: int = -1
+    die_marker: str = ""
 
     def __call__(self) -> FakeSource:
-        return FakeSource(self.delay, self.task)
+        return FakeSource(self.delay, self.task, self.texture, self.die_at, self.die_marker)
+
+    def portable(self) -> ShippedFactory | FakeFactory:
+        if not self.texture:
+            return self
+        return ShippedFactory(self, pack([Path(self.texture)], Path(self.texture).parents[1]))
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,8 @@ paths); ``generate_dataset`` is the procedure behind it for any episode source. 
 
 from .config import GenerateConfig, Randomization
 from .dataset import GenerateError, RunConfig, check_output, generate_dataset
-from .runner import Attempt, EpisodeSource, RunnerError, WorkerPool, attempt_seed, connect_ray, run_attempts
+from .ray_workers import connect_ray
+from .runner import Attempt, EpisodeSource, RunnerError, WorkerPool, attempt_seed, run_attempts
 from .simulated import BENCH_KEYS, bench_datagen, dataset_fingerprint, generate, task_slug, worker_pool
 
 __all__ = [

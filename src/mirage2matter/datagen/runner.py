@@ -5,8 +5,11 @@ builds one source once (for the simulator: the Genesis twin and the splat world)
 many attempts with it. Sources are made by a picklable zero-argument *factory* so the same code
 runs in a worker process or a Ray actor.
 
-Every attempt is committed to the staging area by the worker that ran it (export/staging.py), so
-the parent only keeps counts. Which attempts run is fixed by the seeds alone: attempt k uses
+A worker runs an attempt and encodes it (videos, frame table, record: ``export.staging.encode_attempt``) and returns
+it as content; the parent commits it into the staging area (``write_attempt``), so workers write nothing on the
+parent's disk and may run on other machines (Ray; the world reaches them as content, datagen/shipping.py).
+
+Which attempts run is fixed by the seeds alone: attempt k uses
 ``attempt_seed(seed, k)``, attempts are handed out in order, and a new one starts only while the
 successes so far plus the attempts in flight are fewer than wanted. The attempts that run are then
 always the shortest prefix 0..K-1 holding the wanted number of successes, whatever the runner,
@@ -24,94 +27,28 @@ import time
 import traceback
 import uuid
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
-import numpy as np
-
-from ..errors import M2MError
-from ..export.spec import DatasetSpec, EpisodeData
-from ..export.staging import commit_attempt
+from ..export.staging import write_attempt
 from ..processes import die_with_parent
+from .worker import Attempt, EpisodeSource, Job, RunnerError, Server, SourceFactory, attempt_seed
 
-
-class RunnerError(M2MError, RuntimeError):
-    """A worker failed (crashed, raised, or Ray could not be reached); the message says which and why."""
-
-
-@dataclass
-class Attempt:
-    """What one attempt produced: an episode (success) or a reason (failure), with the record of
-    its randomisation and where its time went (seconds per stage)."""
-
-    success: bool
-    reason: str = ""
-    episode: EpisodeData | None = None
-    record: dict[str, Any] = field(default_factory=dict)
-    timings: dict[str, float] = field(default_factory=dict)
-
-
-class EpisodeSource(Protocol):
-    spec: DatasetSpec
-
-    def run(self, attempt: int, seed: int) -> Attempt: ...
-
-
-SourceFactory = Callable[[], EpisodeSource]
-
-
-def attempt_seed(seed: int, attempt: int) -> int:
-    """The seed of attempt ``attempt`` of a run seeded ``seed`` (independent streams per attempt)."""
-    return int(np.random.SeedSequence([int(seed), int(attempt)]).generate_state(1, np.uint32)[0])
-
-
-def _run_and_commit(source: EpisodeSource, staging_root: Path, attempt: int, seed: int) -> dict[str, Any]:
-    t0, cpu0 = time.time(), time.process_time()
-    out = source.run(attempt, seed)
-    t1 = time.time()
-    result = {"seed": seed, "success": out.success, "reason": out.reason, "record": out.record,
-              "timings": dict(out.timings)}  # fmt: skip
-    committed = commit_attempt(staging_root, source.spec, attempt, result, out.episode if out.success else None)
-    committed["timings"]["commit"] = time.time() - t1
-    # CPU seconds of this process (its GL and numba threads included): the cost of an attempt however
-    # busy the machine is with other work.
-    committed.update(t_start=t0, t_end=time.time(), cpu_s=time.process_time() - cpu0, worker=os.getpid())
-    return committed
+__all__ = ["Attempt", "EpisodeSource", "Job", "RunStats", "RunnerError", "SourceFactory", "WorkerPool",
+           "attempt_seed", "commit", "run_attempts"]
 
 
 # ---- backends: start(job) (blocks until every worker has built its source), submit, next_result -----------
-@dataclass(frozen=True)
-class Job:
-    """One run's attempts: the factory of its source, the staging folder its attempts are committed to, and a key
-    naming the run (a worker serving another key moves its source over)."""
-
-    factory: SourceFactory
-    staging_root: Path
-    key: str
-
-
-class _Server:
-    """A worker's source and the job it serves. A pool's workers serve one dataset's job after another: a source
-    with ``retarget(factory) -> bool`` takes the next job's episodes over when it can (the simulator: the same world
-    and frames, another task; nothing rebuilt), otherwise a new one is built from the job's factory."""
-
-    def __init__(self, job: Job):
-        self.source, self.key = job.factory(), job.key
-
-    def run(self, job: Job, attempt: int, seed: int) -> dict[str, Any]:
-        if job.key != self.key:
-            retarget = getattr(self.source, "retarget", None)
-            if retarget is None or not retarget(job.factory):
-                self.close()
-                self.source = job.factory()
-            self.key = job.key
-        return _run_and_commit(self.source, job.staging_root, attempt, seed)
-
-    def close(self) -> None:
-        close = getattr(self.source, "close", None)
-        if close is not None:
-            close()
+def commit(staging_root: Path, ran: dict[str, Any]) -> dict[str, Any]:
+    """Commit an attempt a worker ran (``worker.run_attempt``) into the staging area, in the parent; returns its
+    result record with where its time went (not written: the timings of the run that made it)."""
+    t = time.time()
+    committed = dict(write_attempt(staging_root, ran["result"], ran["files"]))
+    committed["timings"] = {**committed.get("timings", {}), "commit": ran["encode_s"] + time.time() - t}
+    committed.update(t_start=ran["t_start"], t_end=ran["t_end"] + time.time() - t, cpu_s=ran["cpu_s"],
+                     worker=ran["worker"])  # fmt: skip
+    return committed
 
 
 class _Inline:
@@ -119,10 +56,10 @@ class _Inline:
 
     def __init__(self):
         self.pending: list[tuple[Job, int, int]] = []
-        self.server: _Server | None = None
+        self.server: Server | None = None
 
     def start(self, job: Job) -> None:
-        self.server = _Server(job)
+        self.server = Server(job)
 
     def submit(self, job: Job, attempt: int, seed: int) -> None:
         self.pending.append((job, attempt, seed))
@@ -144,7 +81,7 @@ def _worker_main(job, threads, tasks, results, parent) -> None:  # runs in a wor
         from .. import configure_threads
 
         configure_threads(threads)
-        server = _Server(job)
+        server = Server(job)
         results.put(("ready", os.getpid(), None))
     except BaseException:
         results.put(("error", os.getpid(), traceback.format_exc()))
@@ -237,62 +174,9 @@ class _Processes:
                 p.kill()
 
 
-class _Ray:
-    """One Ray actor per worker; each builds its source once in its constructor."""
-
-    name = "ray"
-
-    def __init__(self, workers: int, address: str):
-        self.n, self.address = workers, address
-        self.futures: dict = {}
-        self.idle: list = []
-
-    def start(self, job: Job) -> None:
-        self.ray = connect_ray(self.address, self.n)
-
-        @self.ray.remote(num_cpus=1)
-        class Worker:
-            def __init__(self, job):
-                os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-                from mirage2matter import configure_threads
-
-                configure_threads(1)
-                self.server = _Server(job)
-
-            def ready(self) -> int:
-                return os.getpid()
-
-            def run(self, job, attempt, seed):
-                return self.server.run(job, attempt, seed)
-
-        self.actors = [Worker.remote(job) for _ in range(self.n)]
-        try:
-            self.ray.get([a.ready.remote() for a in self.actors])
-        except Exception as e:
-            raise RunnerError(f"a Ray worker failed while starting: {e}") from None
-        self.idle = list(self.actors)
-
-    def submit(self, job: Job, attempt: int, seed: int) -> None:
-        actor = self.idle.pop()
-        self.futures[actor.run.remote(job, attempt, seed)] = actor
-
-    def next_result(self) -> dict[str, Any]:
-        done, _ = self.ray.wait(list(self.futures), num_returns=1)
-        actor = self.futures.pop(done[0])
-        self.idle.append(actor)
-        try:
-            return self.ray.get(done[0])
-        except Exception as e:
-            raise RunnerError(f"a Ray worker failed: {e}") from None
-
-    def close(self) -> None:
-        for a in getattr(self, "actors", []):
-            self.ray.kill(a)
-
-
 class WorkerPool:
     """Workers (in-process, local processes, or Ray actors) kept for several runs, e.g. one dataset per task: each
-    worker builds its source once, on the first run's job, and moves it to a later run's job (``_Server``), so the
+    worker builds its source once, on the first run's job, and moves it to a later run's job (``Server``), so the
     runs pay one start-up (Genesis build, kernel and renderer warm-up) instead of one each. Starts on the first
     attempt handed to it (none at all when every dataset is already done); ``close`` (or leaving the ``with``)
     stops the workers. A run that fails closes the pool (its workers may still hold the failed run's attempts); a
@@ -316,7 +200,9 @@ class WorkerPool:
         if self.running:
             return
         if self.ray_address:
-            backend: Any = _Ray(self.workers, self.ray_address)
+            from .ray_workers import RayWorkers
+
+            backend: Any = RayWorkers(self.workers, self.ray_address)
         elif self.workers > 1:
             backend = _Processes(self.workers)
         else:
@@ -344,46 +230,6 @@ class WorkerPool:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def connect_ray(address: str, workers: int = 1):
-    """``local``: start a private Ray instance on this machine; ``auto`` or ``host:port``: join that
-    cluster. A cluster that does not answer raises RunnerError (after at most ~10 s)."""
-    try:
-        import ray
-    except ImportError:
-        raise RunnerError("--ray-address needs the `ray` package (pip install ray)") from None
-    if ray.is_initialized():
-        return ray
-    kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "ignore_reinit_error": True}
-    if address == "local":
-        kwargs["num_cpus"] = max(workers, 1)
-    else:
-        if address != "auto" and not _answers(address):
-            raise RunnerError(f"no Ray cluster answers at {address}; start one with `ray start --head` "
-                              "or use --ray-address local for a private instance")  # fmt: skip
-        kwargs["address"] = address
-    # Workers must import this package the way the driver does.
-    src = str(Path(__file__).resolve().parents[2])
-    kwargs["runtime_env"] = {"env_vars": {"PYTHONPATH": os.pathsep.join([src, os.environ.get("PYTHONPATH", "")])}}
-    try:
-        ray.init(**kwargs)
-    except (ConnectionError, RuntimeError, ValueError) as e:
-        raise RunnerError(f"cannot reach a Ray cluster at {address!r}: {e}") from None
-    return ray
-
-
-def _answers(address: str, timeout: float = 5.0) -> bool:
-    import socket
-
-    host, _, port = address.rpartition(":")
-    if address.startswith("ray://"):
-        host, _, port = address[len("ray://") :].rpartition(":")
-    try:
-        with socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout):
-            return True
-    except (OSError, ValueError):
-        return False
 
 
 # ---- the attempt loop ---------------------------------------------------------------------------------
@@ -416,7 +262,7 @@ def run_attempts(
     own = pool is None
     if pool is None:
         pool = WorkerPool(workers, ray_address)
-    job = Job(factory, Path(staging.root), uuid.uuid4().hex)
+    job = Job(factory, uuid.uuid4().hex)
 
     def successes() -> int:
         return sum(1 for r in done.values() if r.get("success"))
@@ -440,7 +286,7 @@ def run_attempts(
                 nxt += 1
             if not in_flight:
                 break
-            r = pool.next_result()
+            r = commit(Path(staging.root), pool.next_result())  # here, in the parent: workers write nothing
             in_flight.discard(r["attempt"])
             done[r["attempt"]] = r
             new += 1

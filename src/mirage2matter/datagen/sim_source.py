@@ -16,8 +16,10 @@ recorded from there (the policy's ticks are not recorded: their actions are not 
 from __future__ import annotations
 
 import json
+import os
 import time
 from dataclasses import asdict, dataclass, field, fields, is_dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -27,7 +29,7 @@ from ..export.spec import DatasetSpec, EpisodeData
 from ..sim.tasks import Task
 from ..world.config import WorldConfig
 from .config import Takeover
-from .runner import Attempt
+from .worker import Attempt
 
 __all__ = ["SimEpisodeSource", "SimSourceConfig", "SimSourceFactory"]
 
@@ -232,3 +234,47 @@ class SimSourceFactory:
 
     def __call__(self) -> SimEpisodeSource:
         return SimEpisodeSource(self.cfg, self.splat_server)
+
+    def portable(self) -> Any:
+        """This factory with the files its episodes read (the world's splats, meshes, collision parts, robot
+        Gaussians and spec, a takeover's policies: those inside the world's workspace) as content, for workers on
+        machines that do not see this one's disk (datagen/shipping.py)."""
+        from .shipping import ShippedFactory, pack
+
+        if self.splat_server is not None:
+            raise RuntimeError("a splat server's handle serves local worker processes only")  # refused in _check
+        return ShippedFactory(self, pack(_files(self.cfg), self.cfg.world.root.parent))
+
+    def resources(self) -> Any:
+        """What a Ray worker of this source asks for: a CPU for physics and encoding, and a share of a GPU when the
+        splat renderer is told to use CUDA (its options, or ``M2M_RENDER_BACKEND=cuda`` on the driver, which the workers
+        get too): Ray then places it on a GPU node; "auto" asks for none."""
+        from .ray_workers import RayResources
+
+        backend = self.cfg.hybrid.splat.backend
+        gpu = (os.environ.get("M2M_RENDER_BACKEND", "auto") if backend == "auto" else backend) == "cuda"
+        return RayResources(num_cpus=1.0, num_gpus=GPU_SHARE if gpu else 0.0)
+
+
+GPU_SHARE = 0.25  # of one GPU per Ray worker rendering splats on CUDA: a few workers' small frames share a card
+
+
+def _files(cfg: SimSourceConfig) -> list[Path]:
+    """Every file or folder an environment built from ``cfg`` opens (a mesh with the materials and textures beside
+    it, as ``m2m world insert`` copies them)."""
+    from ..robots import is_spec_file
+
+    world = cfg.world
+    out: list[Path] = [world.root]
+    parts = [o.part for o in world.objects] + [p for a in world.articulated for p in (a.base, a.cap)]
+    for part in parts:
+        out += [p for p in (part.gaussians, part.collision) if p is not None]
+        if part.mesh is not None:
+            out.append(part.mesh)
+            out += [x for x in part.mesh.parent.glob("*") if x.suffix.lower() in (".mtl", ".png", ".jpg", ".jpeg")]
+    robot = world.robot
+    out += [p for p in (world.scene_gaussians, robot.gaussians) if p is not None]
+    out += [Path(f) for f in (robot.name if is_spec_file(robot.name) else "", robot.file) if f and Path(f).exists()]
+    if cfg.takeover is not None:
+        out += [Path(d) for d in cfg.takeover.policies]
+    return out

@@ -140,6 +140,65 @@ class Staging:
         shutil.rmtree(self.root, ignore_errors=True)
 
 
+def encode_attempt(
+    spec: DatasetSpec,
+    attempt: int,
+    result: dict[str, Any],
+    episode: EpisodeData | None,
+) -> tuple[dict[str, Any], dict[str, bytes]]:
+    """One attempt as content: (its result record, its files by name: frames.parquet and one MP4 per camera for a
+    success, none for a failure). Encoded in a private temporary folder, so a worker on any machine can make it
+    (the encoding is the costly part); :func:`write_attempt` puts it into the staging area."""
+    import tempfile
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    result = dict(result, attempt=attempt, success=episode is not None and bool(result.get("success", True)))
+    files: dict[str, bytes] = {}
+    if not result["success"]:
+        return result, files
+    assert episode is not None
+    episode.check(spec)
+    t = episode.length
+    with tempfile.TemporaryDirectory(prefix="m2m-attempt-") as d:
+        tmp = Path(d)
+        table = pa.table({
+            "observation.state": pa.FixedSizeListArray.from_arrays(
+                pa.array(episode.state.astype(np.float32).ravel()), len(spec.state_names)),
+            "action": pa.FixedSizeListArray.from_arrays(
+                pa.array(episode.action.astype(np.float32).ravel()), len(spec.action_names)),
+            "timestamp": pa.array((np.arange(t) / spec.fps).astype(np.float32)),
+            "frame_index": pa.array(np.arange(t, dtype=np.int64)),
+        })  # fmt: skip
+        pq.write_table(table, tmp / "frames.parquet")
+        image_stats = {}
+        for cam in spec.cameras:
+            key = video_key(cam)
+            encode_video(tmp / f"{key}.mp4", episode.images[cam], spec.fps, spec.video)
+            n, stats = decoded_image_stats(tmp / f"{key}.mp4")
+            if n != t:
+                raise RuntimeError(f"camera {cam}: the encoder wrote {n} frames for {t} given")
+            image_stats[key] = to_json(stats)
+        files = {p.name: p.read_bytes() for p in sorted(tmp.iterdir())}
+    result.update(task=episode.task, length=t, image_stats=image_stats)
+    return result, files
+
+
+def write_attempt(staging_root: Path, result: dict[str, Any], files: dict[str, bytes]) -> dict[str, Any]:
+    """Commit an encoded attempt (:func:`encode_attempt`) as ``attempts/attempt-NNNNNN``: built under a temporary
+    name and renamed only when complete. Returns ``result``."""
+    target = Path(staging_root) / "attempts" / f"attempt-{int(result['attempt']):06d}"
+    with atomic_dir(target) as tmp:
+        for name, data in files.items():
+            if Path(name).name != name or name in ("result.json", "") or name.startswith("."):
+                raise StagingError(f"attempt {result['attempt']}: refusing a file named {name!r}")  # a worker's bug
+            (tmp / name).write_bytes(data)
+        with atomic_write(tmp / "result.json", "w", encoding="utf-8") as f:
+            json.dump(result, f, indent=1)
+    return result
+
+
 def commit_attempt(
     staging_root: Path,
     spec: DatasetSpec,
@@ -147,43 +206,10 @@ def commit_attempt(
     result: dict[str, Any],
     episode: EpisodeData | None,
 ) -> dict[str, Any]:
-    """Commit one attempt (a success with its ``episode``, or a failure with ``episode=None``).
-
-    Encodes the episode's videos and its frames parquet inside a temporary folder that is renamed to
-    ``attempts/attempt-NNNNNN`` only when complete. Safe to call from worker processes. Returns the
-    result record as written (with length, task and decoded-video image stats added for successes).
-    """
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    result = dict(result, attempt=attempt, success=episode is not None and bool(result.get("success", True)))
-    target = Path(staging_root) / "attempts" / f"attempt-{attempt:06d}"
-    with atomic_dir(target) as tmp:
-        if result["success"]:
-            assert episode is not None
-            episode.check(spec)
-            t = episode.length
-            table = pa.table({
-                "observation.state": pa.FixedSizeListArray.from_arrays(
-                    pa.array(episode.state.astype(np.float32).ravel()), len(spec.state_names)),
-                "action": pa.FixedSizeListArray.from_arrays(
-                    pa.array(episode.action.astype(np.float32).ravel()), len(spec.action_names)),
-                "timestamp": pa.array((np.arange(t) / spec.fps).astype(np.float32)),
-                "frame_index": pa.array(np.arange(t, dtype=np.int64)),
-            })  # fmt: skip
-            pq.write_table(table, tmp / "frames.parquet")
-            image_stats = {}
-            for cam in spec.cameras:
-                key = video_key(cam)
-                encode_video(tmp / f"{key}.mp4", episode.images[cam], spec.fps, spec.video)
-                n, stats = decoded_image_stats(tmp / f"{key}.mp4")
-                if n != t:
-                    raise RuntimeError(f"camera {cam}: the encoder wrote {n} frames for {t} given")
-                image_stats[key] = to_json(stats)
-            result.update(task=episode.task, length=t, image_stats=image_stats)
-        with atomic_write(tmp / "result.json", "w", encoding="utf-8") as f:
-            json.dump(result, f, indent=1)
-    return result
+    """Encode and commit one attempt (a success with its ``episode``, or a failure with ``episode=None``) in one
+    process. Returns the result record as written (with length, task and decoded-video image stats added for
+    successes)."""
+    return write_attempt(staging_root, *encode_attempt(spec, attempt, result, episode))
 
 
 def consolidate(
