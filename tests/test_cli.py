@@ -19,6 +19,7 @@ import torch
 from PIL import Image
 
 import mirage2matter
+from fixtures.browser import chromium, open_page
 from mirage2matter.bench import RESULT_KEYS, bench_render
 from mirage2matter.cli import main
 from mirage2matter.gaussians.ply import read_ply, write_ply
@@ -291,6 +292,14 @@ def test_demo_first_stages_and_resume(tmp_path: Path, capsys: pytest.CaptureFixt
     assert "up to date" not in capsys.readouterr().out
     assert main(["align-scene", "-w", str(ws)]) == 0
     assert "up to date" in capsys.readouterr().out
+    # the run's page (the demo wrote it; `m2m report` again, now with align): every picture loads, every link exists
+    assert "m2m demo</code> <span class=\"ok\">finished" in (ws / "report.html").read_text()
+    assert main(["report", "-w", str(ws)]) == 0
+    with chromium() as browser:
+        text = open_page(browser, ws / "report.html")
+        images = browser.execute_script("return [...document.images].map(i => i.getAttribute('src'))")
+    assert "m2m demo finished" in text and "align done (not part of the last run)" in text
+    assert "calib/overlay.png" in images and len(images) == 7  # 6 keyframes and the alignment's overlay
 
 
 def test_demo_workspace_is_a_file(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
@@ -322,3 +331,23 @@ def test_bench_train_on_fox_prints_json_last(fox_dir: Path, capsys: pytest.Captu
     keys = {"psnr_heldout", "ssim_heldout", "iterations", "gaussians", "minutes", "budget_used", "backend"}
     assert set(result) == keys and 0.9 <= result["budget_used"] <= 1.0
     assert result["psnr_heldout"] > 18.0 and result["iterations"] > 50
+
+
+def test_a_setting_given_on_the_command_line_wins_over_an_exclusive_one_in_m2m_yaml(capsys):
+    """Issue 65: after `m2m sfm --from-transforms T`, `m2m sfm --intrinsics K` runs with K (T, from m2m.yaml, dropped
+    and said so), not T again; both on one command line are an error naming both."""
+    import argparse
+    from pathlib import Path
+
+    from mirage2matter.cli import _command_line_wins
+    from mirage2matter.errors import M2MError
+    from mirage2matter.stages import sfm
+
+    saved = sfm.Config(from_transforms=Path("T.json"))
+    cfg = _command_line_wins(sfm.Config(from_transforms=Path("T.json"), intrinsics=Path("K.json")),
+                             argparse.Namespace(intrinsics=Path("K.json")))  # fmt: skip
+    assert cfg.intrinsics == Path("K.json") and cfg.from_transforms is None
+    assert "--intrinsics given: from_transforms of m2m.yaml dropped" in capsys.readouterr().err
+    assert _command_line_wins(saved, argparse.Namespace()) == saved  # nothing given: m2m.yaml as it is
+    with pytest.raises(M2MError, match="intrinsics and from_transforms are both given"):
+        sfm.Config(from_transforms=Path("T.json"), intrinsics=Path("K.json")).validate()

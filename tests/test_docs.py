@@ -79,5 +79,5 @@ def test_configuration_reference_covers_every_stage():
     text = configuration_reference()
     for s in STAGES:
         assert f"## {s.name}: `m2m {s.command}`" in text
-    assert "| `minutes` | `--minutes` | float |" in text  # scene.minutes: setting, flag, type
-    assert "| `matting.iterations` | `--matting.iterations` | int |" in text  # a nested Config's field
+    assert "| `minutes` | `--minutes` | float in `[0, 100000]` |" in text  # scene.minutes: setting, flag, type, range
+    assert "| `matting.iterations` | `--matting.iterations` | int in `[1, 1000000]` |" in text  # nested

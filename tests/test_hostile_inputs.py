@@ -182,12 +182,12 @@ def _camera(width: int, height: int) -> str:
                        "T_world_cam": np.eye(4).tolist()})  # fmt: skip
 
 
-def _bad_pipeline_yaml(text: str) -> Callable[[Path, dict], list[str]]:
+def _bad_pipeline_yaml(text: str, command: str = "train-scene") -> Callable[[Path, dict], list[str]]:
     def setup(tmp: Path, fx: dict) -> list[str]:
         ws = tmp / "ws"
         ws.mkdir()
         (ws / "m2m.yaml").write_text(text)
-        return ["train-scene", "-w", str(ws)]
+        return [command, "-w", str(ws)]
 
     return setup
 
@@ -225,11 +225,100 @@ def _set(fn):
     return apply
 
 
+# ---- issue 65: values that are well-formed but make no sense -------------------------------------------------
+def _intrinsics(text: str, name: str = "cam.json") -> Callable[[Path, dict], list[str]]:
+    def setup(tmp: Path, fx: dict) -> list[str]:
+        (tmp / name).write_text(text)
+        return ["intrinsics", str(tmp / name)]
+
+    return setup
+
+
+def _K(fx: float = 500, fy: float = 500, cx: float = 320, cy: float = 240, **dist: float) -> str:
+    return json.dumps({"K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], "width": 640, "height": 480, "distortion": dist})
+
+
+def _truncated_xml() -> str:
+    return ('<?xml version="1.0"?>\n<opencv_storage>\n<image_width>640</image_width>\n<camera_matrix type_id="opencv-'
+            'matrix">\n  <rows>3</rows>\n  <cols>3</cols>\n  <dt>d</dt>\n  <data>\n    500. 0. 320. 0. 500.')
+
+
+def _panda_spec(edit) -> Callable[[Path, dict], list[str]]:
+    def setup(tmp: Path, fx: dict) -> list[str]:
+        from mirage2matter.robots import get_robot
+
+        data = yaml.safe_load(Path(get_robot("panda").source).read_text())
+        edit(data)
+        (tmp / "robot.yaml").write_text(yaml.safe_dump(data))
+        return ["robot", str(tmp / "robot.yaml")]
+
+    return setup
+
+
+def _backwards_mjcf(tmp: Path, fx: dict) -> list[str]:
+    (tmp / "arm.xml").write_text(
+        '<mujoco><worldbody><body name="link1"><joint name="j1" type="hinge" range="1.76 -1.76"/><geom size=".05"/>'
+        '<body name="link2" pos="0 0 .3"><joint name="j2" type="hinge" range="-1 1"/><geom size=".05"/></body>'
+        "</body></worldbody></mujoco>")  # fmt: skip
+    (tmp / "robot.yaml").write_text("name: arm\nmodel: arm.xml\narm: {joints: [j1, j2], home: [0, 0]}\n")
+    return ["robot", str(tmp / "robot.yaml")]
+
+
+def _big_images(tmp: Path, fx: dict) -> list[str]:
+    from PIL import Image
+
+    (tmp / "images").mkdir()  # the header says the size: a 17000 x 13000 image is refused as this one is
+    Image.new("L", (17000, 8)).save(tmp / "images" / "0.png")
+    return ["capture", str(tmp / "images"), "-w", str(tmp / "ws")]
+
+
+def _handeye_view_off(tmp: Path, fx: dict) -> list[str]:
+    he = SAMPLE / "handeye"
+    data = json.loads((he / "joints.json").read_text())
+    data["views"][5]["joints"][1] += 0.5  # one view's shoulder logged 0.5 rad off
+    (tmp / "joints.json").write_text(json.dumps(data))
+    return ["calibrate-handeye", "-w", str(tmp / "ws"), "--images", str(he / "images"), "--joints",
+            str(tmp / "joints.json"), "--board", str(he / "board.json"), "--intrinsics",
+            str(SAMPLE / "ground_truth.json")]  # fmt: skip
+
+
+def _sfm_two_sources(tmp: Path, fx: dict) -> list[str]:
+    ws = tmp / "ws"
+    shutil.copytree(fx["transforms"].parent.parent / "ws", ws)
+    (tmp / "cam.json").write_text(_K())
+    return ["sfm", "-w", str(ws), "--from-transforms", str(fx["transforms"]), "--intrinsics", str(tmp / "cam.json")]
+
+
+def _dataset(edit) -> Callable[[Path, dict], list[str]]:
+    def setup(tmp: Path, fx: dict) -> list[str]:
+        from fixtures.policy_datasets import build_dataset, spec_for
+
+        root = tmp / "ds"
+        build_dataset(root, spec_for(), seeds=(0,), length=4)
+        info = root / "meta" / "info.json"
+        data = json.loads(info.read_text())
+        edit(root, data)
+        info.write_text(json.dumps(data))
+        return ["validate", str(root)]
+
+    return setup
+
+
+def _extra_column(root: Path, info: dict) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    path = next(root.glob("data/**/*.parquet"))
+    table = pq.read_table(path)
+    pq.write_table(table.append_column("secret", pa.array([1.0] * len(table))), path)
+
+
 CASES = [
     Case("sfm --from-colmap: an image name that climbs out of the images folder", _colmap_escape, "stay inside"),
     Case("sfm --from-transforms: images of another size than the file says (capture/ kept)",
          _transforms_wrong_size, "transforms|size|images"),  # fmt: skip
-    Case("capture: a video damaged by 3,000 flipped bytes", _corrupt_video, r"only \d+ of its 720 frames decode"),
+    Case("capture: a video damaged by 3,000 flipped bytes", _corrupt_video,
+         r"only \d+ of its 720 frames decode|decoding failed at frame \d+.*damaged from there"),
     Case("calibrate-handeye: a view with 2 of 9 joint values", _handeye_missing_joints, r"2 joint value"),
     Case("world.yaml: NaN in robot.home", _edit_world_yaml(_home([float("nan")] * 7)), r"robot\.home.*finite"),
     Case("world.yaml: robot.home is a number", _edit_world_yaml(_home(5)), r"robot\.home"),
@@ -273,6 +362,41 @@ CASES = [
     Case("m2m.yaml: a wrong type", _bad_pipeline_yaml("scene:\n  minutes: soon\n"),
          r"scene\.minutes: expected a number"),  # fmt: skip
     Case("m2m.yaml: an alias bomb", _bad_pipeline_yaml(_alias_bomb()), r"aliases .* not supported"),
+    # issue 65
+    Case("m2m.yaml: min_parallax_px: .nan", _bad_pipeline_yaml("capture:\n  min_parallax_px: .nan\n"),
+         r"line 2: capture\.min_parallax_px: nan is not a finite number; allowed: a number in \[0, 640\]"),
+    Case("m2m.yaml: jpeg_quality: 500", _bad_pipeline_yaml("capture:\n  jpeg_quality: 500\n"),
+         r"capture\.jpeg_quality: 500 is out of range; allowed: an integer in \[1, 100\]"),
+    Case("m2m.yaml: scene.minutes: -.inf", _bad_pipeline_yaml("scene:\n  minutes: -.inf\n"),
+         r"scene\.minutes: -inf is not a finite number"),
+    Case("m2m.yaml: randomize.x backwards", _bad_pipeline_yaml("world:\n  randomize:\n    x: [0.6, 0.3]\n"),
+         r"world\.randomize\.x: \[0\.6, 0\.3\] has its first value above"),
+    Case("m2m.yaml: an object named ../evil", _bad_pipeline_yaml("objects:\n  names: [../evil]\n", "objects"),
+         r"'\.\./evil'.*letters, digits"),
+    Case("flag: train-scene --minutes nan", lambda t, f: ["train-scene", "-w", str(t / "ws"), "--minutes", "nan"],
+         r"--minutes: nan is not a finite number"),
+    Case("flag: generate --episodes 10**30", lambda t, f: ["generate", "-w", str(t / "ws"), "--task", "grasp banana",
+         "--episodes", str(10**30)], r"--episodes: 10{30} is out of range"),  # fmt: skip
+    Case("intrinsics: principal point x = 5000 in a 640-wide image", _intrinsics(_K(cx=5000)),
+         r"cam\.json: the principal point \(5000, 240\) lies outside the 640x480 image"),
+    Case("intrinsics: k1 = 50, k2 = -300", _intrinsics(_K(k1=50, k2=-300)), r"cam\.json: its distortion .* turns back"),
+    Case("intrinsics: fy = 100 fx", _intrinsics(_K(fy=50000)), r"cam\.json: fx / fy = 0\.01"),
+    Case("intrinsics: fx = 1 (a 175 deg field of view)", _intrinsics(_K(fx=10, fy=10)), r"field of view"),
+    Case("intrinsics: a truncated OpenCV XML", _intrinsics(_truncated_xml(), "cal.xml"),
+         r"cal\.xml: OpenCV cannot parse this file"),  # fmt: skip
+    Case("robot spec: a tool centre in millimetres", _panda_spec(lambda d: d["end_effector"].update(
+        tcp=[0, 0, 103.4])), r"end_effector\.tcp.*103 m from hand.*units: mm"),  # fmt: skip
+    Case("robot spec: a wrist camera 70 m from its link", _panda_spec(lambda d: d["cameras"]["wrist"].update(
+        eye=[70, 0, 0])), r"cameras\.wrist\.eye.*70 m"),  # fmt: skip
+    Case("robot spec: units: inch", _panda_spec(lambda d: d.update(units="inch")), r"units.*m .*or mm"),
+    Case("robot model: an MJCF range written backwards", _backwards_mjcf, r"joint j1: range 1\.76 -1\.76 .*backwards"),
+    Case("capture: images larger than 16384 px", _big_images, r"0\.png is 17000x8 pixels, more than 16384"),
+    Case("calibrate-handeye: one of 18 views 0.5 rad off", _handeye_view_off, r"view 0005\.png disagrees with"),
+    Case("sfm: --from-transforms and --intrinsics together", _sfm_two_sources,
+         r"intrinsics and from_transforms are both given"),  # fmt: skip
+    Case("validate: a column info.json does not declare", _dataset(_extra_column), r"secret not declared"),
+    Case("validate: chunks_size 0", _dataset(lambda r, d: d.update(chunks_size=0)), r"chunks_size = 0"),
+    Case("validate: robot_type 5", _dataset(lambda r, d: d.update(robot_type=5)), r"robot_type = 5 is not text"),
 ]
 
 

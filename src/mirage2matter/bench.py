@@ -14,6 +14,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
+from .configs import ranged
+
 __all__ = ["RenderBenchConfig", "bench_render"]
 
 # The keys of bench_render's result, in the order the JSON line prints them.
@@ -37,15 +39,15 @@ class RenderBenchConfig:
     seed       scene and camera seed
     """
 
-    gaussians: int = 100_000
-    size: int = 224
+    gaussians: int = ranged(100_000, ge=1, le=10**8)
+    size: int = ranged(224, ge=1, le=16384)
     backend: str = "auto"
-    sh_degree: int = 3
-    cameras_per_call: int = 1
-    views: int = 8
-    repeats: int = 5
-    warmup: int = 2
-    seed: int = 0
+    sh_degree: int = ranged(3, ge=0, le=3)
+    cameras_per_call: int = ranged(1, ge=1, le=1024)
+    views: int = ranged(8, ge=1, le=10_000)
+    repeats: int = ranged(5, ge=1, le=10_000)
+    warmup: int = ranged(2, ge=0, le=10_000)
+    seed: int = ranged(0, ge=0, le=2**32 - 1)
 
     def validate(self) -> None:
         """Raise ConfigError naming the field, before any expensive work starts."""

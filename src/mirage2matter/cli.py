@@ -5,7 +5,7 @@ One subcommand per pipeline stage, generated from the stage's Config (``m2m capt
 ``m2m compose``, ``m2m generate``): each field is a flag whose default and doc come from the Config, on top of
 the workspace's ``m2m.yaml`` when it has the stage's section. The tools that are not stages live in
 ``commands/`` (init and run: a workspace's m2m.yaml and every stage of it; demo, render, bench, board, intrinsics,
-validate, sample, world edits, task).
+validate, sample, world edits, task, view).
 
 Expected failures (:class:`~mirage2matter.errors.M2MError`: bad files, bad fields, missing inputs) and file
 system errors print ``m2m: error: <message>`` to stderr and exit with status 2, without a traceback;
@@ -16,12 +16,14 @@ happen inside the commands so that ``m2m --help`` answers at once.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from . import __version__
-from .commands import bench, board, demo, init, intrinsics, render, robot, run, sample, validate, world
+from .commands import bench, board, demo, init, intrinsics, render, report, robot, run, sample, validate, view, world
 from .commands.args import info, show
 from .configs import add_flags, from_flags
 from .errors import M2MError
@@ -51,7 +53,7 @@ def run_stage_command(stage: Stage, args: argparse.Namespace) -> int:
 
     ws = Workspace(args.workspace)
     load = lambda: PipelineConfig.load(ws.config_file) if ws.config_file.is_file() else PipelineConfig()
-    cfg = from_flags(stage.config, args, load().stage_config(stage.name))
+    cfg = _command_line_wins(from_flags(stage.config, args, load().stage_config(stage.name)), args)
     configure_threads()
     summary, skipped = run_stage(stage, ws, cfg, log=info, force=args.force)
     # read-modify-write of m2m.yaml (another stage's section may have changed), beside running policy stages
@@ -64,6 +66,18 @@ def run_stage_command(stage: Stage, args: argparse.Namespace) -> int:
     note = " (up to date: same settings and inputs as the last run; --force to rerun)" if skipped else ""
     print(f"{stage.name}: {summary['line']}{note} -> {show(ws.root)}/")
     return 0
+
+
+def _command_line_wins(cfg: Any, args: argparse.Namespace) -> Any:
+    """``cfg`` without the settings of m2m.yaml that exclude one given on the command line (a Config's
+    ``EXCLUSIVE`` groups, e.g. sfm's intrinsics and from_transforms): the flag wins, and the line says so."""
+    for group in getattr(cfg, "EXCLUSIVE", ()):
+        flags = [n for n in group if getattr(args, n, None) is not None]
+        dropped = [n for n in group if n not in flags and getattr(cfg, n) is not None]
+        if flags and dropped:
+            info(f"--{flags[0].replace('_', '-')} given: {', '.join(dropped)} of m2m.yaml dropped")
+            cfg = dataclasses.replace(cfg, **{n: None for n in dropped})
+    return cfg
 
 
 def build_parser(only: str | None = "*") -> argparse.ArgumentParser:
@@ -94,7 +108,7 @@ def build_parser(only: str | None = "*") -> argparse.ArgumentParser:
     for stage in STAGES:
         _stage_parser(sub, stage, full=only in ("*", stage.command))
     bench.register(sub, full=only in ("*", "bench"))
-    for module in (render, board, intrinsics, validate, sample, world, robot):
+    for module in (render, board, intrinsics, validate, sample, world, robot, report, view):
         module.register(sub)
     return parser
 

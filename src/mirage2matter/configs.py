@@ -18,7 +18,13 @@ Supported field types: bool, int, float, str, Path, ``X | None``, ``Literal[...]
 ``list[T]`` (several values), fixed tuples ``tuple[T, T]`` (``a,b``), ``dict[str, T]`` (``NAME=VALUE``,
 repeatable) and nested dataclasses. Field metadata: ``{"positional": True}`` makes a field the command's
 optional positional argument; ``{"flag": False}`` keeps an internal field off the command line; ``{"output": True}``
-marks a path the stage writes (a pipeline run checks every other path exists before it starts).
+marks a path the stage writes (a pipeline run checks every other path exists before it starts); ``{"range":
+Range(...)}`` (:func:`ranged`) the numbers a field may hold.
+
+Every number read (from YAML or a flag) is checked at once: a float is finite (NaN and infinities never pass, whatever
+the field), and a field with a :class:`Range` holds only numbers inside it (each number of a list, pair or mapping);
+the ConfigError names the field and the range. :func:`check_ranges` checks a whole Config (its defaults, one built in
+code) the same way.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ import dataclasses
 import difflib
 import functools
 import inspect
+import math
 import re
 import types
 import typing
@@ -36,7 +43,8 @@ from typing import Any, Literal, Union
 
 from .errors import M2MError
 
-__all__ = ["ConfigError", "add_flags", "field_docs", "from_dict", "from_flags", "to_dict", "to_yaml"]
+__all__ = ["ConfigError", "Range", "add_flags", "check_ranges", "field_docs", "from_dict", "from_flags", "range_errors",
+           "ranged", "to_dict", "to_yaml"]
 
 _DOC_LINE = re.compile(r"^(\w+)\s{2,}(\S.*)$")
 
@@ -51,6 +59,109 @@ class ConfigError(M2MError, ValueError):
     def __init__(self, message: str, field: str | None = None) -> None:
         super().__init__(message)
         self.field = field
+
+
+# ---- ranges ---------------------------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class Range:
+    """The numbers a field may hold (each number of a list, pair or mapping field).
+
+    lo, hi      the bounds (None: none on that side)
+    lo_open     lo itself excluded (``gt``); hi_open likewise (``lt``)
+    off         one more value outside the bounds that means "not used" (``0: none`` in the field's doc)
+    ordered     a (lo, hi) pair: the first no larger than the second
+    """
+
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+    off: float | None = None
+    ordered: bool = False
+
+    def text(self) -> str:
+        """The range as the reference and the messages write it: ``[1, 100]``, ``(0, 10080]``, ``0 or [16, 4096]``."""
+        if self.lo is None and self.hi is None:
+            body = "finite"
+        else:
+            left = "(" if self.lo_open or self.lo is None else "["
+            right = ")" if self.hi_open or self.hi is None else "]"
+            body = f"{left}{_num(self.lo, '-inf')}, {_num(self.hi, 'inf')}{right}"
+        if self.off is not None:
+            body = f"{_num(self.off, '')} or {body}"
+        return body + (", first <= second" if self.ordered else "")
+
+    def holds(self, x: float) -> bool:
+        if self.off is not None and x == self.off:
+            return True
+        above = self.lo is None or (x > self.lo if self.lo_open else x >= self.lo)
+        below = self.hi is None or (x < self.hi if self.hi_open else x <= self.hi)
+        return above and below
+
+
+def _num(x: float | None, none: str) -> str:
+    return none if x is None else (f"{x:g}" if isinstance(x, float) else str(x))
+
+
+def ranged(default: Any = dataclasses.MISSING, *, ge: float | None = None, gt: float | None = None,
+           le: float | None = None, lt: float | None = None, off: float | None = None, ordered: bool = False,
+           metadata: dict | None = None, **kw: Any) -> Any:  # fmt: skip
+    """A dataclass field (``dataclasses.field``) whose numbers must lie within ``ge``/``gt`` .. ``le``/``lt`` (or be
+    ``off``); checked whenever the Config is read (:func:`from_dict`, :func:`from_flags`) or :func:`check_ranges`."""
+    rng = Range(gt if gt is not None else ge, lt if lt is not None else le, gt is not None, lt is not None, off,
+                ordered)  # fmt: skip
+    return dataclasses.field(default=default, metadata={**(metadata or {}), "range": rng}, **kw)
+
+
+def _numbers(value: Any, where: str):
+    """(where, number) of every number in ``value`` (a scalar, or lists / tuples / mappings of them); bools are not."""
+    if isinstance(value, bool):
+        return
+    if isinstance(value, int | float):
+        yield where, value
+    elif isinstance(value, list | tuple):
+        for i, v in enumerate(value):
+            yield from _numbers(v, f"{where}[{i}]")
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            yield from _numbers(v, f"{where}.{k}")
+
+
+def check_value(f: dataclasses.Field, value: Any, where: str, field: str | None = None) -> None:
+    """ConfigError naming ``where`` (the dotted ``field`` for a reader to find the line) unless every number in
+    ``value`` is finite and inside the field's :class:`Range`."""
+    rng: Range = f.metadata.get("range") or Range()
+    for at, x in _numbers(value, where):
+        allowed = f"allowed: {'an integer' if isinstance(x, int) else 'a number'} in {rng.text()}"
+        if isinstance(x, float) and not math.isfinite(x):
+            raise ConfigError(f"{at}: {x} is not a finite number; {allowed}", field or where)
+        if not rng.holds(x):
+            raise ConfigError(f"{at}: {x!r} is out of range; {allowed}", field or where)
+    if rng.ordered and isinstance(value, tuple | list) and len(value) == 2 and value[0] > value[1]:
+        raise ConfigError(f"{where}: {list(value)} has its first value above its second; give lo,hi", field or where)
+
+
+def range_errors(cfg: Any, prefix: str = "") -> list[ConfigError]:
+    """A ConfigError per field of the Config ``cfg`` (nested Configs too) holding a number that is not finite or
+    outside the field's range, each naming the dotted field (``prefix`` before it, e.g. the stage's section)."""
+    out = []
+    for f in dataclasses.fields(cfg):
+        value, name = getattr(cfg, f.name), f"{prefix}.{f.name}" if prefix else f.name
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            out += range_errors(value, name)
+            continue
+        try:
+            check_value(f, value, name)
+        except ConfigError as e:
+            out.append(e)
+    return out
+
+
+def check_ranges(cfg: Any, prefix: str = "") -> None:
+    """:func:`range_errors`' first, raised."""
+    errors = range_errors(cfg, prefix)
+    if errors:
+        raise errors[0]
 
 
 # ---- field documentation and types ------------------------------------------------------------------
@@ -188,6 +299,7 @@ def from_dict(cls: type, data: Any, where: str = "", base_dir: Path | None = Non
             changes[key] = from_dict(inner, value, field_where, base_dir, getattr(base, key))
             continue
         v = _coerce(tp, value, field_where)
+        check_value(known[key], v, field_where)
         changes[key] = _resolve_paths(v, base_dir)
     return dataclasses.replace(base, **changes)
 
@@ -444,15 +556,16 @@ def add_flags(
     return groups
 
 
-def from_flags(cls: type, ns: argparse.Namespace, base: Any = None, prefix: str = "") -> Any:
-    """``base`` (default ``cls()``) with the fields given on the command line replaced."""
+def from_flags(cls: type, ns: argparse.Namespace, base: Any = None, prefix: str = "", check: bool = True) -> Any:
+    """``base`` (default ``cls()``) with the fields given on the command line replaced; each number checked (finite,
+    in its range) unless ``check`` is False (a caller listing every problem at once, :func:`range_errors`)."""
     base = cls() if base is None else base
     hints = _hints(cls)
     changes = {}
     for f in dataclasses.fields(cls):
         tp, _ = _unwrap_optional(hints[f.name])
         if _is_config(tp):
-            changes[f.name] = from_flags(tp, ns, getattr(base, f.name), f"{prefix}{f.name}.")
+            changes[f.name] = from_flags(tp, ns, getattr(base, f.name), f"{prefix}{f.name}.", check)
             continue
         dest = prefix + f.name
         if not hasattr(ns, dest) or (f.metadata.get("positional") and not prefix and getattr(ns, dest) is None):
@@ -463,5 +576,7 @@ def from_flags(cls: type, ns: argparse.Namespace, base: Any = None, prefix: str 
             value = dict(value)
         elif origin is tuple and isinstance(value, list):
             value = tuple(value)
+        if check:  # NaN, inf and out-of-range numbers, as YAML's
+            check_value(f, value, _flag(prefix, f.name), dest)
         changes[f.name] = value
     return dataclasses.replace(base, **changes)

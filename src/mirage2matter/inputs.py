@@ -8,7 +8,7 @@ field and says what to do, instead of a traceback, a silent wrong value or an ex
 - :func:`read_image_rgb`: 8-bit RGB from 8- or 16-bit, grey, RGB or RGBA files (a 16-bit photo scaled, not
   clipped to white).
 - :func:`check_intrinsics`, :func:`check_image_size`: finite intrinsics with positive focal lengths, an image
-  size within limits.
+  size within limits; :func:`check_image_file`: an image file's size from its header, before it is decoded.
 - :func:`check_mesh`: finite vertices, face indices in range, enough faces for a solid, a sane size.
 - :func:`check_joints`: finite joint values, the robot's count, within its limits.
 
@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from pathlib import Path
 from typing import Any
 
@@ -30,10 +31,13 @@ from .errors import M2MError
 __all__ = [
     "MAX_IMAGE_SIDE",
     "InputError",
+    "NAME_RE",
+    "check_image_file",
     "check_image_size",
     "check_intrinsics",
     "check_joints",
     "check_mesh",
+    "check_name",
     "read_image_rgb",
     "read_json",
     "read_yaml",
@@ -44,6 +48,7 @@ __all__ = [
 MAX_CONFIG_BYTES = 16 << 20  # JSON / YAML files the pipeline reads are kilobytes to a few megabytes
 MAX_DEPTH = 64  # nesting of any config we write is under 10
 MAX_IMAGE_SIDE = 16384  # pixels: a 16k x 16k RGB float image is already 3 GiB
+NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")  # an object's name: a folder name, a key, never a path
 MAX_LOG_SCALE = 7.0  # a Gaussian wider than e^7 m (1.1 km) is no part of a tabletop scene (gaussians.ply checks)
 
 
@@ -228,6 +233,30 @@ def check_image_size(value: Any, where: str, name: str) -> int:
     if value > MAX_IMAGE_SIDE:
         raise InputError(f"{where}: {name} {int(value)} is more than {MAX_IMAGE_SIDE} pixels")
     return int(value)
+
+
+def check_name(name: Any, where: str) -> str:
+    """An object's name (it names folders: ``objects/<name>/``): letters, digits, '_' or '-', starting with a letter."""
+    if not isinstance(name, str) or not NAME_RE.match(name):
+        raise InputError(f"{where}: use letters, digits, '_' or '-', starting with a letter (it names a folder)")
+    return name
+
+
+def check_image_file(path: str | os.PathLike, what: str = "image") -> None:
+    """An image file's size from its header (nothing decoded): InputError when it is not an image or is larger than
+    MAX_IMAGE_SIDE a side (decoding 8 blank 17000 x 13000 PNGs took 2.3 GB)."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            size = "{}x{} pixels".format(*im.size) if max(im.size) > MAX_IMAGE_SIDE else None
+    except Image.DecompressionBombError:  # PIL refuses over ~180 megapixels without saying the size
+        size = "over 180 megapixels"
+    except (OSError, UnidentifiedImageError):
+        raise InputError(f"{what} {path}: not a readable image; remove or replace it") from None
+    if size is not None:
+        raise InputError(f"{what} {path} is {size}, more than {MAX_IMAGE_SIDE} pixels a side; resize it (SfM and "
+                         "training use 2000 px or less)")  # fmt: skip
 
 
 def check_mesh(vertices: Any, faces: Any, where: str, max_extent: float = 10.0) -> None:

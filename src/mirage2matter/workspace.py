@@ -3,7 +3,7 @@
 One class owns the layout (DESIGN.md section 3); the stages (``stages/``) are the only other code that
 knows where things live in a workspace. Below them, libraries receive typed objects and folders.
 
-    m2m.yaml  pipeline.json  run_summary.json (m2m run)  demo_summary.json (m2m demo)
+    m2m.yaml  pipeline.json  run_summary.json (m2m run)  demo_summary.json (m2m demo)  report.html (every run)
     capture/   keyframes + keyframes.json
     sfm/       sfm.json + model/ (COLMAP)
     calib/     sim3_sfm_to_base.json, cameras_base.json, points_base.npy, colors_base.npy, overlay.png,
@@ -100,6 +100,11 @@ class Workspace:
     @property
     def demo_summary(self) -> Path:
         return self.path("demo_summary.json")
+
+    @property
+    def report_html(self) -> Path:
+        """the run report: the last run's stages, pictures, datasets, warnings and what to do next"""
+        return self.path("report.html")
 
     @property
     def state_dir(self) -> Path:

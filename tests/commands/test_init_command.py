@@ -66,7 +66,9 @@ def test_inputs_inside_the_workspace_are_written_relative_to_it(tmp_path, capsys
     ("flags", "message"),
     [
         (["--video", f"{S}/nothing.mp4", "--board", f"{S}/board.json", "--head-photo", "no.png",
-          "--objects.masks", "no_masks"], "not found: --video .*nothing.mp4; --head-photo no.png; --objects.masks no_"),
+          "--objects.masks", "no_masks"],
+         r"3 problems, nothing written:\n  - --video .*nothing.mp4: not found\n  - --head-photo no.png: not found\n"
+         r"  - --objects.masks no_masks: not found"),
         (["--video", S, "--board", f"{S}/board.json"], "--video .* is a folder; give the video file"),
         (["--board", f"{S}/board.json"], "no capture: give --video FILE or --images DIR"),
         (["--video", f"{S}/scene.mp4"], "no calibration target: give --board FILE"),
@@ -77,7 +79,7 @@ def test_inputs_inside_the_workspace_are_written_relative_to_it(tmp_path, capsys
         (["--video", f"{S}/scene.mp4", "--board", f"{S}/board.json", "--intrinsics", f"{S}/board.json"],
          "--intrinsics / --sfm.intrinsics: .*board.json"),
         (["--video", f"{S}/scene.mp4", "--board", f"{S}/board.json", "--robot", "robbie"],
-         "--robot: unknown robot 'robbie'; known robots: panda"),
+         "--robot / --align.robot: unknown robot 'robbie'; known robots: panda"),
         (["--video", f"{S}/scene.mp4", "--board", f"{S}/board.json", "--scene.minutes", "0"],
          r"section scene: train-scene: give a positive --minutes budget .*\(flag --scene\.\*\)"),
     ],
@@ -110,3 +112,36 @@ def test_init_takes_the_robots_joint_state_while_filming(tmp_path, capsys):
     assert "its home pose (give --capture-joints" in capsys.readouterr().out
     assert main([*args, "--force", "--capture-joints", "0", "1"]) == 2
     assert "2 values given" in capsys.readouterr().err
+
+
+def test_init_lists_five_independent_mistakes_together_and_writes_nothing(tmp_path, capsys):
+    """Issue 65: an unparseable task, an object named like a path, NaN joints in the hand-eye poses, a robot spec with
+    its tool centre in millimetres and a capture image over 16384 px: all five in one message, exit 2, nothing
+    written."""
+    import json
+    from pathlib import Path
+
+    from PIL import Image
+
+    from mirage2matter.robots import get_robot
+
+    images = tmp_path / "images"
+    images.mkdir()
+    Image.new("L", (17000, 100)).save(images / "0.png")
+    poses = json.loads((SAMPLE / "handeye" / "joints.json").read_text())
+    poses["views"][2]["joints"][1] = float("nan")
+    (tmp_path / "joints.json").write_text(json.dumps(poses))
+    spec = (Path(get_robot("panda").source)).read_text().replace("tcp: [0.0, 0.0, 0.1034]", "tcp: [0.0, 0.0, 103.4]")
+    (tmp_path / "robot.yaml").write_text(spec)  # the tool centre in millimetres
+    ws = tmp_path / "ws"
+    argv = ["init", "-w", str(ws), "--images", str(images), "--board", f"{S}/board.json", "--handeye-images",
+            f"{S}/handeye/images", "--handeye-poses", str(tmp_path / "joints.json"), "--handeye-intrinsics",
+            f"{S}/ground_truth.json", "--objects", "banana", "../evil", "--task", "grasp banana", "fly to the moon",
+            "--robot", str(tmp_path / "robot.yaml")]  # fmt: skip
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("m2m: error: ") and "problems, nothing written" in err and "Traceback" not in err, err
+    for words in ("unknown task 'fly'", "'../evil'", "views[2]", "end_effector.tcp", "0.png is 17000x100"):
+        assert words in err, f"{words!r} not in {err}"
+    assert not ws.exists()

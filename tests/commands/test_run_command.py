@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from fixtures import SAMPLE
+from fixtures.browser import chromium, open_page
 from mirage2matter.cli import main
 from mirage2matter.export import validate
 from mirage2matter.stages.pipeline import PipelineConfig
@@ -51,7 +52,7 @@ def _kill_once_recorded(args: list[str], ws: Workspace, finished: str, log: Path
 def test_run_is_killed_in_a_stage_and_resumes_there(tmp_path, capsys, sample_dir):
     ws = Workspace(tmp_path / "ws")
     assert main(["init", "-w", str(ws.root), "--video", f"{S}/scene.mp4", "--board", f"{S}/board.json",
-                 "--intrinsics", f"{S}/ground_truth.json", "--capture.max-keyframes", "10"]) == 0  # fmt: skip
+                 "--intrinsics", f"{S}/ground_truth.json", "--capture.max-keyframes", "12"]) == 0  # fmt: skip
     capsys.readouterr()
     rc = _kill_once_recorded(["run", "-w", str(ws.root), "--until", "sfm"], ws, "capture", tmp_path / "killed.log")
     assert rc == -signal.SIGKILL and _recorded(ws) == ["capture"]
@@ -59,11 +60,11 @@ def test_run_is_killed_in_a_stage_and_resumes_there(tmp_path, capsys, sample_dir
 
     assert main(["run", "-w", str(ws.root), "--until", "sfm"]) == 0
     out, err = capsys.readouterr()
-    assert "[1/2] capture: done earlier - 10 keyframes" in err
-    assert "sfm: resuming the interrupted run" in err and "[2/2] sfm: registered 10/10 keyframes" in err
+    assert "[1/2] capture: done earlier - 12 keyframes" in err
+    assert "sfm: resuming the interrupted run" in err and "[2/2] sfm: registered 12/12 keyframes" in err
     assert "m2m run finished" in out and "run_summary.json" in out
     summary = json.loads(ws.run_summary.read_text())
-    assert list(summary["stages"]) == ["capture", "sfm"] and summary["stages"]["sfm"]["registered"] == 10
+    assert list(summary["stages"]) == ["capture", "sfm"] and summary["stages"]["sfm"]["registered"] == 12
     assert "rotation_deg" not in summary["stages"]["sfm"]  # no ground truth: nothing compared
     assert _recorded(ws) == ["capture", "sfm"] and not (ws.root / ".m2m").exists()
 
@@ -84,11 +85,16 @@ def test_run_is_killed_in_a_stage_and_resumes_there(tmp_path, capsys, sample_dir
     board_line = f"  board: {(SAMPLE / 'board.json').resolve()}\n"
     assert text.count(board_line) == 1
     ws.config_file.write_text(text.replace(board_line, f"  board: {marker}\n"))
-    assert main(["run", "-w", str(ws.root), "--from", "align", "--until", "align"]) == 2
+    assert main(["run", "-w", str(ws.root), "--until", "align"]) == 2
     err = capsys.readouterr().err
-    assert "m2m: error: align (stage 1 of 1, `m2m align-scene`): the target (ArUco marker id 7" in err
-    assert "was detected in 0 of 10 keyframes" in err and f"run `m2m run -w {ws.root}` again" in err
+    assert "m2m: error: align (stage 3 of 3, `m2m align-scene`): the target (ArUco marker id 7" in err
+    assert "was detected in 0 of 12 keyframes" in err and f"run `m2m run -w {ws.root}` again" in err
     assert not ws.alignment_file.exists() and _recorded(ws) == ["capture", "sfm"]
+    # the run's page says where and why it stopped, and shows what the finished stages made
+    with chromium() as browser:
+        text = open_page(browser, ws.report_html)
+    assert "m2m run stopped at align (stage 3 of 3)" in text and "was detected in 0 of 12 keyframes" in text
+    assert "capture done earlier (up to date) 12 keyframes" in text
 
 
 def test_run_without_settings_says_how_to_write_them(tmp_path, capsys):
@@ -136,3 +142,8 @@ def test_init_and_run_on_the_sample_killed_in_training_resumes_there_and_finishe
     assert _recorded(ws) == ["capture", "sfm", "align", "handeye", "scene", "head_view", "objects", "world", "generate"]
     assert not (ws.root / ".m2m").exists()
     assert PipelineConfig.load(ws.config_file).generate.task == ("grasp banana",)  # the run left its settings alone
+    with chromium() as browser:  # the run's page: every picture and the dataset's preview load from disk
+        text = open_page(browser, ws.report_html)
+        videos = browser.execute_script("return [...document.querySelectorAll('video source')].map(s => s.src)")
+    assert "m2m run finished" in text and "grasp banana" in text and "1 objects: banana" in text
+    assert [Path(v).parent.name for v in videos] == ["grasp_banana"]

@@ -20,6 +20,7 @@ from fixtures import SAMPLE, object_checks
 from fixtures.ground_truth_workspace import ground_truth_workspace
 from fixtures.object_checks import chamfer, placed_mesh
 from mirage2matter.cli import main
+from mirage2matter.configs import ConfigError
 from mirage2matter.gaussians.ply import read_ply
 from mirage2matter.geometry.rotation import axis_angle_to_matrix, rotation_angle
 from mirage2matter.geometry.sim3 import Sim3
@@ -139,7 +140,7 @@ def test_bad_inputs_are_clear_errors(small_ws, tmp_path):
     with pytest.raises(ObjectsError, match=r"'banana'.*banana\.glb.*does not parse"):
         run_objects(small_ws, ObjectsConfig(names=["banana"], mesh={"banana": bad}, **SMALL))
     assert main(["objects", "-w", str(small_ws), "--names", "banana", "--mesh", f"banana={bad}"]) == 2
-    with pytest.raises(ObjectsError, match=r"objects.depth_opacity must lie strictly between 0 and 1 \(got 1.0\)"):
+    with pytest.raises(ConfigError, match=r"objects.depth_opacity: 1.0 is out of range; allowed: a number in \(0, 1\)"):
         run_objects(small_ws, ObjectsConfig(names=["banana"], depth_opacity=1.0, **SMALL))
 
     with pytest.raises(ObjectsError, match=r"'banana' is seen in only \d+ keyframe"):

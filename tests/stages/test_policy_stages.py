@@ -120,8 +120,8 @@ def test_generate_with_a_takeover_records_from_where_the_policy_left_the_world(w
         err = _error(capsys, "generate", "-w", str(ws), "--task", TASK, "--episodes", "1", "--size", "48",
                      "--takeover", "nope", "--out", str(ws / "datasets" / "nope"))  # fmt: skip
         assert "generate --takeover" in err and "neither a policy in" in err
-        assert "takeover_steps must be lo,hi" in _error(capsys, "generate", "-w", str(ws), "--task", TASK,
-                                                        "--takeover", "tiny", "--takeover-steps", "9,3")  # fmt: skip
+        assert "--takeover-steps: [9, 3] has its first value above its second; give lo,hi" in _error(
+            capsys, "generate", "-w", str(ws), "--task", TASK, "--takeover", "tiny", "--takeover-steps", "9,3")
     finally:
         (ws / "m2m.yaml").write_bytes(settings)
     assert not (ws / "datasets" / "nope").exists()
@@ -231,8 +231,8 @@ def test_bad_input_is_a_clear_error_and_leaves_no_report(ws: Path, tmp_path: Pat
     err = _error(capsys, "eval-policy", "-w", w, "--policy", str(tmp_path / "so100_policy"), "--task", TASK)
     assert "so100_policy" in err and "trained for robot_type 'so100', not 'franka_panda'" in err
     # inference settings that cannot apply
-    assert "ensemble_decay must be >= 0" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",
-                                                   "--ensemble-decay", "-1")  # fmt: skip
+    assert "--ensemble-decay: -1.0 is out of range; allowed: a number in [0, 100]" in _error(
+        capsys, "eval-policy", "-w", w, "--policy", "tiny", "--ensemble-decay", "-1")
     assert "replan_every must be in [1," in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",
                                                    "--replan-every", "99")  # fmt: skip
     assert "ensemble_combine medoid combines several policies" in _error(
@@ -245,8 +245,8 @@ def test_bad_input_is_a_clear_error_and_leaves_no_report(ws: Path, tmp_path: Pat
         capsys, "eval-policy", "-w", w, "--policy", "tiny", "--renderer", "ground_truth", "--objects", "meshes")
     assert "add --supersample 0" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny", "--renderer",
                                            "ground_truth", "--supersample", "2")  # fmt: skip
-    assert "supersample must be from 0" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",
-                                                  "--supersample", "9")  # fmt: skip
+    assert "--supersample: 9 is out of range; allowed: an integer in [0, 8]" in _error(
+        capsys, "eval-policy", "-w", w, "--policy", "tiny", "--supersample", "9")
     assert "object:x_min,x_max,y_min,y_max" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",
                                                       "--start-region", "banana:0.5")  # fmt: skip
     assert "outside the world's randomize region" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",

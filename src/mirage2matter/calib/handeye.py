@@ -430,6 +430,22 @@ def calibrate_handeye(
     return HandEyeResult(mount, method, X, Y, deg, mm, variant, loo, candidates, outliers)
 
 
+def disagreeing_view(T_base_link: list[np.ndarray], T_cam_board: list[np.ndarray], mount: str,
+                     method: str) -> int | None:  # fmt: skip
+    """The one view whose robot pose disagrees with the rest: the index of the view without which the closed form is
+    plausible with the smallest loop residual, when the whole set is not; None when no single view explains it."""
+    if len(T_base_link) < 5:  # too few to outvote one
+        return None
+    best, best_deg = None, np.inf
+    for i in range(len(T_base_link)):
+        Ts, Cs = T_base_link[:i] + T_base_link[i + 1 :], T_cam_board[:i] + T_cam_board[i + 1 :]
+        X, Y = _closed_form(Ts, Cs, mount, method)
+        deg, mm = _loop_residuals(X, Y, Ts, Cs, mount)
+        if implausibility(X, Y, deg, mm, mount) is None and float(np.median(deg)) < best_deg:
+            best, best_deg = i, float(np.median(deg))
+    return best
+
+
 def _explain_implausible(why: str, T_base_link, T_cam_board, mount: str, method: str) -> None:
     """Raise the HandEyeError for an unphysical closed-form result, naming the likelier mount when it fits."""
     other = "wrist" if mount == "head" else "head"
@@ -537,6 +553,40 @@ def _checked_position(T: np.ndarray, units: dict[str, str], where: str) -> np.nd
     return T
 
 
+def _read_poses_file(joints_file: str | Path) -> tuple[dict, list[dict], dict]:
+    """(the robot poses file, its views, its units), its shape checked (see :data:`POSES_HELP`)."""
+    from ..inputs import InputError, read_json
+
+    try:
+        spec = read_json(joints_file, "robot poses file")
+    except InputError as e:
+        raise HandEyeError(str(e)) from None
+    views = spec.get("views")
+    if not isinstance(views, list) or not views or not all(isinstance(v, dict) and "image" in v for v in views):
+        raise HandEyeError(f"{joints_file}: expected {POSES_HELP}")
+    return spec, views, _units(spec, str(joints_file))
+
+
+def check_poses_file(joints_file: str | Path) -> None:
+    """The robot poses file's shape and values without its images or the robot (what ``m2m init`` checks before
+    anything runs): views, units, and every number of every view finite (JSON readers take NaN)."""
+    _, views, units = _read_poses_file(joints_file)
+    for i, view in enumerate(views):
+        where = f"{joints_file}: views[{i}] ({view['image']})"
+        if "joints" in view:
+            q = view["joints"]
+            if not isinstance(q, list) or not q:
+                raise HandEyeError(f"{where}: joints must be a list of numbers, got {q!r}")
+            _numbers(q, len(q), where, "joints" + (" (degrees)" if units["joints"] == "deg" else ""))
+        for key in [k for k in view if k == "position" or str(k).startswith(("T_base_", "quaternion", "rpy"))]:
+            try:
+                ok = np.isfinite(np.asarray(view[key], dtype=np.float64)).all()
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise HandEyeError(f"{where}: {key} must be finite numbers, got {view[key]!r}")
+
+
 def calibrate_from_files(
     images_dir: str | Path,
     joints_file: str | Path,
@@ -553,7 +603,7 @@ def calibrate_from_files(
     ``images_dir``), take each view's hand pose from its joints (forward kinematics) or its end-effector pose
     (``poses``: "joints", "ee", or "auto": joints when every view has them), solve.
     ``camera``: a Camera (K + lens) or a bare K [3,3]. Returns the result and its JSON."""
-    from ..inputs import InputError, check_joints, read_image_rgb, read_json
+    from ..inputs import InputError, check_joints, read_image_rgb
     from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
 
     if refine is True or refine is False:  # the former boolean option
@@ -561,14 +611,7 @@ def calibrate_from_files(
     if poses not in ("auto", "joints", "ee"):
         raise HandEyeError(f"poses must be auto, joints or ee, got {poses!r}")
     joints_file, images_dir = Path(joints_file), Path(images_dir)
-    try:
-        spec = read_json(joints_file, "robot poses file")
-    except InputError as e:
-        raise HandEyeError(str(e)) from None
-    views = spec.get("views")
-    if not isinstance(views, list) or not views or not all(isinstance(v, dict) and "image" in v for v in views):
-        raise HandEyeError(f"{joints_file}: expected {POSES_HELP}")
-    units = _units(spec, str(joints_file))
+    spec, views, units = _read_poses_file(joints_file)
     if not images_dir.is_dir():
         raise HandEyeError(f"{images_dir}: not a folder of board images")
     images = sorted(p for p in images_dir.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
@@ -638,7 +681,15 @@ def calibrate_from_files(
         )
     K = _K_of(camera)
     T_cams = [o.T_cam_board for o in observations]
-    result = calibrate_handeye(T_links, T_cams, mount, method, observations=observations, K=K, refine=refine)
+    try:
+        result = calibrate_handeye(T_links, T_cams, mount, method, observations=observations, K=K, refine=refine)
+    except HandEyeError as e:
+        odd = disagreeing_view(T_links, T_cams, mount, method)
+        if odd is None:
+            raise
+        raise HandEyeError(f"view {used[odd]} disagrees with the rest: without it the {len(used) - 1} others fit one "
+                           f"camera mount ({e}). Check that view's robot pose in {joints_file} (a joint mistyped or "
+                           "logged at another moment), or remove the view from both") from None  # fmt: skip
     out = result.to_json(link, used)
     out.update(robot=str(kin.path) if kin is not None else None, poses="joints" if use_joints else "ee",
                skipped=skipped, board=board.to_json(), K=K.tolist(),

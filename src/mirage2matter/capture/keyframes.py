@@ -18,13 +18,15 @@ import os
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import cv2
 import numpy as np
 
 from ..atomic import atomic_dir
+from ..configs import ranged
 from ..errors import M2MError
+from ..inputs import InputError, check_image_file
 from ..video import VideoError, read_video_frames
 
 __all__ = [
@@ -59,12 +61,12 @@ class CaptureConfig:
     jpeg_quality      JPEG quality (SIFT is robust to it; 95 keeps artefacts negligible)
     """
 
-    max_keyframes: int = 60
-    min_keyframes: int = 8
-    sharpness_window: int | None = None
-    min_parallax_px: float = 1.0
-    image_format: str = "jpg"
-    jpeg_quality: int = 95
+    max_keyframes: int = ranged(60, ge=1, le=10_000)
+    min_keyframes: int = ranged(8, ge=1, le=10_000)
+    sharpness_window: int | None = ranged(None, ge=1, le=100_000)
+    min_parallax_px: float = ranged(1.0, ge=0, le=ANALYSIS_SIZE)
+    image_format: Literal["jpg", "png"] = "jpg"
+    jpeg_quality: int = ranged(95, ge=1, le=100)
 
     def validate(self) -> None:
         if self.min_keyframes < 1 or self.max_keyframes < self.min_keyframes:
@@ -161,6 +163,10 @@ class _FolderSource(_Source):
 
     def _load(self, i: int) -> np.ndarray:
         p = self.files[i]
+        try:
+            check_image_file(p, "capture image")  # its size from the header, before decoding gigabytes
+        except InputError as e:
+            raise CaptureError(str(e)) from None
         bgr = cv2.imread(str(p), cv2.IMREAD_COLOR)
         if bgr is None:
             raise CaptureError(f"{p}: not a readable image; remove or replace it")

@@ -12,7 +12,7 @@ import numpy as np
 
 from .. import configure_threads
 from ..bench import RenderBenchConfig
-from ..configs import add_flags, from_flags
+from ..configs import add_flags, from_flags, ranged
 from .args import backend, info, int_at_least, positive_float
 
 
@@ -29,8 +29,8 @@ def datagen_config() -> type:
         """
 
         task: tuple[str, ...] = ("grasp banana",)
-        episodes: int = 20
-        runs: int = 1
+        episodes: int = ranged(20, ge=1, le=10**6)
+        runs: int = ranged(1, ge=1, le=1000)
 
     return DatagenBenchConfig
 

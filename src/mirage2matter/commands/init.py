@@ -123,63 +123,91 @@ def _settings(args: argparse.Namespace) -> Any:
     if args.robot is not None:
         from ..robots import get_robot
 
-        try:
-            model = get_robot(args.robot).model
-        except M2MError as e:
-            raise CliError(f"--robot: {e}") from None
         given["world.robot"] = args.robot
-        given["handeye.robot"] = model  # the hand-eye poses' kinematics: the same robot
+        try:  # the hand-eye poses' kinematics: the same robot (one that does not load is a problem listed later)
+            given["handeye.robot"] = get_robot(args.robot).model
+        except M2MError:
+            pass
     sections: dict[str, dict[str, Any]] = {}
     for field, value in given.items():
         section, key = field.split(".")
         sections.setdefault(section, {})[key] = tuple(value) if key == "task" else value
     for section, changes in sections.items():
         cfg = dataclasses.replace(cfg, **{section: dataclasses.replace(getattr(cfg, section), **changes)})
-    return from_flags(PipelineConfig, args, cfg)
+    return from_flags(PipelineConfig, args, cfg, check=False)  # its numbers' ranges: among the problems listed
 
 
-def _check_inputs(cfg: Any, args: argparse.Namespace) -> None:
-    """Every input file exists and the ones init can read do read; CliError naming the flag."""
+def _problems(cfg: Any, args: argparse.Namespace) -> list[tuple[str, str]]:
+    """Every problem init can find before anything runs, as (field, message naming the flag): all of them, so that one
+    run of init lists what to fix (the files, the settings' ranges, the boards, calibrations, poses, robot, tasks,
+    object names and images), not the first only."""
+    from ..configs import range_errors
     from ..stages.pipeline import input_paths
 
+    out = [(e.field or "", f"{_flag(e.field or '')}: {str(e).partition(': ')[2]}") for e in range_errors(cfg)]
     given = {SHORT[k]: (f"--{k.replace('_', '-')}", v) for k, v in vars(args).items()
              if k in SHORT and isinstance(v, Path)}  # fmt: skip
-    missing = [given.get(f, (_flag(f), p)) for s in dataclasses.fields(cfg)
-               for f, p in input_paths(getattr(cfg, s.name), s.name) if not p.exists()]  # fmt: skip
-    if missing:
-        raise CliError("not found: " + "; ".join(f"{flag} {show(p)}" for flag, p in missing))
-    if args.video is not None and not args.video.is_file():
-        raise CliError(f"--video {args.video} is a folder; give the video file, or the folder as --images")
-    if args.images is not None and not args.images.is_dir():
-        raise CliError(f"--images {args.images} is a file; give the folder of images, or a video as --video")
+    missing = {f: given.get(f, (_flag(f), p)) for s in dataclasses.fields(cfg)
+               for f, p in input_paths(getattr(cfg, s.name), s.name) if not p.exists()}  # fmt: skip
+    out += [(f, f"{flag} {show(p)}: not found") for f, (flag, p) in missing.items()]
+    if args.video is not None and args.video.is_dir():
+        out.append(("capture.source", f"--video {args.video} is a folder; give the video file, or the folder as "
+                                      "--images"))  # fmt: skip
+    if args.images is not None and args.images.is_file():
+        out.append(("capture.source", f"--images {args.images} is a file; give the folder of images, or a video as "
+                                      "--video"))  # fmt: skip
     if cfg.capture.source is None and cfg.sfm.from_transforms is None and cfg.sfm.from_colmap is None:
-        raise CliError("no capture: give --video FILE or --images DIR (or --sfm.from-transforms FILE to import poses)")
+        out.append(("capture.source", "no capture: give --video FILE or --images DIR (or --sfm.from-transforms FILE "
+                                      "to import poses)"))  # fmt: skip
     if cfg.align.board is None and not cfg.align.unaligned:
-        raise CliError("no calibration target: give --board FILE (its spec JSON, from `m2m board`), or "
-                       "--align.unaligned for a scene-only workspace (no robot twin)")  # fmt: skip
+        out.append(("align.board", "no calibration target: give --board FILE (its spec JSON, from `m2m board`), or "
+                                   "--align.unaligned for a scene-only workspace (no robot twin)"))  # fmt: skip
     he = cfg.handeye
-    if he.images is not None or he.joints is not None:
-        lacking = [n for n in ("images", "joints", "board", "intrinsics") if getattr(he, n) is None]
-        if lacking:
-            raise CliError("the hand-eye calibration also needs " + ", ".join(_flag(f"handeye.{n}") for n in lacking))
-    _read_inputs(cfg)
+    lacking = [n for n in ("images", "joints", "board", "intrinsics") if getattr(he, n) is None]
+    if (he.images is not None or he.joints is not None) and lacking:
+        out.append((f"handeye.{lacking[0]}", "the hand-eye calibration also needs " +
+                    ", ".join(_flag(f"handeye.{n}") for n in lacking)))  # fmt: skip
+    for field, check in _reads(cfg):
+        try:
+            check()
+        except M2MError as e:
+            out.append((field, f"{_flag(field)}: {e}"))
+    return [(f, m) for f, m in out if f not in missing or m.endswith(": not found")]
 
 
-def _read_inputs(cfg: Any) -> None:
-    """The boards and calibrations read as the stages will read them (their errors name the file)."""
+def _reads(cfg: Any) -> list[tuple[str, Any]]:
+    """(field, a check that reads what it names as its stage will) for every input init can read."""
     from ..calib.board import load_target
+    from ..calib.handeye import check_poses_file
     from ..geometry.camera import load_intrinsics
+    from ..inputs import check_image_file, check_name
+    from ..robots import get_robot
+    from ..sim.tasks import parse_task
 
-    checks = [("align.board", load_target), ("handeye.board", load_target), ("sfm.intrinsics", load_intrinsics),
-              ("handeye.intrinsics", lambda p: load_intrinsics(p, keys=("head_camera",)))]  # as the stages read them
-    for field, read in checks:
-        section, key = field.split(".")
-        path = getattr(getattr(cfg, section), key)
-        if path is not None:
-            try:
-                read(path)
-            except M2MError as e:
-                raise CliError(f"{_flag(field)}: {e}") from None
+    def exists(path: Path | None) -> bool:
+        return path is not None and path.exists()
+
+    def images(folder: Path, what: str):
+        files = [p for p in sorted(folder.iterdir()) if p.suffix.lower() in (".jpg", ".jpeg", ".png")]
+        return lambda: [check_image_file(p, what) for p in files]
+
+    checks: list[tuple[str, Any]] = []
+    for field, read in (("align.board", load_target), ("handeye.board", load_target),
+                        ("sfm.intrinsics", load_intrinsics), ("handeye.joints", check_poses_file),
+                        ("handeye.intrinsics", lambda p: load_intrinsics(p, keys=("head_camera",))),
+                        ("head_view.photo", lambda p: check_image_file(p, "head photo"))):  # fmt: skip
+        path = getattr(getattr(cfg, field.split(".")[0]), field.split(".")[1])
+        if exists(path):
+            checks.append((field, lambda read=read, path=path: read(path)))
+    for field, folder in (("capture.source", cfg.capture.source), ("handeye.images", cfg.handeye.images)):
+        if exists(folder) and folder.is_dir():
+            checks.append((field, images(folder, "image")))
+    robots = {cfg.align.robot, cfg.world.robot} - {"none"}
+    checks += [("align.robot" if r == cfg.align.robot else "world.robot", lambda r=r: get_robot(r)) for r in robots]
+    checks += [(f"generate.task[{i}]", lambda t=t: parse_task(t)) for i, t in enumerate(cfg.generate.task)]
+    checks += [(f"objects.names[{i}]", lambda n=n: check_name(n.partition("=")[0], f"object name {n!r}"))
+               for i, n in enumerate(cfg.objects.names)]  # fmt: skip
+    return checks
 
 
 def run(args: argparse.Namespace) -> int:
@@ -193,11 +221,17 @@ def run(args: argparse.Namespace) -> int:
     if ws.config_file.exists() and not args.force:
         raise CliError(f"{ws.config_file} exists; edit it, or `m2m init --force ...` replaces it")
     cfg = _settings(args)
-    _check_inputs(cfg, args)
+    problems = _problems(cfg, args)
     try:  # the checks `m2m run` makes, before anything is written
         plan = plan_run(ws, cfg, SettingsFile(Path("m2m init")))
     except ConfigError as e:
-        raise CliError(f"{str(e).removeprefix('m2m init: ')} (flag {_flag(e.field or '')})") from None
+        said = [f.split("[")[0] for f, _ in problems]
+        if not any(f.startswith(e.field or "") or (e.field or "").startswith(f) for f in said):  # not said already
+            problems.append((e.field or "", f"{str(e).removeprefix('m2m init: ')} (flag {_flag(e.field or '')})"))
+    if len(problems) == 1:
+        raise CliError(problems[0][1])
+    if problems:
+        raise CliError(f"{len(problems)} problems, nothing written:\n" + "\n".join(f"  - {m}" for _, m in problems))
     with workspace_lock(ws, "m2m init"):
         if ws.config_file.exists() and not args.force:  # written meanwhile
             raise CliError(f"{ws.config_file} exists; edit it, or `m2m init --force ...` replaces it")

@@ -35,6 +35,9 @@ documentation, the same text `m2m <stage> --help` prints and `m2m.yaml` carries 
 - **flag**: the stage command's flag (`m2m train-scene -w ws --minutes 6`). `m2m init`, `m2m run` and `m2m demo` take
   the same flag under the stage's name (`--scene.minutes 6`). A setting marked "m2m.yaml only" has no flag.
 - **default**: the value `m2m init` writes when you do not give one, as YAML.
+- **type**: with the range its numbers must lie in (`[a, b]` ends included, `(a, b)` excluded; `0 or [16, 4096]`: 0
+  means "not used"). Every number is checked when the settings are read (NaN and infinities never pass): a value
+  outside is an error naming the setting and its range.
 
 Paths in `m2m.yaml` are relative to the file's folder, or absolute. An unknown key, a wrong type or a missing file is
 an error that names its line.
@@ -109,7 +112,8 @@ def _rows(cls: type, values: dict[str, Any], prefix: str = "") -> list[str]:
         if _is_config(inner) and isinstance(values[f.name], dict):
             rows.extend(_rows(inner, values[f.name], f"{prefix}{f.name}."))
             continue
-        cells = [f"`{prefix}{f.name}`", _flag_text(f, tp, prefix), _markdown(_type_text(tp)),
+        kind = _type_text(tp) + (f" in `{f.metadata['range'].text()}`" if "range" in f.metadata else "")
+        cells = [f"`{prefix}{f.name}`", _flag_text(f, tp, prefix), _markdown(kind),
                  f"`{_yaml_text(values[f.name])}`".replace("|", "\\|"), _markdown(docs.get(f.name, ""))]  # fmt: skip
         rows.append("| " + " | ".join(cells) + " |")
     return rows

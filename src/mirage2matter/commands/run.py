@@ -3,8 +3,9 @@
 The settings are checked before anything runs (an unknown key, a wrong type or a missing file names its line);
 stages whose optional inputs are not given are skipped with the reason (:func:`~..stages.pipeline.plan_run`).
 Each stage shows its progress, its record goes to ``pipeline.json`` (a killed run resumes at the stage it was
-in), and the run ends with one line per stage, also written to ``run_summary.json``. ``m2m demo`` is this on the
-bundled sample's settings, with the sample's ground truth compared where a stage can.
+in), and the run ends with one line per stage, also written to ``run_summary.json``, and ``report.html`` (the
+run's page, a failed run's too). ``m2m demo`` is this on the bundled sample's settings, with the sample's ground
+truth compared where a stage can.
 """
 
 from __future__ import annotations
@@ -63,8 +64,7 @@ def run_workspace(
     """The stages of ``ws``'s m2m.yaml from ``start`` through ``until``; prints the progress (stderr) and the
     summary (stdout), writes it to ``summary_file`` (default ``run_summary.json``) and returns it."""
     from .. import configure_threads
-    from ..atomic import atomic_write
-    from ..stages.pipeline import PipelineConfig, run_pipeline
+    from ..stages.pipeline import PipelineConfig, PipelineError, run_pipeline
     from ..stages.transaction import workspace_lock
 
     if ws.root.exists() and not ws.root.is_dir():
@@ -77,12 +77,23 @@ def run_workspace(
     t0 = time.perf_counter()
     with workspace_lock(ws, command):
         cfg, where = PipelineConfig.read(ws.config_file)
-        result = run_pipeline(ws, cfg, info, until, start, ground_truth, where, command)
-        result["mirage2matter_version"] = __version__
-        with atomic_write(summary_file, "w", encoding="utf-8") as f:
-            json.dump(result, f, indent=1, default=str)
+        try:
+            result = run_pipeline(ws, cfg, info, until, start, ground_truth, where, command)
+        except PipelineError as e:  # a stopped run's summary says where and why (`m2m report` reads it)
+            if e.result is not None:
+                _write_summary(summary_file, e.result)
+            raise
+        _write_summary(summary_file, result)
     print_summary(result, ws, time.perf_counter() - t0, command, summary_file)
     return result
+
+
+def _write_summary(path: Path, result: dict[str, Any]) -> None:
+    from ..atomic import atomic_write
+
+    result["mirage2matter_version"] = __version__
+    with atomic_write(path, "w", encoding="utf-8") as f:
+        json.dump(result, f, indent=1, default=str)
 
 
 def print_summary(result: dict[str, Any], ws: Workspace, elapsed: float, command: str, summary_file: Path) -> None:
@@ -92,4 +103,6 @@ def print_summary(result: dict[str, Any], ws: Workspace, elapsed: float, command
         lines += [f"             {d}" for d in summary.get("details", [])]
     lines.append(f"  summary    {show(summary_file)}; settings in {show(ws.config_file)}; stage records in "
                  f"{show(ws.record_file)}")  # fmt: skip
+    if ws.report_html.is_file():
+        lines.append(f"  report     {show(ws.report_html)} (open it in a browser: the stages' pictures, the datasets)")
     print("\n".join(lines), flush=True)

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ..configs import ranged
 from ..errors import M2MError
 from ..workspace import Workspace
 
@@ -72,21 +73,21 @@ class Sim2RealConfig:
 
     sample: Path = Path("samples/tabletop")
     task: str = "grasp banana --tie 2 --look 0.5"
-    demos: tuple[int, ...] = (50, 150, 300)
+    demos: tuple[int, ...] = ranged((50, 150, 300), ge=1, le=10**6)
     press_task: str = "press button"
-    press_demos: int = 150
-    ablation_demos: int = 150
-    size: int = 128
-    supersample: int = 1
-    workers: int = 2
-    seeds: int = 4
-    parallel: int = 2
-    steps: int = 4000
-    minutes: float = 12.0
-    image_size: int = 96
-    episodes: int = 50
+    press_demos: int = ranged(150, ge=1, le=10**6)
+    ablation_demos: int = ranged(150, ge=0, le=10**6)
+    size: int = ranged(128, ge=16, le=4096)
+    supersample: int = ranged(1, ge=1, le=8)  # render.splat_world.MAX_SUPERSAMPLE (its module imports torch)
+    workers: int = ranged(2, ge=1, le=256)
+    seeds: int = ranged(4, ge=1, le=100)
+    parallel: int = ranged(2, ge=1, le=64)
+    steps: int = ranged(4000, ge=0, le=10**9)
+    minutes: float = ranged(12.0, gt=0, le=100_000)
+    image_size: int = ranged(96, ge=16, le=512)
+    episodes: int = ranged(50, ge=1, le=10**6)
     hybrid: bool = True
-    seed: int = 1_000_000
+    seed: int = ranged(1_000_000, ge=0, le=2**32 - 1)
 
     def validate(self) -> None:
         bad = []

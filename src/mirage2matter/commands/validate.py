@@ -19,10 +19,8 @@ def run(args: argparse.Namespace) -> int:
     from ..export import validate
 
     problems = validate(args.dataset)
-    for p in problems:
-        info(f"  - {p}")
     if problems:
-        raise CliError(f"{args.dataset}: {len(problems)} problem(s) found (listed above)")
+        raise CliError(f"{args.dataset}: {len(problems)} problem(s) found:\n" + "\n".join(f"  - {p}" for p in problems))
     meta = json.loads((Path(args.dataset) / "meta" / "info.json").read_text(encoding="utf-8"))
     info(f"{args.dataset}: valid LeRobot {meta['codebase_version']} dataset, {meta['total_episodes']} episodes, "
          f"{meta['total_frames']} frames")  # fmt: skip

@@ -51,6 +51,9 @@ def validate(dataset_dir: str | Path) -> list[str]:
     missing = [k for k in _REQUIRED_INFO if k not in info]
     if missing:
         return [f"meta/info.json lacks {', '.join(missing)}"]
+    _check_info(info, problems)
+    if problems:  # the layout itself is wrong: reading files by it would only add noise
+        return list(problems)
     version = info["codebase_version"]
     try:
         if version == "v3.0":
@@ -62,6 +65,36 @@ def validate(dataset_dir: str | Path) -> list[str]:
     except Exception as e:  # a reader crash is a finding about the dataset, not a crash of the validator
         problems.add(f"could not read the dataset: {type(e).__name__}: {e}")
     return list(problems)
+
+
+_DTYPES = {"float32": "f", "float64": "f", "int64": "i", "int32": "i", "bool": "b", "string": "OUS"}  # numpy kinds
+
+
+def _check_info(info: dict, problems: _Problems) -> None:
+    """info.json's own values: types and ranges a reader divides or indexes by."""
+    for k in ("total_episodes", "total_frames", "total_tasks"):
+        if isinstance(info[k], bool) or not isinstance(info[k], int) or info[k] < 0:
+            problems.add(f"meta/info.json: {k} = {info[k]!r} is not a count")
+    fps = info["fps"]
+    if isinstance(fps, bool) or not isinstance(fps, int | float) or not 0 < fps <= 1000:
+        problems.add(f"meta/info.json: fps = {fps!r} is not a rate in (0, 1000]")
+    if "chunks_size" in info and (isinstance(info["chunks_size"], bool) or not isinstance(info["chunks_size"], int)
+                                  or info["chunks_size"] < 1):  # fmt: skip
+        problems.add(f"meta/info.json: chunks_size = {info['chunks_size']!r} is not a positive count")
+    if "robot_type" in info and not isinstance(info["robot_type"], str | None):
+        problems.add(f"meta/info.json: robot_type = {info['robot_type']!r} is not text")
+    feats = info["features"]
+    if not isinstance(feats, dict) or not all(isinstance(f, dict) for f in feats.values()):
+        problems.add("meta/info.json: features must map each name to {dtype, shape, names}")
+        return
+    for k, f in feats.items():
+        shape = f.get("shape")
+        if not (isinstance(shape, list) and shape and all(isinstance(d, int) and not isinstance(d, bool) and d > 0
+                                                         for d in shape)):  # fmt: skip
+            problems.add(f"meta/info.json: feature {k} shape {shape!r} is not a list of positive sizes")
+        if f.get("dtype") not in (*_DTYPES, "video", "image"):
+            problems.add(f"meta/info.json: feature {k} dtype {f.get('dtype')!r} is not one of "
+                         f"{', '.join([*_DTYPES, 'video', 'image'])}")  # fmt: skip
 
 
 # ---- readers --------------------------------------------------------------------------------------
@@ -157,6 +190,9 @@ def _check_rows(table, info: dict, data_feats: list[str], problems: _Problems) -
     """Column presence / shapes and dataset-wide index checks; returns the columns as numpy."""
     feats = info["features"]
     cols: dict[str, np.ndarray] = {}
+    undeclared = [c for c in table.column_names if c not in feats]
+    if undeclared:
+        problems.add(f"data: column(s) {', '.join(undeclared)} not declared in meta/info.json features")
     for k in data_feats:
         if k not in table.column_names:
             problems.add(f"data: column {k} missing")
@@ -166,6 +202,9 @@ def _check_rows(table, info: dict, data_feats: list[str], problems: _Problems) -
         got = 1 if arr.ndim == 1 else arr.shape[1]
         if got != want:
             problems.add(f"data: {k} has {got} values per frame, info.json says shape {feats[k]['shape']}")
+        kind = _DTYPES.get(feats[k].get("dtype"), "")
+        if arr.dtype.kind not in kind and not (kind == "f" and arr.dtype.kind in "iu"):
+            problems.add(f"data: {k} holds {arr.dtype} values, info.json says {feats[k].get('dtype')}")
         if arr.dtype.kind in "f" and not np.isfinite(arr).all():
             problems.add(f"data: {k} holds NaN/Inf")
         cols[k] = arr

@@ -37,6 +37,7 @@ __all__ = [
     "GL_TO_CV",
     "camera_from_transforms_frame",
     "load_camera_json",
+    "implausible_intrinsics",
     "load_intrinsics",
     "load_transforms_json",
     "look_at",
@@ -465,7 +466,48 @@ def load_intrinsics(
         cam.has_distortion  # noqa: B018  (a lens this model cannot take is an error now, not in a later stage)
     except CameraFormatError as e:
         raise CameraFormatError(f"{path}: {e}") from None
+    problem = implausible_intrinsics(cam)
+    if problem is not None:  # caught here, not as SfM's "no initial pair ... more parallax" blaming the capture
+        raise CameraFormatError(f"{path}: {problem}; check the calibration (`m2m intrinsics {path}` shows how it "
+                                "reads)")  # fmt: skip
     return cam
+
+
+FOV_DEG = (1.0, 170.0)  # a pinhole's horizontal field of view: from a long telephoto to an ultra-wide
+FISHEYE_FOV_DEG = 240.0  # an equidistant lens's widest
+MAX_PIXEL_ASPECT = 2.0  # fx / fy: square pixels are 1; anamorphic lenses reach 1.33-2
+
+
+def implausible_intrinsics(cam: Camera) -> str | None:
+    """What makes ``cam``'s intrinsics unlike a real camera's, worded for the user (None: plausible): the principal
+    point outside the image, a field of view outside :data:`FOV_DEG` (a fisheye's up to :data:`FISHEYE_FOV_DEG`), fx
+    and fy more than :data:`MAX_PIXEL_ASPECT` apart, or a lens whose radial distortion turns back before the image's
+    corners (two radii on one pixel: no model can undistort that)."""
+    fx, fy, cx, cy = cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2]
+    w, h, fisheye = cam.width, cam.height, cam.distortion_model == "fisheye"
+    if not (0 < cx < w and 0 < cy < h):
+        return f"the principal point ({cx:g}, {cy:g}) lies outside the {w}x{h} image"
+    if not 1 / MAX_PIXEL_ASPECT <= fx / fy <= MAX_PIXEL_ASPECT:
+        return f"fx / fy = {fx / fy:.3g} (fx {fx:g}, fy {fy:g}); a camera's pixels are near square (1)"
+    fov = np.degrees(w / fx if fisheye else 2 * np.arctan(w / (2 * fx)))
+    widest = FISHEYE_FOV_DEG if fisheye else FOV_DEG[1]
+    if not FOV_DEG[0] <= fov <= widest:
+        return f"fx {fx:g} gives a {fov:.3g} deg field of view over {w} px; a camera sees {FOV_DEG[0]:g}-{widest:g} deg"
+    corners = np.array([[0, 0], [w, 0], [0, h], [w, h]], dtype=np.float64)
+    r_max = 1.1 * float(np.hypot((corners[:, 0] - cx) / fx, (corners[:, 1] - cy) / fy).max())
+    d = {k: float(cam.distortion.get(k, 0.0)) for k in _DISTORTION_KEYS}
+    r = np.linspace(0.0, r_max, 512)
+    if fisheye:  # equidistant: theta_d = theta (1 + k1 theta^2 + ... + k4 theta^8), theta up to the corners'
+        radial = r * (1 + d["k1"] * r**2 + d["k2"] * r**4 + d["k3"] * r**6 + d["k4"] * r**8)
+    else:
+        radial = r * (1 + d["k1"] * r**2 + d["k2"] * r**4 + d["k3"] * r**6) / (1 + d["k4"] * r**2 + d["k5"] * r**4
+                                                                               + d["k6"] * r**6)  # fmt: skip
+    turn = np.nonzero(np.diff(radial) <= 0)[0]
+    if len(turn):
+        where = r[turn[0]] / r_max * 1.1
+        return (f"its distortion ({', '.join(f'{k} {v:g}' for k, v in d.items() if v)}) turns back at {where:.0%} of "
+                "the way to the image corners: the lens model cannot map those pixels one to one")
+    return None
 
 
 def save_camera_json(path: str | os.PathLike[str], cam: Camera) -> None:

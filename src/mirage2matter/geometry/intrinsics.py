@@ -238,7 +238,11 @@ def _read_filestorage(path: Path) -> dict[str, Any]:
     """OpenCV's FileStorage (YAML with %YAML:1.0 / XML / its JSON): every top-level node as plain values."""
     import cv2
 
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    try:  # a truncated or broken file: OpenCV's parser raises cv2.error, or SystemError through its bindings
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as e:
+        raise _fail(path, f"OpenCV cannot parse this file (truncated or not a calibration file: "
+                          f"{(str(e).strip().splitlines() or [type(e).__name__])[-1][:200]})") from None  # fmt: skip
     try:
         if not fs.isOpened():
             raise _fail(path, "OpenCV cannot read this file")

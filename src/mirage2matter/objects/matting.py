@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..configs import ranged
 from ..gaussians.model import Gaussians
 from ..gaussians.render import render
 from ..gaussians.train import TrainConfig, View, init_gaussians_from_points, train
@@ -52,15 +53,15 @@ class MattingConfig:
     seed             initialisation seed
     """
 
-    iterations: int = 1000
-    init_gaussians: int = 20000
-    max_gaussians: int = 60000
-    sh_degree: int = 1
-    proxy_margin: float = 0.008
-    roi_margin: float = 0.03
-    lambda_alpha: float = 0.5
-    alpha_threshold: float = 0.5
-    min_views: int = 6
+    iterations: int = ranged(1000, ge=1, le=10**6)
+    init_gaussians: int = ranged(20000, ge=1, le=10**7)
+    max_gaussians: int = ranged(60000, ge=1, le=10**7)
+    sh_degree: int = ranged(1, ge=0, le=3)
+    proxy_margin: float = ranged(0.008, ge=0, le=0.5)
+    roi_margin: float = ranged(0.03, ge=0, le=1)
+    lambda_alpha: float = ranged(0.5, ge=0, le=1000)
+    alpha_threshold: float = ranged(0.5, gt=0, lt=1)
+    min_views: int = ranged(6, ge=1, le=10_000)
     # second sample (`m2m sample make --seed 8 --layout random --lens phone`), IoU with the true silhouettes after
     # GrabCut, median over 32 keyframes: banana 0.817 -> 0.927 (area 1.16 -> 0.99 x), croissant 0.884 -> 0.875; the
     # bundled sample: banana 0.888 -> 0.899, croissant 0.857 -> 0.862, button 0.982 -> 0.981. The floor alone
@@ -68,10 +69,10 @@ class MattingConfig:
     # Gaussians above the floor fill the arc again (banana 0.881). Two passes with the proxy's projection both
     # times change nothing; a weight on alpha inside the proxy that kept the banana's arc bare (0.01: 0.907) erased
     # the croissant, which is the colour of the wood (0.55; 0.003 already 0.80).
-    floor: float = 0.004
-    passes: int = 2
-    hidden_margin_px: int = 3
-    seed: int = 0
+    floor: float = ranged(0.004, ge=0, le=0.1)
+    passes: int = ranged(2, ge=1, le=2)
+    hidden_margin_px: int = ranged(3, ge=0, le=100)
+    seed: int = ranged(0, ge=0, le=2**32 - 1)
 
 
 @dataclass

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..atomic import atomic_dir
+from ..configs import ranged
 from ..geometry.camera import Camera
 from ..geometry.sim3 import Sim3
 from .errors import ObjectsError
@@ -75,30 +76,42 @@ class ObjectsConfig:
     prompts: list[str] = field(default_factory=list)
     masks: Path | None = None
     mesh: dict[str, Path] = field(default_factory=dict)
-    keypoints: dict[str, list[tuple[tuple[float, float, float], tuple[float, float, float]]]] = field(
-        default_factory=dict, metadata={"flag": False}
+    keypoints: dict[str, list[tuple[tuple[float, float, float], tuple[float, float, float]]]] = ranged(
+        default_factory=dict, ge=-1e6, le=1e6, metadata={"flag": False}  # a user mesh's units are its own
     )
     sam2_checkpoint: Path | None = None
-    density: dict[str, float] = field(default_factory=dict)
-    default_density: float = 500.0
+    density: dict[str, float] = ranged(default_factory=dict, gt=0, le=25_000)
+    default_density: float = ranged(500.0, gt=0, le=25_000)
     matting: MattingConfig = field(default_factory=MattingConfig)
     splat: SplatConfig = field(default_factory=SplatConfig)
-    voxel: float = 0.0015
-    skip_fraction: float = 0.08
+    voxel: float = ranged(0.0015, ge=0.0002, le=0.05)
+    skip_fraction: float = ranged(0.08, ge=0, lt=1)
     grabcut: bool = True
-    depth_margin: float = 0.0005  # see reconstruct_mesh
+    depth_margin: float = ranged(0.0005, ge=0, le=0.05)  # see reconstruct_mesh
     # not the alpha-weighted mean depth: a trained object is a shell of faint Gaussians over opaque ones further in, and
     # that mean lay 1.5 mm (median) behind the second sample's croissant, carving its front away (volume 0.85)
-    depth_opacity: float = 0.2
-    prune_inside: float = 0.0015  # 2 mm left the bundled 24-keyframe croissant's Gaussians 2.04 mm from its mesh
-    prune_rounds: int = 2
+    depth_opacity: float = ranged(0.2, gt=0, lt=1)
+    # 2 mm left the bundled 24-keyframe croissant's Gaussians 2.04 mm from its mesh
+    prune_inside: float = ranged(0.0015, ge=0, le=0.05)
+    prune_rounds: int = ranged(2, ge=0, le=10)
     # Off by default: it was a way round the depth that lay behind the surface (now ``depth_opacity``). On the bundled
     # sample's 24-keyframe test it moved the croissant's opaque Gaussians 1.90 -> 2.05 mm from its mesh (issue 6: 2 mm).
     recarve: bool = False
-    collision_threshold: float = 0.05
-    collision_max_parts: int = 16
-    figure_views: int = 3
-    workers: int = field(default=0, metadata={"fingerprint": "never"})
+    collision_threshold: float = ranged(0.05, gt=0, le=1)
+    collision_max_parts: int = ranged(16, ge=1, le=1000)
+    figure_views: int = ranged(3, ge=1, le=32)
+    workers: int = ranged(0, ge=0, le=256, metadata={"fingerprint": "never"})
+
+    def validate(self) -> None:
+        """Every object name is one (it names the folder ``objects/<name>/``): ``../evil`` is refused here."""
+        from ..inputs import InputError, check_name
+
+        named = [n.partition("=")[0] for n in self.names] + list(self.mesh) + list(self.density) + list(self.keypoints)
+        for name in named:
+            try:
+                check_name(name, f"objects: object name {name!r}")
+            except InputError as e:
+                raise ObjectsError(str(e)) from None
 
 
 def load_keyframes_rgb(cameras: list[Camera], image_dir: Path) -> list[np.ndarray]:

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..configs import ranged
 from ..gaussians.dataset import split_holdout
 from ..gaussians.model import Gaussians
 from ..gaussians.train import TrainConfig, View, train
@@ -53,22 +54,22 @@ class SplatConfig:
     seed              initialisation and sampling seed
     """
 
-    iterations: int = 1500
-    sh_degree: int = 2
-    max_gaussians: int = 60000
-    lambda_alpha: float = 1.0
+    iterations: int = ranged(1500, ge=1, le=10**6)
+    sh_degree: int = ranged(2, ge=0, le=3)
+    max_gaussians: int = ranged(60000, ge=1, le=10**7)
+    lambda_alpha: float = ranged(1.0, ge=0, le=1000)
     # lambda_opacity (TrainConfig.lambda_opacity): on the sample's 24-keyframe run the opaque Gaussians' median
     # distance to the mesh fell 2.15 -> 1.99 mm (banana), 2.56 -> 2.07 mm (croissant) at the same held-out PSNR;
     # 0.2 was no better and shrank the meshes more
-    lambda_opacity: float = 0.05
-    lambda_dssim: float = 0.2
-    dilate_px: int = 3
-    crop_margin_px: int = 12
+    lambda_opacity: float = ranged(0.05, ge=0, le=1000)
+    lambda_dssim: float = ranged(0.2, ge=0, le=1)
+    dilate_px: int = ranged(3, ge=0, le=100)
+    crop_margin_px: int = ranged(12, ge=0, le=1000)
     # 0.3, not 0.05: the matting's faint Gaussians became a shell the object's surface was drawn with, over opaque
     # Gaussians ~2 mm inside it (the second sample's croissant: median opacity 0.013; its opaque Gaussians 2.16 mm
     # from its mesh, 1.11 mm without them)
-    min_opacity_init: float = 0.3
-    holdout_every: int = 8
+    min_opacity_init: float = ranged(0.3, ge=0, lt=1)
+    holdout_every: int = ranged(8, ge=0, le=10_000)
     # off: on the sample the objects' area in the head camera's view (640 px) went from 1.38 / 1.21 / 1.19 x the
     # ground truth's (banana / croissant / button) to 1.17 / 1.04 / 0.89 x, but the Gaussians left translucent
     # table-coloured streaks (the table hides them in training) and the masked PSNR over black fell 32.3 -> 27.6,
@@ -76,7 +77,7 @@ class SplatConfig:
     # opaque (tests/objects/test_splat.py); a grasp policy trained on 300 demos with such objects: 30 % [19-44] of 50
     # in the sample's ground-truth world, against 64 % [50-76] with the default objects
     table_background: bool = False
-    seed: int = 0
+    seed: int = ranged(0, ge=0, le=2**32 - 1)
 
 
 def _dilate(mask: np.ndarray, px: int) -> np.ndarray:

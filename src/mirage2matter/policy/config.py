@@ -6,6 +6,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from ..configs import ranged
+
 __all__ = ["CHECKPOINT_FILE", "CHECKPOINT_FORMAT", "POLICY_FILE", "AugmentConfig", "PolicyTrainConfig"]
 
 CHECKPOINT_FORMAT = "mirage2matter-policy/1"
@@ -48,31 +50,31 @@ class AugmentConfig:
     # and saturation 0.25, hue 0.02, gain 0.06, noise 0.02). The geometric warp alone made small (shift 0.02, scale
     # 0.01, rotation 0.5 deg; the episodes already jitter the camera mounts): 9 of the first 28 ground-truth episodes
     # against the default's 12 of the same 28 (4,000 steps, seed 0).
-    shift: float = 0.1
-    scale: float = 0.05
-    rotate_deg: float = 3.0
-    brightness: float = 0.4
-    contrast: float = 0.4
-    saturation: float = 0.4
-    hue: float = 0.05
-    gain: float = 0.1
-    noise: float = 0.04
-    blur: float = 0.0
-    sharpen: float = 0.0
+    shift: float = ranged(0.1, ge=0, le=0.5)
+    scale: float = ranged(0.05, ge=0, le=0.5)
+    rotate_deg: float = ranged(3.0, ge=0, le=180)
+    brightness: float = ranged(0.4, ge=0, le=1)
+    contrast: float = ranged(0.4, ge=0, le=1)
+    saturation: float = ranged(0.4, ge=0, le=1)
+    hue: float = ranged(0.05, ge=0, le=0.5)
+    gain: float = ranged(0.1, ge=0, le=1)
+    noise: float = ranged(0.04, ge=0, le=1)
+    blur: float = ranged(0.0, ge=0, le=1)
+    sharpen: float = ranged(0.0, ge=0, le=10)
     # On by default, with the input low-pass and the lighter state noise (PolicyTrainConfig): measured on the sample
     # (300 hybrid grasp demos, 4,000 steps, seed 0; ground-truth world, unseen seeds 1000000-19), 4/20 without all
     # three (4,158 steps), 9/20 with state noise 0.1 alone, 10/20 with these two and the low-pass alone, 12/20 with
     # all three (32/50 = 64 % [50-76 %] on seeds 1000000-49).
-    randconv: float = 0.5
-    grayscale: float = 0.1
+    randconv: float = ranged(0.5, ge=0, le=1)
+    grayscale: float = ranged(0.1, ge=0, le=1)
     # Off: measured on the sample (300 hybrid grasp demos, 4,000 steps, seed 0, the same ground-truth episodes from
     # seed 1000000 as the default E15), 0.4 gave the lowest open-loop ground-truth error of any single policy (bench
     # policy-gap 0.065, hybrid-to-ground-truth gap 0.004 against 0.010) yet succeeded in 1 of the first 16 episodes
     # against 6 and in 3 of 10 in its own hybrid world against 7: the banana's colour against the table is the cue
     # it finds the banana by, and taking it away broke the policy. 0.15: 24 of the 50, level with the default's 24
-    hue_bands: float = 0.0
+    hue_bands: float = ranged(0.0, ge=0, lt=1)
     # Off: 0.5 succeeded in 11 of the first 32 ground-truth episodes against the default's 17 (same runs as above)
-    camera_dropout: float = 0.0
+    camera_dropout: float = ranged(0.0, ge=0, le=1)
 
 
 @dataclass
@@ -110,39 +112,39 @@ class PolicyTrainConfig:
                       the deployed network (0: none)
     """
 
-    image_size: int = 96
-    episodes: int = 0
+    image_size: int = ranged(96, ge=16, le=512)
+    episodes: int = ranged(0, ge=0, le=10**7)
     cameras: tuple[str, ...] = ()
-    chunk: int = 10
-    batch_size: int = 64
-    lr: float = 1e-3
-    weight_decay: float = 1e-4
-    warmup_steps: int = 200
-    steps: int = 0
-    minutes: float = 20.0
-    widths: tuple[int, ...] = (16, 32, 64)
-    keypoints: int = 32
-    hidden: int = 256
-    ema_decay: float = 0.995
-    val_fraction: float = 0.05
-    eval_every: int = 250
-    checkpoint_every: int = 250
-    seed: int = 0
+    chunk: int = ranged(10, ge=1, le=1000)
+    batch_size: int = ranged(64, ge=1, le=1 << 16)
+    lr: float = ranged(1e-3, gt=0, le=10)
+    weight_decay: float = ranged(1e-4, ge=0, le=10)
+    warmup_steps: int = ranged(200, ge=0, le=10**8)
+    steps: int = ranged(0, ge=0, le=10**9)
+    minutes: float = ranged(20.0, ge=0, le=100_000)
+    widths: tuple[int, ...] = ranged((16, 32, 64), ge=1, le=4096)
+    keypoints: int = ranged(32, ge=1, le=1024)
+    hidden: int = ranged(256, ge=4, le=1 << 14)
+    ema_decay: float = ranged(0.995, ge=0, lt=1)
+    val_fraction: float = ranged(0.05, ge=0, lt=1)
+    eval_every: int = ranged(250, ge=1, le=10**9)
+    checkpoint_every: int = ranged(250, ge=1, le=10**9)
+    seed: int = ranged(0, ge=0, le=2**32 - 1)
     device: str = "auto"
     augment: AugmentConfig = field(default_factory=AugmentConfig)
     # 0.1 (normalised units) rather than the earlier 0.5: measured in the ground-truth world, 9/20 against 4/20 (and
     # 18/20 in the reconstruction); see AugmentConfig for the runs
-    state_noise: float = 0.1
+    state_noise: float = ranged(0.1, ge=0, le=10)
     # On by default: measured on the sample (300 hybrid grasp demos, unseen episodes), the ground-truth world went
     # from 0/20 without it (2,974 steps) to 17/50 (9,976 steps, seed 0), 5/50 (the same, seed 1), 5/20 (6,786 steps,
     # with blur/sharpen augmentation) and 3/50 (13,880 steps); the reconstructed world from 11/20 to 16/20 (seed
     # 0), 17/20 and 13/20. Runs differ a lot from seed to seed.
-    aux_horizons: tuple[int, ...] = (10, 20, 30, 40)
-    aux_weight: float = 1.0
+    aux_horizons: tuple[int, ...] = ranged((10, 20, 30, 40), ge=1, le=1000)
+    aux_weight: float = ranged(1.0, ge=0, le=1000)
     # The reconstruction's renders and the world they were made from differ mostly in fine detail: hybrid and
     # ground-truth frames of the same states agree to 24.3 dB (head) and 24.6 dB (wrist) at 96 px, to about 28 and
     # 27 dB after a sigma-2 px low-pass. 1.5 px: see AugmentConfig for the runs
-    input_blur: float = 1.5
+    input_blur: float = ranged(1.5, ge=0, le=8)
 
     def problems(self) -> list[str]:
         """Every invalid value, worded for the user (empty: valid)."""

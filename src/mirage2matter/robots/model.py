@@ -256,6 +256,10 @@ def model_info(path: str | os.PathLike) -> ModelInfo:
         if kind is None:
             others.append(name)
             continue
+        lo, hi = (float(v) for v in m.jnt_range[j])
+        if lo > hi:  # MuJoCo leaves such a joint unlimited, silently
+            raise ModelError(f"{path}: joint {name}: range {lo:g} {hi:g} is written backwards; give the lower limit "
+                             "first")  # fmt: skip
         kp, kv, force = actuated.get(j, (None, None, None))
         if force is None and m.jnt_actfrclimited[j]:
             force = float(max(abs(v) for v in m.jnt_actfrcrange[j]))

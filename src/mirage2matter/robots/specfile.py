@@ -7,6 +7,7 @@ everything the model holds is read from it: joint ranges, velocity limits (URDF)
 the closing axis at home. The robots shipped with the package are such files (``robots/specs/*.yaml``)::
 
     name: ur5e                          # what world.yaml and the commands call it (letters, digits, _ -)
+    units: m                            # of the lengths below (tcp, eye, target, tip_depth, grasp widths): m or mm
     robot_type: ur5e                    # LeRobot's robot_type of its datasets (default: name)
     model: xml/universal_robots_ur5e/ur5e.xml   # MJCF/URDF: relative to this file, absolute, or in Genesis' assets
     # ... or an arm without a gripper fitted with one (its root body fixed at a site or link of the arm):
@@ -79,7 +80,9 @@ DEFAULT_KV_PER_KP = 0.1
 DEFAULTS = {"pad_half_width": 0.01, "grasp_force": 20.0, "coupling": 0.0, "tip_clearance": 0.003}
 
 _NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")
-TOP_KEYS = {"name", "robot_type", "model", "arm", "gripper", "end_effector", "control", "limits", "cameras"}
+MAX_OFFSET_M = 0.5  # a tool centre or a camera mount this far from its link is in other units (103.4: mm)
+TOP_KEYS = {"name", "robot_type", "units", "model", "arm", "gripper", "end_effector", "control", "limits",
+            "cameras"}
 NO_GRIPPER_HELP = (
     "a robot here needs a gripper: name its finger joints (gripper.joints), or fit one to an arm without: "
     "model: {arm: ARM_FILE, gripper: xml/franka_emika_panda/hand.xml, mount: SITE_OR_LINK_AT_THE_FLANGE}"
@@ -128,6 +131,22 @@ class _Reader:
         if not lo <= value <= hi:
             raise self.error(field, f"{value!r} is outside [{lo:g}, {hi:g}]")
         return float(value)
+
+    scale = 1.0  # the spec's lengths to metres (``units: mm``: 0.001)
+
+    def offset(self, value: Any, field: str, link: str, limit: float) -> tuple[float, ...]:
+        """A point in ``link``'s frame in metres, given in the spec's units; more than ``limit`` m from the link is an
+        error naming the field (millimetres written as metres)."""
+        v = tuple(x * self.scale for x in self.vector(value, field, 3))
+        d = math.hypot(*v)
+        if d > limit:
+            raise self.error(field, f"{list(value)} lies {d:.3g} m from {link}; expected at most {limit:g} m: lengths "
+                                    "are metres unless the spec says units: mm")  # fmt: skip
+        return v
+
+    def length(self, value: Any, field: str, lo: float, hi: float) -> float:
+        """A length in metres, given in the spec's units, within [lo, hi] m."""
+        return self.number(self.number(value, field) * self.scale, field, lo, hi)
 
     def vector(self, value: Any, field: str, n: int) -> tuple[float, ...]:
         if not isinstance(value, list | tuple) or len(value) != n:
@@ -289,7 +308,8 @@ def _camera(r: _Reader, data: Any, field: str, bodies: tuple[str, ...]) -> Camer
     link = r.string(d["link"], f"{field}.link")
     if link not in bodies:
         raise r.error(f"{field}.link", f"{link!r} is not a link of the model (links: {list(bodies)})")
-    eye, target = r.vector(d["eye"], f"{field}.eye", 3), r.vector(d["target"], f"{field}.target", 3)
+    eye, target = r.offset(d["eye"], f"{field}.eye", link, MAX_OFFSET_M), r.offset(d["target"], f"{field}.target",
+                                                                                     link, 2.0)  # fmt: skip
     up = r.vector(d.get("up", [0, 0, 1]), f"{field}.up", 3)
     view = np.subtract(target, eye)
     if np.linalg.norm(view) < 1e-6 or np.linalg.norm(np.cross(view, up)) < 1e-6 * np.linalg.norm(view):
@@ -310,6 +330,10 @@ def spec_from_dict(data: Any, source: str | os.PathLike | None = None) -> RobotS
     src = Path(source) if source is not None else None
     r = _Reader(str(src) if src is not None else "robot spec")
     d = r.mapping(data, "(top level)", TOP_KEYS)
+    units = d.get("units", "m")
+    if units not in ("m", "mm"):
+        raise r.error("units", f"{units!r}: the spec's lengths are in m (the default) or mm")
+    r.scale = 0.001 if units == "mm" else 1.0
     name = r.string(d.get("name"), "name")
     if not _NAME_RE.match(name):
         raise r.error("name", f"{name!r}: use letters, digits, '_' or '-', starting with a letter")
@@ -376,7 +400,7 @@ def spec_from_dict(data: Any, source: str | os.PathLike | None = None) -> RobotS
                                                "arm's end that the gripper hangs off")  # fmt: skip
     if ee_link in {info.joint(j).body for j in grip} or any(ee_link in info.descendants(f) for f in finger_links):
         raise r.error("end_effector.link", f"{ee_link!r} moves with the fingers; give the link they hang off")
-    tcp = r.vector(ee_d.get("tcp", [0, 0, 0]), "end_effector.tcp", 3)
+    tcp = r.offset(ee_d.get("tcp", [0, 0, 0]), "end_effector.tcp", ee_link, MAX_OFFSET_M)
     approach = np.asarray(r.vector(ee_d.get("approach", [0, 0, 1]), "end_effector.approach", 3))
     closing = np.asarray(r.vector(ee_d.get("closing", [0, 1, 0]), "end_effector.closing", 3))
     if np.linalg.norm(approach) < 1e-6 or np.linalg.norm(closing) < 1e-6:
@@ -386,18 +410,19 @@ def spec_from_dict(data: Any, source: str | os.PathLike | None = None) -> RobotS
         raise r.error("end_effector", "approach and closing must be perpendicular")
     closing = closing - (closing @ approach) * approach
     closing /= np.linalg.norm(closing)
-    tip_depth = r.number(ee_d.get("tip_depth", 0.0), "end_effector.tip_depth", 0.0, 0.5)
+    tip_depth = r.length(ee_d.get("tip_depth", 0.0), "end_effector.tip_depth", 0.0, 0.5)
 
     opening = sum(abs(opened - closed) for j in grip if info.joint(j).kind == "slide")
     if "max_grasp_width" in grip_d:
-        max_width = r.number(grip_d["max_grasp_width"], "gripper.max_grasp_width", 1e-3, 1.0)
+        max_width = r.length(grip_d["max_grasp_width"], "gripper.max_grasp_width", 1e-3, 1.0)
     elif all(info.joint(j).kind == "slide" for j in grip):
         max_width = 0.9 * opening
     else:
         raise r.error("gripper.max_grasp_width", "missing: fingers that turn need the widest object they take (m)")
-    pad = r.number(grip_d.get("pad_half_width", DEFAULTS["pad_half_width"]), "gripper.pad_half_width", 1e-4, 0.2)
-    min_h = r.number(grip_d.get("min_grasp_height", tip_depth + DEFAULTS["tip_clearance"]),
-                     "gripper.min_grasp_height", 0.0, 0.5)  # fmt: skip
+    pad = r.length(grip_d["pad_half_width"], "gripper.pad_half_width", 1e-4, 0.2) if "pad_half_width" in grip_d \
+        else DEFAULTS["pad_half_width"]  # fmt: skip
+    min_h = r.length(grip_d["min_grasp_height"], "gripper.min_grasp_height", 0.0, 0.5) if "min_grasp_height" in \
+        grip_d else tip_depth + DEFAULTS["tip_clearance"]  # fmt: skip
     force = r.number(grip_d.get("force", DEFAULTS["grasp_force"]), "gripper.force", 1e-3, 1e4)
     coupling = r.number(grip_d.get("coupling", DEFAULTS["coupling"]), "gripper.coupling", 0.0, 1e7)
 

@@ -15,6 +15,7 @@ import numpy as np
 from ..atomic import atomic_write
 from ..calib.align import AlignError, align_scene, default_T_base_board, draw_base_overlay
 from ..calib.board import load_target
+from ..configs import ranged
 from ..robots import DEFAULT_ROBOT, is_spec_file
 from ..workspace import Workspace
 from .base import ADDED_LATER, Input, Log
@@ -49,7 +50,8 @@ class Config:
     icp: bool = False
     robot: str = DEFAULT_ROBOT
     unaligned: bool = False
-    capture_joints: list[float] | None = field(default=None, metadata=ADDED_LATER)
+    # wide: degrees given for radians are the robot's check to name (check_capture_joints), not a bare range
+    capture_joints: list[float] | None = ranged(None, ge=-1000, le=1000, metadata=ADDED_LATER)
     robot_fit: Literal["auto", "off"] = field(default="auto", metadata=ADDED_LATER)
 
     def validate(self) -> None:

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from ..atomic import atomic_write
-from ..configs import fingerprinted, to_dict
+from ..configs import check_ranges, fingerprinted, to_dict
 from ..errors import M2MError
 from ..fingerprint import fingerprint
 from ..workspace import Workspace, WorkspaceError
@@ -171,6 +171,7 @@ def run_stage(
     ``ground_truth`` (a sample's ground_truth.json) the stage's ``compare`` adds how close it came."""
     from .transaction import OutputLock, Transaction, holds_lock, workspace_lock
 
+    check_ranges(cfg, stage.name)  # a Config built in code, not read: its numbers as a read one's
     validate = getattr(cfg, "validate", None)
     if validate is not None:
         validate()

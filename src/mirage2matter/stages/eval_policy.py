@@ -18,8 +18,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from ..configs import ranged
 from ..policy.config import POLICY_FILE
 from ..policy.data import PolicyError
+from ..render.splat_world import MAX_SUPERSAMPLE
 from ..workspace import Workspace
 from .base import Input, Log
 
@@ -69,19 +71,19 @@ class Config:
     task: str | None = None
     renderer: Literal["hybrid", "ground_truth"] = "hybrid"
     ground_truth: Path | None = None
-    episodes: int = 50
-    seed: int = 1_000_000
-    horizon: int = 150
-    max_episode_minutes: float = 10.0
-    size: int = 0
+    episodes: int = ranged(50, ge=1, le=10**6)
+    seed: int = ranged(1_000_000, ge=0, le=2**32 - 1)
+    horizon: int = ranged(150, ge=1, le=10**6)
+    max_episode_minutes: float = ranged(10.0, ge=0, le=100_000)
+    size: int = ranged(0, ge=16, le=4096, off=0)
     name: str | None = None
-    video_episodes: int = 4
+    video_episodes: int = ranged(4, ge=0, le=1000)
     device: str = "auto"
-    ensemble_decay: float | None = None
+    ensemble_decay: float | None = ranged(None, ge=0, le=100)
     ensemble_combine: Literal["mean", "medoid"] = "mean"
-    replan_every: int | None = None
+    replan_every: int | None = ranged(None, ge=1, le=1000)
     objects: Literal["gaussians", "meshes"] = "gaussians"
-    supersample: int = 0
+    supersample: int = ranged(0, ge=0, le=MAX_SUPERSAMPLE)
     start_region: tuple[str, ...] = ()
 
     def randomization(self):

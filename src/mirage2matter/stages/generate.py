@@ -9,8 +9,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from ..configs import ranged
 from ..datagen import GenerateConfig, GenerateError, task_slug
-from ..datagen.config import Randomization, Takeover, takeover_steps_problem
+from ..datagen.config import MAX_TAKEOVER_STEPS, Randomization, Takeover, takeover_steps_problem
+from ..render.splat_world import MAX_SUPERSAMPLE
 from ..workspace import Workspace
 from .base import ADDED_LATER, Input, Log
 
@@ -56,25 +58,25 @@ class Config:
     """
 
     task: tuple[str, ...] = ()
-    episodes: int = 50
-    workers: int = GenerateConfig.workers
+    episodes: int = ranged(50, ge=1, le=10**6)
+    workers: int = ranged(GenerateConfig.workers, ge=1, le=256)
     ray_address: str | None = None
     format: Literal["lerobot-v3.0", "lerobot-v2.1"] = GenerateConfig.format
-    seed: int = GenerateConfig.seed
-    size: int = GenerateConfig.size[0]
-    fps: int = GenerateConfig.fps
+    seed: int = ranged(GenerateConfig.seed, ge=0, le=2**32 - 1)
+    size: int = ranged(GenerateConfig.size[0], ge=8, le=4096)
+    fps: int = ranged(GenerateConfig.fps, ge=1, le=1000)
     out: Path | None = field(default=None, metadata={"output": True})  # written, not read
     objects: Literal["gaussians", "meshes"] = "gaussians"
-    object_shrink: float = 0.0
-    table_texture: float = 0.0
+    object_shrink: float = ranged(0.0, ge=0, lt=1)
+    table_texture: float = ranged(0.0, ge=0, lt=1)
     splat_server: bool = False
-    supersample: int = 1
+    supersample: int = ranged(1, ge=1, le=MAX_SUPERSAMPLE)
     robot_look: Literal["auto", "gaussians", "mesh"] = field(default="auto", metadata=ADDED_LATER)
     start_region: tuple[str, ...] = ()
     takeover: str | None = None
     # within the approach: the sample's grasps take ~42 ticks, and with 10,60 a trained policy finished the task on its
     # own before the takeover in 3 of the first 5 attempts (nothing for the expert to correct)
-    takeover_steps: tuple[int, int] = (5, 35)
+    takeover_steps: tuple[int, int] = ranged((5, 35), ge=0, le=MAX_TAKEOVER_STEPS, ordered=True)
 
     def validate(self) -> None:
         if not self.task:

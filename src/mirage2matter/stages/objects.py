@@ -28,9 +28,6 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
 
 
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
-    if not 0.0 < cfg.depth_opacity < 1.0:
-        raise ObjectsError(f"objects.depth_opacity must lie strictly between 0 and 1 (got {cfg.depth_opacity}); "
-                           "the default is 0.2")  # fmt: skip
     posed = ws.posed_capture(frame="base")
     cameras, images = pinhole_keyframes(posed.cameras, posed.image_dir)  # a camera's lens taken out up front
     lens = posed.cameras if any(c.has_distortion for c in posed.cameras) else None

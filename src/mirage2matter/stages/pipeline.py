@@ -40,6 +40,7 @@ from . import (
     world,
 )
 from .base import Log, run_stage
+from .report import RunNotes, write_report
 from .transaction import workspace_lock
 
 __all__ = ["PipelineConfig", "PipelineError", "SettingsFile", "input_paths", "plan_run", "run_pipeline"]
@@ -56,6 +57,8 @@ _HEADER = """\
 
 class PipelineError(M2MError):
     """A stage of a pipeline run failed; the message names the stage, its command, and how to go on."""
+
+    result: dict[str, Any] | None = None  # the stopped run's summary (where and why), for run_summary.json
 
 
 @dataclass
@@ -307,18 +310,30 @@ def run_pipeline(
     """Run (or resume) the stages from ``start`` through ``until`` (names; default: all) as :func:`plan_run`
     plans them; returns {"stages": {name: summary (a skipped stage's: {"skipped": why, "line"})}, "seconds": ...}.
     ``ground_truth``: a sample's, compared with where it can. A stage that fails raises :class:`PipelineError`
-    naming it and ``command``, the command to run again once the cause is fixed."""
+    naming it and ``command``, the command to run again once the cause is fixed (its ``result``: the stopped run's
+    summary). ``report.html`` is written after the run, a failed or interrupted one too (``stages/report.py``)."""
     plan = plan_run(ws, cfg, where, until, start)
     chosen = [s for s in PIPELINE if s.name in plan]
+    notes = RunNotes(command, [s.name for s in chosen], log)  # what report.html says of this run
     with workspace_lock(ws):  # one writer for the whole run
-        return _run(ws, cfg, chosen, plan, log, ground_truth, where or SettingsFile(ws.config_file), command)
+        t_start = time.perf_counter()
+        try:
+            result = _run(ws, cfg, chosen, plan, notes, ground_truth, where or SettingsFile(ws.config_file), command)
+        except BaseException as e:  # the report says where and why; the error goes on as before
+            stopped = notes.stopped(ws, e, time.perf_counter() - t_start)
+            if isinstance(e, PipelineError):
+                e.result = stopped
+            raise
+        write_report(ws, result, quiet=log)
+        return result
 
 
-def _run(ws: Workspace, cfg: PipelineConfig, chosen, plan: dict[str, str | None], log: Log, ground_truth: dict | None,
-         where: SettingsFile, command: str) -> dict[str, Any]:  # fmt: skip
+def _run(ws: Workspace, cfg: PipelineConfig, chosen, plan: dict[str, str | None], notes: RunNotes,
+         ground_truth: dict | None, where: SettingsFile, command: str) -> dict[str, Any]:  # fmt: skip
     t_start = time.perf_counter()
-    summaries: dict[str, Any] = {}
+    log, summaries = notes.log, notes.summaries
     for i, stage in enumerate(chosen, 1):
+        notes.stage = stage.name
         tag = f"[{i}/{len(chosen)}] {stage.name}"
         if plan[stage.name] is not None:
             log(f"{tag}: skipped - {plan[stage.name]}")
@@ -336,9 +351,10 @@ def _run(ws: Workspace, cfg: PipelineConfig, chosen, plan: dict[str, str | None]
             ) from e
         summaries[stage.name] = summary
         if skipped:
+            notes.done_earlier.append(stage.name)
             log(f"{tag}: done earlier - {summary['line']}")
         else:
             dt = time.perf_counter() - t0
             log(f"{tag}: {summary['line']}  [{dt:.0f} s, total {time.perf_counter() - t_start:.0f} s]")
     return {"workspace": str(ws.root.resolve()), "stages": summaries, "seconds": time.perf_counter() - t_start,
-            "config": to_dict(cfg)}  # fmt: skip
+            "config": to_dict(cfg), **notes.fields()}  # fmt: skip

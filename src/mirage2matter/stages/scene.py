@@ -23,7 +23,7 @@ from typing import Any, Literal
 import numpy as np
 
 from ..atomic import atomic_write
-from ..configs import to_dict
+from ..configs import ranged, to_dict
 from ..fingerprint import fingerprint
 from ..workspace import Workspace, WorkspaceError
 from .base import ADDED_LATER, Input, Log, stage_fingerprint
@@ -63,24 +63,24 @@ class Config:
                     sparkle
     """
 
-    minutes: float = 10.0
-    iterations: int = 0
-    downscale: int = 2
-    holdout_every: int = 8
-    max_gaussians: int = 200_000
-    sh_degree: int = 3
+    minutes: float = ranged(10.0, ge=0, le=100_000)
+    iterations: int = ranged(0, ge=0, le=10**7)
+    downscale: int = ranged(2, ge=1, le=16)
+    holdout_every: int = ranged(8, ge=0, le=10_000)
+    max_gaussians: int = ranged(200_000, ge=1000, le=10**8)
+    sh_degree: int = ranged(3, ge=0, le=3)
     backend: Literal["auto", "cpu", "cuda"] = "auto"
-    seed: int = 0
-    checkpoint_every: int = 200
+    seed: int = ranged(0, ge=0, le=2**32 - 1)
+    checkpoint_every: int = ranged(200, ge=0, le=10**7)
     head_photo: Path | None = field(default=None, metadata=ADDED_LATER)
     head_photo_mask: Path | None = field(default=None, metadata=ADDED_LATER)
-    head_photo_repeat: int = field(default=4, metadata=ADDED_LATER)
+    head_photo_repeat: int = ranged(4, ge=1, le=1000, metadata=ADDED_LATER)
     # gaussians.filter3d.FILTER_3D_VARIANCE (bench train's too); in every fingerprint: scenes trained before it retrain
-    filter_3d: float = 0.2
+    filter_3d: float = ranged(0.2, ge=0, le=4)
     # pixels the robot's silhouette grows by before it is masked out of the keyframes (calib/robot.json): the link
     # meshes are the model's and the cameras a few tenths of a pixel off
-    robot_margin_px: int = field(default=2, metadata=ADDED_LATER)
-    robot_iterations: int = field(default=300, metadata=ADDED_LATER)
+    robot_margin_px: int = ranged(2, ge=0, le=100, metadata=ADDED_LATER)
+    robot_iterations: int = ranged(300, ge=0, le=10**6, metadata=ADDED_LATER)
 
     def validate(self) -> None:
         if self.iterations < 0 or (self.iterations == 0 and not self.minutes > 0):

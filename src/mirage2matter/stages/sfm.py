@@ -5,11 +5,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 
 from ..capture import load_keyframes
+from ..configs import ranged
 from ..geometry.camera import load_intrinsics
 from ..sfm import SfMConfig, SfMError, compare_poses, run_sfm
 from ..workspace import Workspace
@@ -32,8 +33,12 @@ class Config:
     images           with from_colmap: the folder the model's image names are relative to
     """
 
+    # where the cameras' intrinsics come from, one at a time (an import brings its own): given one on the command
+    # line, a stage command drops the others m2m.yaml holds (for that run, and saves that)
+    EXCLUSIVE: ClassVar = (("intrinsics", "from_transforms", "from_colmap"),)
+
     matching: Literal["auto", "sequential", "exhaustive"] = SfMConfig.matching
-    downscale: float = 1.0
+    downscale: float = ranged(1.0, ge=1, le=16)
     intrinsics: Path | None = None
     from_transforms: Path | None = None
     from_colmap: Path | None = None
@@ -42,8 +47,10 @@ class Config:
     def validate(self) -> None:
         if not self.downscale > 0:
             raise SfMError(f"sfm: downscale must be positive, got {self.downscale}")
-        if self.from_transforms is not None and self.from_colmap is not None:
-            raise SfMError("sfm: give from_transforms or from_colmap, not both")
+        given = [n for n in self.EXCLUSIVE[0] if getattr(self, n) is not None]
+        if len(given) > 1:
+            raise SfMError(f"sfm: {' and '.join(given)} are both given; give one: an import (from_transforms, "
+                           "from_colmap) brings its cameras' own intrinsics, intrinsics is for SfM on keyframes")
         if self.from_colmap is not None and self.images is None:
             raise SfMError("sfm: from_colmap needs images (the folder the model's image names are relative to)")
 

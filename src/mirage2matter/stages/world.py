@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from ..configs import ranged
 from ..robots import DEFAULT_ROBOT, is_spec_file
 from ..workspace import Workspace
 from ..world.config import CameraConfig, RandomizeConfig, RobotConfig, WorldConfigError
@@ -39,14 +40,14 @@ class Config:
 
     robot: str = DEFAULT_ROBOT
     buttons: tuple[str, ...] = ()
-    crop_margin: float = ReconstructionOptions.crop_margin
-    means_margin: float = ReconstructionOptions.means_margin
-    fill_spacing: float = ReconstructionOptions.fill_spacing
+    crop_margin: float = ranged(ReconstructionOptions.crop_margin, ge=0, le=0.1)
+    means_margin: float = ranged(ReconstructionOptions.means_margin, ge=0, le=0.1)
+    fill_spacing: float = ranged(ReconstructionOptions.fill_spacing, ge=0, le=0.1)
     snap_to_table: bool = ReconstructionOptions.snap_to_table
-    button_travel: float = ReconstructionOptions.button_travel
-    button_stiffness: float = ReconstructionOptions.button_stiffness
+    button_travel: float = ranged(ReconstructionOptions.button_travel, gt=0, le=0.1)
+    button_stiffness: float = ranged(ReconstructionOptions.button_stiffness, gt=0, le=1e6)
     randomize: RandomizeConfig = field(default_factory=RandomizeConfig)
-    max_mm: float = 3.0
+    max_mm: float = ranged(3.0, gt=0, le=1000)
     sample: Path | None = None
 
     def options(self) -> ReconstructionOptions:

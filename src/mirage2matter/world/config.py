@@ -17,7 +17,6 @@ from __future__ import annotations
 import copy
 import math
 import os
-import re
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -25,9 +24,10 @@ from typing import Any
 import numpy as np
 
 from ..atomic import atomic_write
+from ..configs import ranged
 from ..errors import M2MError
 from ..geometry.sim3 import Sim3
-from ..inputs import InputError, check_image_size, check_intrinsics, check_joints, read_yaml
+from ..inputs import NAME_RE, InputError, check_image_size, check_intrinsics, check_joints, read_yaml
 from ..robots import DEFAULT_ROBOT, RobotError, RobotSpec, get_robot, is_spec_file
 
 __all__ = [
@@ -45,7 +45,7 @@ __all__ = [
     "world_yaml_path",
 ]
 
-_NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
+_NAME_RE = NAME_RE  # world/validate.py's
 ARTICULATED_KINDS = ("press_button",)
 
 
@@ -295,10 +295,10 @@ class RandomizeConfig:
     articulated  articulated assets (buttons) move too (their yaw stays)
     """
 
-    x: tuple[float, float] = (0.35, 0.62)
-    y: tuple[float, float] = (-0.3, 0.3)
-    yaw_deg: tuple[float, float] = (-180.0, 180.0)
-    min_gap: float = 0.03
+    x: tuple[float, float] = ranged((0.35, 0.62), ge=-5, le=5, ordered=True)
+    y: tuple[float, float] = ranged((-0.3, 0.3), ge=-5, le=5, ordered=True)
+    yaw_deg: tuple[float, float] = ranged((-180.0, 180.0), ge=-360, le=360, ordered=True)
+    min_gap: float = ranged(0.03, ge=0, le=1)
     articulated: bool = True
 
 
