@@ -5,7 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mirage2matter.calib.robot_view import fit_to_robot, robot_points, robot_silhouette, robot_silhouettes, visual_hull
+from mirage2matter.calib.robot_view import (
+    fit_to_robot,
+    robot_depths,
+    robot_points,
+    robot_silhouette,
+    robot_silhouettes,
+    views_behind_robot,
+    visual_hull,
+)
 from mirage2matter.geometry.camera import Camera, look_at_pose
 from mirage2matter.geometry.rotation import axis_angle_to_matrix
 from mirage2matter.geometry.sim3 import Sim3
@@ -67,6 +75,38 @@ def test_the_visual_hull_holds_the_links_not_the_space_around(scene):
     hull = visual_hull(np.r_[inside, around], cams, sils)
     assert hull[: len(inside)].all()
     assert hull[len(inside) :].mean() < 0.01  # a moved point may land on another link
+
+
+def test_the_keyframes_hiding_an_object_are_those_where_the_robot_stands_in_front(scene):
+    """Objects on the table around the robot: a keyframe hides one when rays from the camera to its points meet the
+    robot's mesh first (trimesh's ray caster is the reference): none blocked -> not hidden (the robot behind the
+    object or beside it in the image does not count), 10 % or more -> hidden."""
+    import trimesh
+
+    _, links, cams, _ = scene
+    robot = trimesh.util.concatenate([trimesh.Trimesh(link.vertices, link.faces, process=False) for link in links])
+    rng = np.random.default_rng(3)
+    centres = [(0.45, 0.0), (0.0, 0.45), (-0.3, -0.3), (0.6, 0.35), (0.3, -0.3), (-0.35, 0.2)]
+    depths = robot_depths(cams, links)
+    hidden = clear = 0
+    for cx, cy in centres:
+        pts = np.c_[rng.normal(cx, 0.015, 150), rng.normal(cy, 0.015, 150), rng.uniform(0.0, 0.06, 150)]
+        got = views_behind_robot(pts, cams, depths)
+        for cam, said in zip(cams, got, strict=True):
+            origin = cam.T_world_cam[:3, 3]
+            ray = pts - origin
+            dist = np.linalg.norm(ray, axis=1)
+            hit, index, _ = robot.ray.intersects_location(np.repeat(origin[None], len(pts), 0), ray / dist[:, None],
+                                                          multiple_hits=False)  # fmt: skip
+            blocked = np.zeros(len(pts), bool)
+            blocked[index] = np.linalg.norm(hit - origin, axis=1) < dist[index] - 0.01
+            frac = blocked.mean()
+            if 0.0 < frac < 0.1:  # a few points behind the robot's edge: the 5 % line is the depth splat's to draw
+                continue
+            assert said == (frac >= 0.1), (cam.name, (cx, cy), frac)
+            hidden += said
+            clear += not said
+    assert hidden >= 2 and clear >= 30
 
 
 def test_the_robot_fit_recovers_a_misalignment_the_board_corners_do_not_hold(scene):

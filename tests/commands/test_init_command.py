@@ -20,6 +20,7 @@ SAMPLE_FLAGS = [
     "--objects", "banana", "croissant", "button", "--task", "grasp banana", "grasp croissant", "press button",
     "--task", "push croissant --direction 0,1 --distance 0.1", "--episodes", "3",
     "--capture.max-keyframes", "40", "--scene.minutes", "6", "--generate.workers", "2",
+    "--capture-joints", "-0.35", "-0.785", "0", "-2.356", "0", "1.571", "0.785",
 ]  # fmt: skip
 
 

@@ -225,24 +225,26 @@ def test_intrinsics_genesis_cannot_render_are_refused_or_approximated_as_the_twi
 def test_renders_at_the_videos_camera_poses_are_the_video(
     renderer: GroundTruthRenderer, gt: dict, video_frames: dict[int, np.ndarray]
 ) -> None:
-    """The robot hidden (the video has none), objects at their ground-truth poses. RGB PSNR against the decoded
-    H.264 (CRF 23, yuv420p) frames is what the codec leaves of the source frames (33.4-36.1 dB; the slow test
-    shows the renders ARE the source frames); on luma and at half resolution every frame is >= 35 dB."""
-    renderer.set_state(object_poses=renderer.ground_truth_poses(), robot_visible=False)
+    """The robot at the joint state it was filmed at (ground_truth.json robot.capture_joints) in the sample's own
+    look, objects at their ground-truth poses. RGB PSNR against the decoded H.264 (CRF 23, yuv420p) frames is what
+    the codec leaves of the source frames (the slow test shows the renders ARE the source frames); on luma and at
+    half resolution every frame is >= 35 dB."""
+    renderer.set_state(robot_q=gt["robot"]["capture_joints"], object_poses=renderer.ground_truth_poses())
     rows = []
     try:
         for i, frame in sorted(video_frames.items()):
             img = renderer.render({"video": np.asarray(gt["frames"][i]["T_base_cam"])})["video"]
             rows.append((i, _psnr(img, frame), _psnr(_luma(img), _luma(frame)), _psnr(_half(img), _half(frame))))
     finally:
-        renderer.set_state(robot_visible=True)
+        renderer.set_state(robot_q=renderer.spec.home_q())  # the module's other tests start from home
     print("\nframe  PSNR RGB  PSNR Y  PSNR RGB at 1/2 res (dB)")
     for i, rgb, y, half in rows:
         print(f"{i:5d}  {rgb:8.2f}  {y:6.2f}  {half:8.2f}")
     rgb, y, half = (np.array(c) for c in list(zip(*rows, strict=True))[1:])
     print(f"mean   {rgb.mean():8.2f}  {y.mean():6.2f}  {half.mean():8.2f}")
     assert len(rows) == N_PSNR_FRAMES
-    assert y.min() >= 35.0 and half.min() >= 35.0 and rgb.mean() >= 35.0, rows
+    # measured on the sample with the robot in view: luma 35.6-38.8, half size 36.0-38.6, RGB mean 35.0
+    assert y.min() >= 35.0 and half.min() >= 35.0 and rgb.mean() >= 34.5, rows
     assert rgb.min() >= 33.0, rows  # the codec's floor on this video (the source frames score the same)
 
 
@@ -322,7 +324,7 @@ def test_robot_joints_move_the_robot(renderer: GroundTruthRenderer, gt: dict, ca
             centroids.append(_centroid(mask))
             hands.append(uv)
     finally:
-        renderer.set_state(robot_q=home)
+        renderer.set_state(robot_q=renderer.spec.home_q())  # the module's other tests start from home
     d_mask, d_hand = centroids[1] - centroids[0], hands[1] - hands[0]
     assert np.linalg.norm(d_hand) > 10 and d_mask @ d_hand > 0
     with pytest.raises(GroundTruthError, match="9 finite joint positions"):
@@ -380,13 +382,13 @@ def test_render_timing(renderer: GroundTruthRenderer, gt: dict) -> None:
 # ---- slow --------------------------------------------------------------------------------------------
 @pytest.mark.slow
 def test_reencoded_renders_are_the_sample_video(sample_dir: Path, gt: dict, tmp_path: Path) -> None:
-    """All 720 frames rendered (``with_robot=False``) and encoded with the sample's own settings decode to the
-    shipped video's frames, bit for bit: the renderer IS the world the video came from (~3 min)."""
+    """All 720 frames rendered (the robot at its capture joints, in the sample's look) and encoded with the sample's
+    own settings decode to the shipped video's frames, bit for bit: the renderer IS the world the video came from
+    (~3 min)."""
     c = gt["camera"]
     t = time.perf_counter()
-    with GroundTruthRenderer(
-        sample_dir, {"video": (np.asarray(c["K"]), c["width"], c["height"])}, with_robot=False
-    ) as r:
+    with GroundTruthRenderer(sample_dir, {"video": (np.asarray(c["K"]), c["width"], c["height"])}) as r:
+        r.set_state(robot_q=gt["robot"]["capture_joints"])
 
         def frames() -> Iterator[np.ndarray]:
             for f in gt["frames"]:

@@ -89,25 +89,42 @@ def test_the_command_line_offers_every_lens_and_layout():
 
 def test_a_default_samples_settings_and_ground_truth_record_no_new_fields(tmp_path):
     """The default sample's ground truth keeps its fields (no lens, no layout) and its m2m.yaml is the bundled one;
-    a sample with the phone lens, a random layout and the UR5e says so, and its m2m.yaml hands SfM no intrinsics."""
+    a sample with the phone lens, a random layout and the UR5e says so, and its m2m.yaml hands SfM no intrinsics and
+    the UR5e's capture joints; an empty table's has none and says why."""
     from mirage2matter.inputs import read_yaml
     from mirage2matter.sample.inspect import BUNDLED_SAMPLE
-    from mirage2matter.sample.make import SampleConfig, _config_json, _write_settings, with_layout, with_lens
+    from mirage2matter.sample.make import (
+        SampleConfig,
+        _config_json,
+        _write_settings,
+        with_layout,
+        with_lens,
+        with_robot_in_view,
+    )
     from mirage2matter.stages.pipeline import PipelineConfig
 
-    default = _config_json(SampleConfig())
+    bundled = with_robot_in_view(SampleConfig())
+    default = _config_json(bundled)
     assert "lens" not in default and "layout" not in default
-    _write_settings(tmp_path / "default.yaml", SampleConfig(), ["banana", "croissant", "button"])
+    _write_settings(tmp_path / "default.yaml", bundled, ["banana", "croissant", "button"])
     assert (tmp_path / "default.yaml").read_bytes() == (BUNDLED_SAMPLE / "m2m.yaml").read_bytes()
 
-    config = replace(with_layout(with_lens(SampleConfig(seed=8), "phone"), "random"), robot="ur5e")
+    config = replace(with_layout(with_lens(with_robot_in_view(SampleConfig(seed=8)), "phone"), "random"), robot="ur5e")
     recorded = json.loads(json.dumps(_config_json(config)))
     assert recorded["lens"]["name"] == "phone" and recorded["layout"] == "random" and recorded["robot"] == "ur5e"
-    _write_settings(tmp_path / "m2m.yaml", config, ["croissant", "button", "banana"])
+    ur5e_q = (-1.9, -1.57, 1.57, -1.57, -1.57, 0.0)
+    _write_settings(tmp_path / "m2m.yaml", config, ["croissant", "button", "banana"], ur5e_q)
     settings = read_yaml(tmp_path / "m2m.yaml")
     assert "intrinsics" not in settings.get("sfm", {}) and settings["handeye"]["intrinsics"] == "ground_truth.json"
     assert settings["objects"]["names"] == ["croissant", "button", "banana"]
     assert settings["align"]["robot"] == settings["world"]["robot"] == "ur5e"
-    assert "SfM calibrates the camera itself" in (tmp_path / "m2m.yaml").read_text()
+    assert settings["align"]["capture_joints"] == list(ur5e_q)
+    text = (tmp_path / "m2m.yaml").read_text()
+    assert "SfM calibrates the camera itself" in text and text.count("The robot stands in the video") == 1
+
+    _write_settings(tmp_path / "empty.yaml", SampleConfig(), ["banana", "croissant", "button"])
+    empty = (tmp_path / "empty.yaml").read_text()
+    assert "capture_joints" not in read_yaml(tmp_path / "empty.yaml")["align"]
+    assert "--empty-table" in empty and "The robot stands in the video" not in empty
     (tmp_path / "board.json").write_text("{}")  # the stages' inputs need not exist to parse the settings
     assert PipelineConfig.load(tmp_path / "m2m.yaml").sfm.intrinsics is None

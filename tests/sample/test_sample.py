@@ -17,7 +17,7 @@ import pytest
 
 from fixtures import SAMPLE
 from mirage2matter.calib.board import BoardSpec
-from mirage2matter.sample.make import SampleConfig, SampleError, make_sample
+from mirage2matter.sample.make import SampleConfig, SampleError, make_sample, with_robot_in_view
 from mirage2matter.video import read_video_frames
 
 REQUIRED = ["scene.mp4", "ground_truth.json", "head_view.png", "board.json", "handeye/joints.json", "contact_sheet.jpg"]
@@ -170,12 +170,13 @@ def _digest(sample_dir: Path) -> tuple[str, str]:
 
 def test_regenerated_short_sample_is_deterministic_and_follows_the_shipped_conventions(tmp_path, gt):
     a, b = tmp_path / "a", tmp_path / "b"
-    make_sample(a, SampleConfig.short(seed=0), log=lambda _msg: None)
-    make_sample(b, SampleConfig.short(seed=0), log=lambda _msg: None)
+    short_config = with_robot_in_view(SampleConfig.short(seed=0))  # the bundled sample, shorter
+    make_sample(a, short_config, log=lambda _msg: None)
+    make_sample(b, short_config, log=lambda _msg: None)
     assert _digest(a) == _digest(b)
     short = json.loads((a / "ground_truth.json").read_text())
     assert set(short) == set(gt)
-    for key in ("camera", "board", "head_camera", "units", "frame", "camera_convention"):
+    for key in ("camera", "board", "head_camera", "units", "frame", "camera_convention", "robot"):
         assert short[key] == gt[key], key
     assert [o["name"] for o in short["objects"]] == [o["name"] for o in gt["objects"]]
     # same seed, same scene: the first frame of the short orbit starts where the full one starts

@@ -130,10 +130,10 @@ def test_sample_16_keyframes_match_ground_truth(tmp_path):
 def test_same_images_give_the_same_model(tmp_path):
     # multi-threaded COLMAP varied run to run (once 4 deg off); the default is reproducible
     cap = tmp_path / "capture"
-    extract_keyframes(SAMPLE / "scene.mp4", cap, CaptureConfig(max_keyframes=10))
+    extract_keyframes(SAMPLE / "scene.mp4", cap, CaptureConfig(max_keyframes=16))  # 10 leave too few round the robot
     config = SfMConfig(max_num_features=1024, downscale=0.5)
     a, b = run_sfm(cap, tmp_path / "a", config), run_sfm(cap, tmp_path / "b", config)
-    assert a.registered == b.registered >= 8
+    assert a.registered == b.registered >= 12
     assert all(np.array_equal(a.poses[k], b.poses[k]) for k in a.poses)
     assert np.array_equal(a.points, b.points)
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -33,8 +34,8 @@ from ..geometry.rotation import rotation_angle
 from ..geometry.sim3 import Sim3
 from ..robots.surface import LinkSurface, sample_surface
 
-__all__ = ["RobotFit", "RobotPoints", "fit_to_robot", "grow_mask", "robot_points", "robot_silhouette",
-           "robot_silhouettes", "visual_hull"]  # fmt: skip
+__all__ = ["RobotFit", "RobotPoints", "fit_to_robot", "grow_mask", "robot_depth", "robot_depths", "robot_points",
+           "robot_silhouette", "robot_silhouettes", "seen_robot", "views_behind_robot", "visual_hull"]  # fmt: skip
 
 # A point this close (m) to a link's surface is the robot's: SfM noise on a textured link at ~1 m is a few mm, and
 # the link meshes are the model's, not the real casting (a few mm off in places).
@@ -104,6 +105,61 @@ def visual_hull(points: np.ndarray, cameras: Sequence[Camera], silhouettes: Sequ
         inside &= hit | ~ok
         seen += ok
     return inside & (seen >= min_views)
+
+
+def seen_robot(record_file: Path) -> tuple[dict, list[LinkSurface]] | None:
+    """(align-scene's calib/robot.json, the robot's links at its capture joint state) when the keyframes show the
+    robot; None when they do not (or no alignment recorded it)."""
+    import json
+
+    from ..robots import get_robot
+    from ..robots.surface import robot_surface
+
+    if not record_file.is_file():
+        return None
+    record = json.loads(record_file.read_text(encoding="utf-8"))
+    if not record.get("seen"):
+        return None
+    return record, robot_surface(get_robot(record["robot"]), record["capture_joints"])
+
+
+def robot_depth(camera: Camera, samples_base: np.ndarray, close_px: int = 2) -> np.ndarray:
+    """float32 [H,W]: the depth (m, along the optical axis) of the nearest robot surface each pixel of ``camera``
+    (pinhole) sees, inf where it sees none. ``samples_base`` [M,3]: points on the robot's surface (sample_surface,
+    a few mm apart), splatted with a z-buffer; a ``close_px`` minimum filter closes the gaps between them."""
+    import cv2
+
+    depth = np.full((camera.height, camera.width), np.inf, np.float32)
+    uv, z = camera.project(samples_base)
+    u, v = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
+    ok = (z > 0.01) & (u >= 0) & (v >= 0) & (u < camera.width) & (v < camera.height)
+    np.minimum.at(depth, (v[ok], u[ok]), z[ok].astype(np.float32))
+    if close_px > 0:  # erosion takes the minimum: the nearer surface wins across a gap
+        depth = cv2.erode(depth, np.ones((2 * close_px + 1, 2 * close_px + 1), np.uint8))
+    return depth
+
+
+def robot_depths(cameras: Sequence[Camera], links: Sequence[LinkSurface]) -> list[np.ndarray]:
+    """:func:`robot_depth` of each camera, from one sampling of the links (3 mm apart)."""
+    samples, _ = sample_surface(links, 0.003)
+    return [robot_depth(cam, samples) for cam in cameras]
+
+
+def views_behind_robot(points_base: np.ndarray, cameras: Sequence[Camera], depths: Sequence[np.ndarray],
+                       min_fraction: float = 0.05, margin_m: float = 0.01) -> list[bool]:
+    """Per camera: does the robot stand in front of at least ``min_fraction`` of the object's points [N,3] (base
+    frame) that the camera sees? ``depths``: :func:`robot_depths` at the capture joint state. Such a keyframe shows
+    the robot where the object's projection falls (its mask would paint the robot onto the object): the objects
+    stage leaves it out. The robot behind the object or beside it does not count: only surface nearer than the
+    point by ``margin_m``. (On the robot sample: 51-100 % of a hidden object's points, 0-1 % of the others.)"""
+    points_base = np.asarray(points_base, np.float64).reshape(-1, 3)
+    out = []
+    for cam, depth in zip(cameras, depths, strict=True):
+        uv, z = cam.project(points_base)
+        u, v = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
+        ok = (z > 0) & (u >= 0) & (v >= 0) & (u < cam.width) & (v < cam.height)
+        out.append(bool(ok.any() and (depth[v[ok], u[ok]] < z[ok] - margin_m).mean() >= min_fraction))
+    return out
 
 
 @dataclass

@@ -15,9 +15,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "make",
         help="render a sample capture (video + hand-eye images + ground truth) with Genesis",
         description=(
-            "Render a hand-held video orbiting a table with a ChArUco board, two objects and a button, the fixed "
-            "head camera's hand-eye images of a board held by the robot, and ground_truth.json, into a NEW "
-            "directory (written under a temporary name and renamed when complete). Deterministic for a seed."
+            "Render a hand-held video orbiting a table with the robot standing at its base (at a logged joint state, "
+            "in a look of its own), a ChArUco board beside it, two objects and a button, the fixed head camera's "
+            "hand-eye images of a board held by the robot, and ground_truth.json, into a NEW directory (written under "
+            "a temporary name and renamed when complete). Deterministic for a seed."
         ),
     )
     sm.add_argument("dir", help="output directory (must not exist, or be empty)")
@@ -36,10 +37,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     sm.add_argument("--robot", default=DEFAULT_ROBOT, metavar="ROBOT",
                     help="the robot holding the board in the hand-eye images: a registered robot "
                     f"({', '.join(ROBOTS)}) or a robot spec file (default {DEFAULT_ROBOT})")
-    sm.add_argument("--robot-in-view", action="store_true",
-                    help="film the robot standing at its base in the video, at a logged joint state (ground_truth.json "
-                    "robot.capture_joints, and align.capture_joints in the sample's m2m.yaml) with a look of its own "
-                    "(paint, rubber, wear), the board lying beside the base, as on a real capture")
+    sm.add_argument("--empty-table", action="store_true",
+                    help="film the table without the robot (it appears only in the hand-eye images; the board lies "
+                    "where its base would stand). By default the robot stands in the video at a logged joint state "
+                    "(ground_truth.json robot.capture_joints, align.capture_joints in the sample's m2m.yaml), as on "
+                    "every real capture")
     sm.set_defaults(func=run)
     he = sample_sub.add_parser(
         "handeye",
@@ -64,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
 
     config = SampleConfig.short(args.seed) if args.short else SampleConfig(seed=args.seed)
     config = with_layout(with_lens(with_marker(config, args.marker), args.lens), args.layout)
-    if args.robot_in_view:
+    if not args.empty_table:
         config = with_robot_in_view(config)
     if args.robot != config.robot:
         from dataclasses import replace

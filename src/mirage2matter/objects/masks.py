@@ -50,11 +50,13 @@ __all__ = [
 
 @dataclass
 class Target:
-    """The object to mask: its name, cluster (metric points) and the support plane."""
+    """The object to mask: its name, cluster (metric points) and the support plane; ``hidden``: indices of the
+    keyframes in which something stands in front of it (the robot at its capture pose), left out of its masks."""
 
     name: str
     cluster: ObjectCluster | None
     plane: Plane | None
+    hidden: tuple[int, ...] = ()
 
 
 @dataclass

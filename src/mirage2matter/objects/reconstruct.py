@@ -32,7 +32,16 @@ from ..configs import ranged
 from ..geometry.camera import Camera
 from ..geometry.sim3 import Sim3
 from .errors import ObjectsError
-from .masks import FolderMasks, GeometricMasks, MaskProvider, Sam2Masks, Target, cluster_for_prompt, parse_prompt
+from .masks import (
+    FolderMasks,
+    GeometricMasks,
+    MaskProvider,
+    MaskResult,
+    Sam2Masks,
+    Target,
+    cluster_for_prompt,
+    parse_prompt,
+)
 from .matting import MattingConfig, sample_in_hull
 from .splat import SplatConfig, mask_crop
 from .views import crop_camera
@@ -290,7 +299,7 @@ def process_object(
         log(f"{name}: mesh from {user_mesh}", step="user mesh")
         mesh_input = ensure_watertight(load_mesh(user_mesh, name), name, source=str(user_mesh))
     log(f"{name}: masks")
-    result = _provider(config, progress, lens).masks(target, cameras, images)
+    result = _masks_where_seen(_provider(config, progress, lens), target, cameras, images, log)
     masks = result.masks
 
     if not user_mesh and (target.cluster is None or target.plane is None):
@@ -460,9 +469,30 @@ class _StepClock:
 
 
 def target_fingerprint(config: ObjectsConfig, target: Target) -> str:
-    """The object's resume key: the config and the object's points (a changed cluster is another object)."""
+    """The object's resume key: the config, the object's points (a changed cluster is another object) and the
+    keyframes hidden from it."""
     from ..configs import fingerprinted
     from ..fingerprint import fingerprint
 
     pts = None if target.cluster is None else np.round(target.cluster.points, 4).tobytes()
-    return fingerprint(fingerprinted(config), target.name, hashlib.sha256(pts or b"").hexdigest())
+    hidden = [list(target.hidden)] if target.hidden else []  # absent when none: earlier objects' keys hold
+    return fingerprint(fingerprinted(config), target.name, hashlib.sha256(pts or b"").hexdigest(), *hidden)
+
+
+def _masks_where_seen(provider: MaskProvider, target: Target, cameras: list[Camera], images: list[np.ndarray],
+                      log: Callable[[str], None]) -> MaskResult:
+    """The provider's masks on the keyframes not in ``target.hidden``; None (not seen) in those, so neither the
+    matting, the object's 3DGS, the carving nor the outlines ever read the robot's pixels as the object's."""
+    if not target.hidden:
+        return provider.masks(target, cameras, images)
+    keep = [i for i in range(len(cameras)) if i not in set(target.hidden)]
+    names = ", ".join(Path(cameras[i].name).stem for i in target.hidden)
+    log(f"{target.name}: {len(target.hidden)} keyframe(s) with the robot in front of it left out ({names})")
+    if isinstance(provider, FolderMasks) and provider.lens is not None:  # one lens per camera it gets
+        provider = replace(provider, lens=[provider.lens[i] for i in keep])
+    result = provider.masks(target, [cameras[i] for i in keep], [images[i] for i in keep])
+    masks: list[np.ndarray | None] = [None] * len(cameras)
+    for i, m in zip(keep, result.masks, strict=True):
+        masks[i] = m
+    info = {**result.info, "hidden_by_robot": [Path(cameras[i].name).stem for i in target.hidden]}
+    return replace(result, masks=masks, info=info)

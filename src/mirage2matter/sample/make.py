@@ -107,9 +107,10 @@ def with_layout(config: SampleConfig, layout: str) -> SampleConfig:
 
 
 # The board beside the base when the robot stands in the video: 5.5 cm squares (the 7 cm board does not fit beside
-# the base on the table), lying left of the base, long side along x.
+# the base on the table), right of the base (-y), long side along x, clear of the objects, where the head camera sees
+# it too (left of the base, at (-0.08, 0.32), the head camera saw two rows of it and its view check had no corners).
 ROBOT_IN_VIEW_BOARD = BoardSpec(square=0.055, marker=0.042, dictionary="DICT_4X4_50")
-ROBOT_IN_VIEW_BOARD_AT = (-0.08, 0.32, 90.0)
+ROBOT_IN_VIEW_BOARD_AT = (0.17, -0.3, 90.0)
 
 
 def with_robot_in_view(config: SampleConfig, capture_joints: tuple[float, ...] | None = None) -> SampleConfig:
@@ -173,7 +174,7 @@ def _write_settings(path: Path, config: SampleConfig, objects: list[str], captur
     named where the stages take one (align, compose), no video intrinsics with a lens (SfM calibrates the camera
     itself, as on a phone video), the objects named nearest the base first (``objects``: the names in that order)."""
     bundled = config.robot == DEFAULT_ROBOT and config.lens is None and config.layout == "nominal"
-    if bundled and not config.robot_in_view:
+    if bundled and config.robot_in_view and config.capture_joints is None:
         shutil.copyfile(BUNDLED_SAMPLE / "m2m.yaml", path)
         return
     import yaml
@@ -192,15 +193,19 @@ def _write_settings(path: Path, config: SampleConfig, objects: list[str], captur
             del data["sfm"]
         notes.append(f"The video's lens ({config.lens.name}) is not given: SfM calibrates the camera itself "
                      "(ground_truth.json holds the true one under \"camera\").")  # fmt: skip
-    if config.robot_in_view:
+    if config.robot_in_view:  # the bundled sample's header says so already
         data.setdefault("align", {})["capture_joints"] = [round(float(v), 6) for v in capture_joints]
-        notes.append("The robot stands in the video at capture_joints (ground_truth.json \"robot\"); the board lies "
-                     "beside its base (ground_truth.json \"board\").")  # fmt: skip
+    else:
+        data.get("align", {}).pop("capture_joints", None)
+        notes.append("The table is filmed without the robot (`m2m sample make --empty-table`): it appears only in "
+                     "the hand-eye images; the board lies where its base would stand.")  # fmt: skip
     if config.layout != "nominal":
         data.setdefault("objects", {})["names"] = list(objects)
         notes.append(f"Objects placed by layout {config.layout!r}, named nearest the robot base first.")
     lines = (BUNDLED_SAMPLE / "m2m.yaml").read_text().splitlines()
-    head = "".join(line + "\n" for line in lines if line.startswith("#"))
+    robot_note = "# The robot stands in the video"
+    head = "".join(line + "\n" for line in lines if line.startswith("#")
+                   and (config.robot_in_view or not line.startswith(robot_note)))  # fmt: skip
     path.write_text(head + "".join(f"# {note}\n" for note in notes)
                     + yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120))  # fmt: skip
 

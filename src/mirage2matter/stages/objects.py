@@ -22,6 +22,7 @@ Config = ObjectsConfig
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
     out = [Input(ws.cameras_base_file, made_by="align-scene"), Input(ws.points_base_file, made_by="align-scene"),
            Input(ws.keyframes_file, made_by="capture")]  # fmt: skip
+    out += [Input(ws.robot_capture_file)] if ws.robot_capture_file.is_file() else []  # where the robot hides objects
     files = [(cfg.masks, "objects masks"), (cfg.sam2_checkpoint, "objects sam2_checkpoint")]
     files += [(p, f"objects mesh {name}") for name, p in cfg.mesh.items()]
     return out + [Input(Path(p), field=what) for p, what in files if p is not None]
@@ -32,6 +33,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     cameras, images = pinhole_keyframes(posed.cameras, posed.image_dir)  # a camera's lens taken out up front
     lens = posed.cameras if any(c.has_distortion for c in posed.cameras) else None
     _, targets = find_targets(cfg, cameras, posed.points)
+    _hidden_by_robot(ws, cameras, targets)
     unknown = set(cfg.mesh) - {t.name for t in targets}
     if unknown:
         names = [t.name for t in targets]
@@ -57,6 +59,20 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     return {"objects": out, "details": lines, "line": f"{len(out)} objects: {', '.join(sorted(out))}"}
 
 
+def _hidden_by_robot(ws: Workspace, cameras: list, targets: list) -> None:
+    """Where align-scene found the robot in the keyframes, each object's ``hidden``: the keyframes in which the robot
+    (at its capture joint state) stands in front of it. Its masks there would be the robot's pixels."""
+    from ..calib.robot_view import robot_depths, seen_robot, views_behind_robot
+
+    robot = seen_robot(ws.robot_capture_file)
+    if robot is None:
+        return
+    depths = robot_depths(cameras, robot[1])
+    for t in targets:
+        if t.cluster is not None:
+            t.hidden = tuple(i for i, h in enumerate(views_behind_robot(t.cluster.points, cameras, depths)) if h)
+
+
 def _object_line(name: str, s: dict[str, Any]) -> str:
     """One object's figures; a figure an object lacks (no held-out view, no opaque Gaussian) reads n/a."""
 
@@ -69,8 +85,13 @@ def _object_line(name: str, s: dict[str, Any]) -> str:
         f"{mesh.get('watertight')}, {s.get('collision', {}).get('parts')} convex parts; 3DGS masked PSNR "
         f"{num(held.get('psnr_masked'), 1, '.2f')} dB, alpha outside {num(held.get('alpha_outside'), 1, '.3f')}; "
         f"Gaussians to mesh {num(s.get('alignment', {}).get('median_distance_to_mesh_m'), 1000, '.2f')} mm (median); "
-        f"{num(s.get('seconds', {}).get('total'), 1, '.0f')} s"
+        f"{num(s.get('seconds', {}).get('total'), 1, '.0f')} s{_hidden_words(s)}"
     )
+
+
+def _hidden_words(s: dict[str, Any]) -> str:
+    hidden = s.get("masks", {}).get("hidden_by_robot") or []
+    return f"; {len(hidden)} keyframe(s) with the robot in front left out" if hidden else ""
 
 
 def outputs(ws: Workspace, cfg: Config) -> list[Path]:

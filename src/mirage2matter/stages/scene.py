@@ -275,20 +275,17 @@ def _robot_masks(ws: Workspace, views: list, frame: str, margin_px: int, log: Lo
     state, grown by ``margin_px``, taken out of every view's valid pixels (training and held-out), so no Gaussian is
     fitted to the robot and the held-out figures measure the scene alone. None when the keyframes do not show it.
     ``views``: the keyframes' (a head photo shows the robot at another joint state; its own mask: head_photo_mask)."""
-    if frame != "base" or not ws.robot_capture_file.is_file():
-        return None
-    record = json.loads(ws.robot_capture_file.read_text(encoding="utf-8"))
-    if not record.get("seen"):
+    from ..calib.robot_view import grow_mask, robot_silhouette, seen_robot
+
+    robot = seen_robot(ws.robot_capture_file) if frame == "base" else None
+    if robot is None:
         return None
     import torch
 
-    from ..calib.robot_view import grow_mask, robot_silhouette
     from ..geometry.camera import Camera
     from ..geometry.sim3 import invert_rigid
-    from ..robots import get_robot
-    from ..robots.surface import robot_surface
 
-    links = robot_surface(get_robot(record["robot"]), record["capture_joints"])
+    record, links = robot
     cameras, silhouettes, exacts, valid, masked = [], [], [], [], []
     for v in views:
         h, w = v.image.shape[:2]
