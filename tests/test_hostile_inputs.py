@@ -177,6 +177,12 @@ def _render_camera(camera_text: str) -> Callable[[Path, dict], list[str]]:
     return setup
 
 
+def _empty_ply(tmp: Path, fx: dict) -> list[str]:
+    write_ply(tmp / "g.ply", random_gaussians(50, 0).select(torch.zeros(50, dtype=torch.bool)))
+    (tmp / "cam.json").write_text(_camera(100, 100))
+    return ["render", str(tmp / "g.ply"), "--camera", str(tmp / "cam.json"), "--out", str(tmp / "out.png")]
+
+
 def _camera(width: int, height: int) -> str:
     return json.dumps({"width": width, "height": height, "K": [[100, 0, 50], [0, 100, 50], [0, 0, 1]],
                        "T_world_cam": np.eye(4).tolist()})  # fmt: skip
@@ -358,6 +364,7 @@ CASES = [
     Case("render: a camera file nested 10^5 levels deep", _render_camera("[" * 100000 + "]" * 100000),
          r"nested deeper"),  # fmt: skip
     Case("render: a 200000 x 200000 camera", _render_camera(_camera(200000, 200000)), r"more than 16384"),
+    Case("render: a PLY with no Gaussians", _empty_ply, r"g\.ply: holds no Gaussians"),
     Case("m2m.yaml: an unknown setting", _bad_pipeline_yaml("scene:\n  minuets: 3\n"), r"unknown setting.*minuets"),
     Case("m2m.yaml: a wrong type", _bad_pipeline_yaml("scene:\n  minutes: soon\n"),
          r"scene\.minutes: expected a number"),  # fmt: skip

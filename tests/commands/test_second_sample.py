@@ -90,7 +90,9 @@ def test_second_sample_init_and_run_self_calibrated_with_the_ur5e(tmp_path, caps
     gt = json.loads((sample / "ground_truth.json").read_text())
     lens = gt["camera"]
     assert lens["distortion"]["k1"] < -0.1 and gt["config"]["layout"] == "random" and gt["handeye"]["robot"] == ROBOT
-    names = read_yaml(sample / "m2m.yaml")["objects"]["names"]  # nearest the base first, as init takes them
+    settings = read_yaml(sample / "m2m.yaml")
+    names = settings["objects"]["names"]  # nearest the base first, as init takes them
+    capture_joints = [str(q) for q in settings["align"]["capture_joints"]]  # the UR5e stands in the video
     assert sorted(names) == ["banana", "button", "croissant"]
 
     s, ws = str(sample), Workspace(tmp_path / "ws")
@@ -98,7 +100,8 @@ def test_second_sample_init_and_run_self_calibrated_with_the_ur5e(tmp_path, caps
                  "--board-pose", f"{s}/ground_truth.json", "--handeye-images", f"{s}/handeye/images",
                  "--handeye-poses", f"{s}/handeye/joints.json", "--handeye-board", f"{s}/handeye/board.json",
                  "--handeye-intrinsics", f"{s}/ground_truth.json", "--head-photo", f"{s}/head_view.png",
-                 "--robot", ROBOT, "--objects", *names, "--task", *GENERATED, "--episodes", "1",
+                 "--robot", ROBOT, "--capture-joints", *capture_joints, "--objects", *names, "--task", *GENERATED,
+                 "--episodes", "1",
                  *BUDGET]) == 0  # fmt: skip
     cfg = PipelineConfig.load(ws.config_file)
     assert cfg.sfm.intrinsics is None and cfg.world.robot == cfg.align.robot == ROBOT  # the lens is not given

@@ -131,12 +131,14 @@ def run(args: argparse.Namespace) -> int:
 
     import torch
 
-    from ..gaussians.ply import read_ply
+    from ..gaussians.ply import PlyFormatError, read_ply
     from ..gaussians.render import render
 
     backend_name = backend(args.backend)
     configure_threads()
     g = read_ply(ply)
+    if len(g.means) == 0:  # a black picture would look like a render of something
+        raise PlyFormatError(f"{ply}: holds no Gaussians (0 vertices); nothing to render")
     with torch.no_grad():
         t0 = time.perf_counter()
         bg = torch.tensor(args.background, dtype=torch.float32)
