@@ -6,9 +6,11 @@ import pytest
 
 from mirage2matter.calib.board import (
     BoardSpec,
+    MarkerSpec,
     board_frame_to_board_image,
     board_image_to_board_frame,
     margin_pixels,
+    on_target,
 )
 
 
@@ -125,3 +127,21 @@ def test_printable_board_is_true_scale_and_detectable(tmp_path):
     assert ids is not None and len(ids) == spec.n_corners
     with pytest.raises(ValueError, match=".pdf"):
         write_printable(spec, tmp_path / "b.png")
+
+
+@pytest.mark.parametrize("target", [BoardSpec(square=0.055, marker=0.042, dictionary="DICT_4X4_50"), MarkerSpec(0.18)],
+                         ids=["charuco", "aruco"])  # fmt: skip
+def test_points_on_the_target_sheet_are_found_and_the_table_beside_it_is_not(target):
+    """A target lying beside the robot's base (board z into the table, as align-scene records it): points on its
+    sheet, its white margin included, and just above it are the target's; points 15 cm beside it or 10 cm above not."""
+    T_base_target = np.array([[0.0, 1, 0, -0.02], [1, 0, 0, -0.44], [0, 0, -1, 0.0005], [0, 0, 0, 1]])
+    w, h = target.size
+    rng = np.random.default_rng(0)
+    local = np.c_[rng.uniform(-0.2 * target.feature_size, w + 0.2 * target.feature_size, 200),
+                  rng.uniform(-0.2 * target.feature_size, h + 0.2 * target.feature_size, 200),
+                  rng.uniform(-0.02, 0.002, 200)]  # fmt: skip  # z into the table: up to 2 cm above it
+    to_base = lambda p: p @ T_base_target[:3, :3].T + T_base_target[:3, 3]
+    assert on_target(to_base(local), target, T_base_target).all()
+    beside = local + [w + 1.5 * target.feature_size + 0.15, 0, 0]
+    above = local - [0, 0, 0.1]
+    assert not on_target(to_base(np.r_[beside, above]), target, T_base_target).any()

@@ -470,6 +470,20 @@ class GridSpec:
 TARGET_KINDS = ("charuco", "aruco", "apriltag", "aruco_grid")
 
 
+def on_target(points_base: np.ndarray, target: Any, T_base_target: np.ndarray, height: float = 0.03) -> np.ndarray:
+    """bool [N]: the points [N,3] (base frame) lying on the calibration target's sheet: within its features' outline
+    grown by 1.5 of its feature size (a ChArUco's outer squares and white margin), at most ``height`` metres off its
+    plane. SfM puts a few noisy points over a board's repeated pattern, and beside the robot they clump into an
+    "object" otherwise."""
+    points_base = np.asarray(points_base, np.float64).reshape(-1, 3)
+    T = np.asarray(T_base_target, np.float64)
+    local = (points_base - T[:3, 3]) @ T[:3, :3]  # into the target's frame
+    corners = target.points_board()[:, :2]
+    grow = 1.5 * target.feature_size
+    lo, hi = corners.min(axis=0) - grow, corners.max(axis=0) + grow
+    return np.all((local[:, :2] >= lo) & (local[:, :2] <= hi), axis=1) & (np.abs(local[:, 2]) <= height)
+
+
 def target_from_json(data: Any, where: str = "target JSON"):
     """Any calibration target from its JSON (``"type"``: charuco (the default), aruco, apriltag, aruco_grid)."""
     if not isinstance(data, dict):

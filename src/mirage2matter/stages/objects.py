@@ -9,6 +9,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ..atomic import atomic_write
 from ..objects import ObjectsError
 from ..objects.pool import object_workers, process_objects
@@ -32,7 +34,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     posed = ws.posed_capture(frame="base")
     cameras, images = pinhole_keyframes(posed.cameras, posed.image_dir)  # a camera's lens taken out up front
     lens = posed.cameras if any(c.has_distortion for c in posed.cameras) else None
-    _, targets = find_targets(cfg, cameras, posed.points)
+    _, targets = find_targets(cfg, cameras, _off_the_board(ws, posed.points))
     _hidden_by_robot(ws, cameras, targets)
     unknown = set(cfg.mesh) - {t.name for t in targets}
     if unknown:
@@ -57,6 +59,18 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         json.dump({k: {kk: v[kk] for kk in keep if kk in v} for k, v in out.items()}, f, indent=1, default=str)
     lines = [_object_line(name, s) for name, s in out.items()]
     return {"objects": out, "details": lines, "line": f"{len(out)} objects: {', '.join(sorted(out))}"}
+
+
+def _off_the_board(ws: Workspace, points_base: np.ndarray) -> np.ndarray:
+    """The SfM points [N,3] without those on the calibration target (calib.board.on_target): the board is no object.
+    With the board beside the robot's base (on the bundled sample), 12 points over its pattern were the "object"
+    nearest the base, named for the first object the user listed."""
+    from ..calib.board import on_target, target_from_json
+
+    record = json.loads(ws.alignment_file.read_text(encoding="utf-8")) if ws.alignment_file.is_file() else {}
+    if "board" not in record or "T_base_board" not in record:
+        return points_base
+    return points_base[~on_target(points_base, target_from_json(record["board"]), record["T_base_board"])]
 
 
 def _hidden_by_robot(ws: Workspace, cameras: list, targets: list) -> None:
