@@ -10,6 +10,18 @@ import pytest
 from fixtures import FOX, SAMPLE, sample_present
 
 
+@pytest.fixture(autouse=True)
+def _builtins_print_kept():
+    """Every test leaves ``builtins.print`` as it found it: ``ray.shutdown()`` leaves Ray's own print behind, and numba
+    code compiled later in the same process (Genesis' renderer, on a fresh venv's first render) then fails with
+    "Untyped global name 'print'"."""
+    import builtins
+
+    before = builtins.print
+    yield
+    builtins.print = before
+
+
 @pytest.fixture(scope="session")
 def sample_dir() -> Path:
     """The bundled sample capture (samples/tabletop); the test is skipped when it is not in this checkout."""

@@ -99,7 +99,8 @@ def test_the_keyframes_hiding_an_object_are_those_where_the_robot_stands_in_fron
             hit, index, _ = robot.ray.intersects_location(np.repeat(origin[None], len(pts), 0), ray / dist[:, None],
                                                           multiple_hits=False)  # fmt: skip
             blocked = np.zeros(len(pts), bool)
-            blocked[index] = np.linalg.norm(hit - origin, axis=1) < dist[index] - 0.01
+            if len(index):  # trimesh's own ray caster (no embree) gives an empty (0,) array for no hit
+                blocked[index] = np.linalg.norm(hit.reshape(-1, 3) - origin, axis=1) < dist[index] - 0.01
             frac = blocked.mean()
             if 0.0 < frac < 0.1:  # a few points behind the robot's edge: the 5 % line is the depth splat's to draw
                 continue
