@@ -92,9 +92,24 @@ class RobotKinematics:
         except KeyError:
             names = [self._model.body(i).name for i in range(self._model.nbody)]
             raise KinematicsError(f"link {link!r} not in {self.path.name}; links: {', '.join(names)}") from None
+        self._forward(q)
+        return self._pose(body)
+
+    def link_poses(self, q: np.ndarray) -> dict[str, np.ndarray]:
+        """{link: T_base_link [4,4]} of every link (body) at joint positions q [n] (n <= n_joints; the rest 0), from
+        one kinematics pass (the viewer poses a whole robot per frame)."""
+        q = np.asarray(q, dtype=np.float64).ravel()
+        if q.size > self._model.nq:
+            raise KinematicsError(f"{q.size} joint values given, the model {self.path.name} has {self._model.nq}")
+        self._forward(q)
+        return {self._model.body(b).name: self._pose(b) for b in range(1, self._model.nbody)}  # body 0: the world
+
+    def _forward(self, q: np.ndarray) -> None:
         self._data.qpos[:] = 0.0
         self._data.qpos[: q.size] = q
         self._mujoco.mj_kinematics(self._model, self._data)
+
+    def _pose(self, body: int) -> np.ndarray:
         T = np.eye(4)
         T[:3, :3] = self._data.xmat[body].reshape(3, 3)
         T[:3, 3] = self._data.xpos[body]

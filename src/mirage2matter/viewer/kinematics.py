@@ -1,5 +1,6 @@
-"""The robot's link poses at a joint state (MuJoCo forward kinematics of the robot's model, as ``robots.surface``
-poses the links), with its model loaded once so an episode's frames pose quickly (~0.1 ms a frame)."""
+"""The robot's link poses at a joint state for the viewer: the calibration's forward kinematics
+(``calib.kinematics.RobotKinematics``, MuJoCo, model loaded once, ~0.1 ms a frame) with the viewer's joint vectors
+(the arm alone means the fingers open)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..calib.kinematics import RobotKinematics
 from ..robots import RobotSpec
-from ..robots.model import load_model, resolve_model
 
 __all__ = ["LinkPoser"]
 
@@ -18,13 +19,8 @@ class LinkPoser:
     [n_dofs] (radians; metres for sliding fingers), the order of ``spec.arm_joints + spec.gripper_joints``."""
 
     def __init__(self, spec: RobotSpec) -> None:
-        import mujoco
-
         self.spec = spec
-        self._mj = mujoco
-        self.model = load_model(resolve_model(spec.model))
-        self.data = mujoco.MjData(self.model)
-        self.links = [self.model.body(b).name for b in range(1, self.model.nbody)]  # body 0 is the world
+        self._kinematics = RobotKinematics(spec.source or spec.name)  # the spec file it came from, or its name
 
     def full_q(self, q: Sequence[float] | None) -> np.ndarray:
         """[n_dofs] from [n_arm] (fingers open), [n_dofs], or None (home)."""
@@ -38,14 +34,4 @@ class LinkPoser:
 
     def poses(self, q: Sequence[float] | None) -> dict[str, np.ndarray]:
         q = self.full_q(q)
-        self.data.qpos[:] = 0.0
-        n = min(q.size, self.model.nq)
-        self.data.qpos[:n] = q[:n]
-        self._mj.mj_kinematics(self.model, self.data)
-        out = {}
-        for b, name in enumerate(self.links, start=1):
-            T = np.eye(4)
-            T[:3, :3] = self.data.xmat[b].reshape(3, 3)
-            T[:3, 3] = self.data.xpos[b]
-            out[name] = T
-        return out
+        return self._kinematics.link_poses(q[: self._kinematics.n_joints])
