@@ -264,6 +264,16 @@ class Workspace:
             raise WorkspaceError(f"{path} not found; run `m2m {stage} -w {self.root}` first")
         return path
 
+    def board_on_table(self) -> tuple[dict, np.ndarray] | None:
+        """(the calibration target's JSON, T_base_board [4,4]) as align-scene recorded them; None before align-scene
+        or where it aligned without a target."""
+        if not self.alignment_file.is_file():
+            return None
+        record = json.loads(self.alignment_file.read_text(encoding="utf-8"))
+        if record.get("T_base_board") is None:
+            return None
+        return record.get("board") or {}, np.asarray(record["T_base_board"], np.float64)
+
     def posed_capture(self, frame: str = "auto") -> PosedCapture:
         """The keyframes' cameras and points. ``frame``: "base" (written by ``align-scene``; an error
         before it), "sfm" (the SfM model's own frame) or "auto" (base when aligned, else sfm)."""

@@ -74,11 +74,8 @@ def workspace_inputs(ws: Workspace):
                      for c in json.loads(ws.cameras_base_file.read_text())]  # fmt: skip
     else:
         missing.append(f"the keyframe cameras ({show(ws.cameras_base_file)}; `m2m align-scene`)")
-    board = None
-    if ws.alignment_file.is_file():
-        a = json.loads(ws.alignment_file.read_text())
-        if a.get("T_base_board") is not None:
-            board = Board(a["T_base_board"], a.get("board") or {})
+    on_table = ws.board_on_table()
+    board = None if on_table is None else Board(on_table[1], on_table[0])
     folders = lambda d, marker: {p.name: p for p in sorted(d.iterdir()) if (p / marker).is_file()} if d.is_dir() else {}
     return ViewerInputs(
         robot=spec, world=world, scene_ply=scene_ply, robot_gaussians=robot_gaussians, keyframes=keyframes,

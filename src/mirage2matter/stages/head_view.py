@@ -40,7 +40,10 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     from ..gaussians.ply import read_ply
     from ..inputs import read_image_rgb
 
-    al = json.loads(ws.alignment_file.read_text())
+    board = ws.board_on_table()
+    if board is None:
+        raise WorkspaceError(f"{ws.alignment_file}: no calibration target recorded; the head-view check draws it "
+                             "(run `m2m align-scene` with a board)")  # fmt: skip
     photo = read_image_rgb(cfg.photo, "head photo") if cfg.photo is not None else None
     cam = head_camera(ws, "the head-view check", photo, cfg.photo)
     if photo is not None and cam.has_distortion:
@@ -50,8 +53,8 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         ideal, _ = undistort_image(photo.astype(np.float32) / 255.0, cam)
         photo = np.clip(np.round(ideal * 255.0), 0, 255).astype(np.uint8)
     cam = dataclasses.replace(cam, distortion={}, distortion_model="")
-    check = check_head_view(read_ply(ws.scene_ply), cam, photo, target_from_json(al["board"]),
-                            np.asarray(al["T_base_board"]), backend=cfg.backend)  # fmt: skip
+    check = check_head_view(read_ply(ws.scene_ply), cam, photo, target_from_json(board[0]), board[1],
+                            backend=cfg.backend)  # fmt: skip
     save_head_view(ws.head_view_png, check, photo)
     known, seen = check.corners_vs_known_px, check.corners_vs_photo_px
     trained_on = cfg.photo is not None and _scene_trained_on(ws, Path(cfg.photo))

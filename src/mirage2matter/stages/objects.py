@@ -67,10 +67,10 @@ def _off_the_board(ws: Workspace, points_base: np.ndarray) -> np.ndarray:
     nearest the base, named for the first object the user listed."""
     from ..calib.board import on_target, target_from_json
 
-    record = json.loads(ws.alignment_file.read_text(encoding="utf-8")) if ws.alignment_file.is_file() else {}
-    if "board" not in record or "T_base_board" not in record:
+    board = ws.board_on_table()
+    if board is None or not board[0]:
         return points_base
-    return points_base[~on_target(points_base, target_from_json(record["board"]), record["T_base_board"])]
+    return points_base[~on_target(points_base, target_from_json(board[0]), board[1])]
 
 
 def _hidden_by_robot(ws: Workspace, cameras: list, targets: list) -> None:
