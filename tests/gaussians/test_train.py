@@ -13,6 +13,7 @@ from mirage2matter.gaussians.render import render
 from mirage2matter.gaussians.synthetic import orbit_cameras, tabletop_scene
 from mirage2matter.gaussians.train import (
     TrainConfig,
+    Trainer,
     View,
     downsample_view,
     init_gaussians_from_points,
@@ -210,6 +211,39 @@ def test_resume_continues_from_checkpoint(trained):
     assert end < before
     curve_steps = [c["step"] for c in trained["metrics"]["curve"]]
     assert curve_steps == [0, 60, 120, 180, 240]
+
+
+def test_a_resumed_trainer_steps_as_the_uninterrupted_one(tmp_path):
+    """A Trainer stepped N times and checkpointed, a new Trainer resumed from the checkpoint and stepped M times:
+    the same losses, Gaussians, Adam moments, densification statistics and schedule as one Trainer stepped N + M
+    times. Densification, the 3D filter (its rates last refreshed before the checkpoint), coarse views and an
+    opacity reset are on; the checkpoint falls between two refinements."""
+    views = _photos(4)
+    cfg = _config(iterations=40, refine_every=6, refine_start=0.1, refine_stop=0.8, coarse_fraction=0.3,
+                  filter_3d=0.2, opacity_reset_every=0.5, eval_points=0)  # fmt: skip
+    n, m = 17, 23
+    whole = Trainer(views, views[:1], _init(400), cfg)
+    expected = [whole.step()["loss"] for _ in range(n + m)]
+
+    first = Trainer(views, views[:1], _init(400), cfg)
+    losses = [first.step()["loss"] for _ in range(n)]
+    first.save_checkpoint(tmp_path / "ckpt.pt")
+    resumed = Trainer(views, views[:1], _init(400, seed=1), cfg)  # its own start is replaced by the checkpoint's
+    assert resumed.resume(tmp_path / "ckpt.pt") and resumed.iteration == n
+    assert not Trainer(views, [], _init(400), cfg).resume(tmp_path / "none.pt")
+    losses += [resumed.step()["loss"] for _ in range(m)]
+
+    assert losses == expected
+    assert resumed.finished and whole.finished and resumed.iteration == n + m
+    assert len(whole.schedule.refinements) >= 4 and resumed.schedule.refinements == whole.schedule.refinements
+    assert resumed.params.keys() == whole.params.keys()
+    for k in whole.params:
+        assert torch.equal(resumed.params[k], whole.params[k]), k
+        a, b = whole.optimizers[k].state_dict()["state"][0], resumed.optimizers[k].state_dict()["state"][0]
+        assert all(torch.equal(a[s], b[s]) for s in ("exp_avg", "exp_avg_sq", "step")), k
+    for k, v in whole.strategy_state.items():
+        assert torch.equal(v, resumed.strategy_state[k]) if torch.is_tensor(v) else v == resumed.strategy_state[k], k
+    assert torch.equal(whole.gaussians().means, resumed.gaussians().means)
 
 
 def test_masked_pixels_do_not_influence_gradients():

@@ -12,6 +12,7 @@ import torch
 import mirage2matter.policy.train as train_mod
 from fixtures.policy_datasets import tiny_config
 from mirage2matter.policy import PolicyError, load_episodes, load_policy, train_policy
+from mirage2matter.policy.train import PolicyTrainer
 
 
 def _obs(d, i: int) -> dict:
@@ -84,6 +85,41 @@ def test_resume_after_a_kill_gives_the_uninterrupted_result(make_dataset, tmp_pa
     logs.clear()
     train_policy(ds, tmp_path / "cut", tiny_config(steps=5, widths=(4,), keypoints=4, hidden=16, batch_size=8),
                  log=logs.append, progress=False)  # fmt: skip
+    assert any("training from scratch" in s for s in logs), logs
+
+
+def test_a_resumed_policy_trainer_steps_as_the_uninterrupted_one(make_dataset, tmp_path):
+    """A PolicyTrainer stepped N times and checkpointed, a new one resumed from the checkpoint and stepped M times:
+    the same losses, validation curve, weights, EMA and optimiser state as one stepped N + M times; another run's
+    checkpoint is refused."""
+    ds, _ = make_dataset(seeds=(0, 1), length=10)
+    cfg = tiny_config(steps=12, eval_every=4, val_fraction=0.5, widths=(4,), keypoints=4, hidden=16, batch_size=8)
+    cfg = dataclasses.replace(cfg, augment=dataclasses.replace(cfg.augment, camera_dropout=0.5))
+    quiet = lambda s: None
+    n, m = 7, 5
+    whole = PolicyTrainer([ds], cfg, quiet)
+    while not whole.finished:
+        whole.step()
+    first = PolicyTrainer([ds], cfg, quiet)
+    for _ in range(n):
+        first.step()
+    first.save_checkpoint(tmp_path / "checkpoint.pt")
+    resumed = PolicyTrainer([ds], cfg, quiet)
+    assert resumed.resume(tmp_path / "checkpoint.pt") and resumed.iteration == n
+    for _ in range(m):
+        resumed.step()
+    assert resumed.finished and resumed.iteration == whole.iteration == n + m
+    assert resumed.losses == whole.losses and resumed.aux_losses == whole.aux_losses
+    assert resumed.val_curve == whole.val_curve and len(whole.val_curve) == 3
+    for a, b in ((whole.model, resumed.model), (whole.ema, resumed.ema)):
+        sa, sb = a.state_dict(), b.state_dict()
+        assert all(torch.equal(sa[k], sb[k]) for k in sa)
+    oa, ob = whole.opt.state_dict()["state"], resumed.opt.state_dict()["state"]
+    assert all(torch.equal(oa[i][k], ob[i][k]) for i in oa for k in oa[i])
+
+    logs: list[str] = []
+    other = PolicyTrainer([ds], dataclasses.replace(cfg, lr=cfg.lr / 2), logs.append)
+    assert not other.resume(tmp_path / "checkpoint.pt") and other.iteration == 0
     assert any("training from scratch" in s for s in logs), logs
 
 

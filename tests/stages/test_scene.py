@@ -133,13 +133,23 @@ def test_train_scene_minutes_is_bench_trains_budget(imported, tmp_path):
     cfg = SceneConfig(minutes=0.15, downscale=4, max_gaussians=20000, checkpoint_every=0)
     m, _ = train_scene(ws, cfg)
     plan = json.loads((ws / "scene" / "plan.json").read_text())["train_config"]
-    expect = budget_config(0.15, TrainConfig(max_gaussians=20000, backend="cpu", checkpoint_every=0,
-                                             filter_3d=FILTER_3D_VARIANCE))  # bench_train's default
+    expect = budget_config(
+        0.15, TrainConfig(max_gaussians=20000, backend="cpu", checkpoint_every=0, filter_3d=FILTER_3D_VARIANCE)
+    )  # bench_train's default
     assert SceneConfig().filter_3d == FILTER_3D_VARIANCE
     assert plan == json.loads(json.dumps(vars(expect)))
     # a step stalled by another process on the machine can end past the budget: at most a step's worth
     assert 0.9 <= m["train_minutes"] / 0.15 <= 1.0 + 2 * 0.15 * 60 / max(m["iterations"], 1)
     assert m["iterations"] >= 20 and m["curve"][-1]["step"] == m["iterations"]
+
+
+def test_the_scene_trains_with_train_configs_defaults():
+    """One owner of the 3DGS training defaults: the scene stage's cap and checkpoint cadence are TrainConfig's (the
+    objects stage passes its own), and `m2m demo`'s scene keeps 200k Gaussians and a checkpoint every 200 steps."""
+    from mirage2matter.gaussians.train import TrainConfig
+
+    d, scene = TrainConfig(), SceneConfig()
+    assert (scene.max_gaussians, scene.checkpoint_every) == (d.max_gaussians, d.checkpoint_every) == (200_000, 200)
 
 
 @pytest.fixture(scope="module")
@@ -162,12 +172,13 @@ def with_head_camera(imported, tmp_path_factory):
     return ws, head
 
 
-def test_train_scene_trains_on_the_head_photo_from_the_head_camera_without_its_masked_pixels(with_head_camera,
-                                                                                             tmp_path, monkeypatch):
+def test_train_scene_trains_on_the_head_photo_from_the_head_camera_without_its_masked_pixels(
+    with_head_camera, tmp_path, monkeypatch
+):
     """--head-photo adds the photo to the training views (repeated), seen from the calibrated head camera at the
     training resolution, with the pixels its mask marks as not scene (a robot arm, here a painted patch) left out
     of the loss; at the defaults the stage's fingerprint is what it was before the option existed."""
-    import mirage2matter.gaussians.train as gtrain
+    import mirage2matter.stages.scene as scene_stage
 
     ws, head = with_head_camera
     photo = np.asarray(Image.open(SAMPLE / head["image"]).convert("RGB"))
@@ -179,13 +190,13 @@ def test_train_scene_trains_on_the_head_photo_from_the_head_camera_without_its_m
     Image.fromarray(keep.astype(np.uint8) * 255).save(tmp_path / "mask.png")
 
     seen = {}
-    real_train = gtrain.train
+    real_train = scene_stage.train
 
     def spy(views_train, views_eval, *args, **kwargs):
         seen["views"] = list(views_train)
         return real_train(views_train, views_eval, *args, **kwargs)
 
-    monkeypatch.setattr(gtrain, "train", spy)
+    monkeypatch.setattr(scene_stage, "train", spy)
     base = SceneConfig(iterations=20, downscale=2, max_gaussians=30_000, checkpoint_every=0)
     plain, _ = train_scene(ws, base)
     assert plain["views"] == {"train": 14, "heldout": 2, "head_photo": 0} and len(seen["views"]) == 14

@@ -1,5 +1,5 @@
 """``m2m bench train``: time-budgeted 3DGS training on a ``transforms.json`` data set (e.g. fox),
-scored on held-out real frames (every 8th), plus a per-stage profile of one training step."""
+scored on held-out real frames (every 8th), plus a per-phase profile of the run's own ``Trainer.step()``."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from ..geometry.camera import load_transforms_json
 from .budget import DENSIFY_FRACTION, budget_config
 from .dataset import build_views
 from .filter3d import FILTER_3D_VARIANCE
-from .train import TrainConfig, View, init_gaussians_from_points, train, view_loss
+from .train import TrainConfig, Trainer, init_gaussians_from_points, train
 
 __all__ = ["bench_train", "profile_step"]
 
@@ -53,7 +53,7 @@ def bench_train(
     downscale: int = 4,
     poses: str = "given",
     work_dir: str | os.PathLike[str] | None = None,
-    max_gaussians: int = 150_000,
+    max_gaussians: int = TrainConfig.max_gaussians,  # the scene stage's
     densify_fraction: float = DENSIFY_FRACTION,
     backend: str = "auto",
     progress: bool = False,
@@ -69,7 +69,7 @@ def bench_train(
     The training is ``budget_config``'s, the one ``m2m train-scene --minutes`` runs: it trains until the
     minutes are spent, densifying for the first ``densify_fraction`` of them. Returns psnr_heldout,
     ssim_heldout, iterations, gaussians, minutes, backend, curve, seconds_per_step, schedule (where it
-    ended), init info and (``profile``) a step profile.
+    ended), init info and (``profile``) :func:`profile_step` of the run's :class:`Trainer` at its end.
     """
     if poses not in ("given", "sfm"):
         raise ValueError(f"poses must be 'given' or 'sfm', got {poses!r}")
@@ -94,7 +94,9 @@ def bench_train(
 
     config = TrainConfig(backend=backend, max_gaussians=max_gaussians, checkpoint_every=0, filter_3d=filter_3d)
     config = budget_config(minutes, config, densify_fraction=densify_fraction, curve_points=curve_points)
-    g, metrics = train(views_train, views_eval, init, config, progress=progress)
+    # profiled: the run's last state (its final checkpoint), stepped on as the run stepped
+    ckpt = work_dir / "checkpoint.pt" if profile else None
+    _, metrics = train(views_train, views_eval, init, config, progress=progress, checkpoint_path=ckpt)
     out: dict[str, Any] = {
         "psnr_heldout": metrics["psnr"],
         "ssim_heldout": metrics["ssim"],
@@ -112,84 +114,55 @@ def bench_train(
         "schedule": metrics["schedule"],
         "curve": metrics["curve"],
     }
-    if profile:
-        out["profile"] = profile_step(g, views_train, config)
+    if ckpt is not None:
+        trainer = Trainer(views_train, [], init, config)
+        trainer.resume(ckpt)
+        ckpt.unlink()
+        out["profile"] = profile_step(trainer)
     if tmp is not None:
         tmp.cleanup()
     return out
 
 
-def profile_step(g, views: list[View], config: TrainConfig, repeats: int = 3) -> dict[str, float]:
-    """Median milliseconds of the stages of one CPU training step on Gaussians ``g``, measured on the
-    real code path (``view_loss`` with the cpu backend) by timing its parts in place: projection + SH
-    forward and backward, raster forward and backward, the rest of the loss (L1 + SSIM) and of autograd,
-    the densification statistics, Adam."""
-    from .render import numba_cpu
-    from .train import _make_optimizers, _make_strategy, _strategy_info, _to_gaussians, _to_params, scene_extent
+def profile_step(trainer: Trainer, repeats: int = 3) -> dict[str, float]:
+    """Median milliseconds of the phases of ``trainer``'s next steps (one warm-up step, then ``repeats``), read by
+    ``torch.profiler`` from the labels :meth:`Trainer.step` puts on them: the forward pass (on the CPU backend
+    projection and rasterisation apart, the rest is the loss), the backward pass (likewise), the densification
+    statistics, Adam, and the whole step by the trainer's own clock. On CUDA the phases are launch times (the
+    kernels run asynchronously); the whole step is not."""
+    from torch.profiler import ProfilerActivity, profile
 
-    extent = scene_extent(views)
-    params = _to_params(g, config.sh_degree, torch.device("cpu"))
-    opts = _make_optimizers(params, config.lr, extent)
-    strategy = _make_strategy(config)
-    state = strategy.initialize_state(scene_scale=extent)
-    spent = {"project": 0.0, "project_bwd": 0.0, "raster_fwd": 0.0, "raster_bwd": 0.0}
-
-    def timed(fn, key):
-        def wrapper(*args, **kwargs):
-            t = time.perf_counter()
-            try:
-                return fn(*args, **kwargs)
-            finally:
-                spent[key] += time.perf_counter() - t
-
-        return wrapper
-
-    originals = (numba_cpu.project, numba_cpu.RasterizeNumba.forward, numba_cpu.RasterizeNumba.backward,
-                 numba_cpu.ProjectNumba.backward)  # fmt: skip
-    numba_cpu.project = timed(originals[0], "project")
-    numba_cpu.RasterizeNumba.forward = staticmethod(timed(originals[1], "raster_fwd"))
-    numba_cpu.RasterizeNumba.backward = staticmethod(timed(originals[2], "raster_bwd"))
-    numba_cpu.ProjectNumba.backward = staticmethod(timed(originals[3], "project_bwd"))
-    rows: dict[str, list[float]] = {}
-    try:
-        for i in range(repeats + 1):
-            v = views[i % len(views)]
-            spent.update(project=0.0, project_bwd=0.0, raster_fwd=0.0, raster_bwd=0.0)
-            info: dict = {}
-            t0 = time.perf_counter()
-            loss, _ = view_loss(_to_gaussians(params, config.sh_degree), v, config, info, backend="cpu")
-            t1 = time.perf_counter()
-            loss.backward()
-            t2 = time.perf_counter()
-            strategy.update(params, opts, state, _strategy_info(info, v, len(params["means"])), False, i)
-            t3 = time.perf_counter()
-            for o in opts.values():
-                o.step()
-                o.zero_grad(set_to_none=True)
-            t4 = time.perf_counter()
-            if i == 0:
-                continue  # warm-up
-            ms = {k: 1000.0 * val for k, val in spent.items()}
-            row = {
-                "projection_fwd_ms": ms["project"],
-                "raster_fwd_ms": ms["raster_fwd"],
-                "loss_fwd_ms": 1000.0 * (t1 - t0) - ms["project"] - ms["raster_fwd"],
-                "backward_ms": 1000.0 * (t2 - t1),
-                "raster_bwd_ms": ms["raster_bwd"],
-                "projection_bwd_ms": ms["project_bwd"],
-                "other_bwd_ms": 1000.0 * (t2 - t1) - ms["raster_bwd"] - ms["project_bwd"],
-                "strategy_ms": 1000.0 * (t3 - t2),
-                "optimizer_ms": 1000.0 * (t4 - t3),
-                "total_ms": 1000.0 * (t4 - t0),
-            }
-            for k, val in row.items():
-                rows.setdefault(k, []).append(float(val))
-    finally:
-        numba_cpu.project = originals[0]
-        numba_cpu.RasterizeNumba.forward = staticmethod(originals[1])
-        numba_cpu.RasterizeNumba.backward = staticmethod(originals[2])
-        numba_cpu.ProjectNumba.backward = staticmethod(originals[3])
-    res = {k: round(float(np.median(v)), 2) for k, v in rows.items()}
-    res["gaussians"] = len(params["means"])
+    trainer.step()  # warm-up
+    seconds = []
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for _ in range(repeats):
+            seconds.append(trainer.step()["seconds"])
+    spans: dict[str, list[float]] = {}  # event name -> its milliseconds in each step, in order
+    for e in prof.events():
+        if e.name in _PHASES:
+            spans.setdefault(_PHASES[e.name], []).append(e.cpu_time_total / 1000.0)
+    rows: dict[str, list[float]] = {k: v for k, v in spans.items() if len(v) == repeats}
+    numba = all(k in rows for k in ("projection_fwd_ms", "raster_fwd_ms", "projection_bwd_ms", "raster_bwd_ms"))
+    if numba:
+        rows["loss_fwd_ms"] = [f - p - r for f, p, r in zip(rows["forward_ms"], rows["projection_fwd_ms"],
+                                                                rows["raster_fwd_ms"], strict=True)]  # fmt: skip
+        rows["other_bwd_ms"] = [b - p - r for b, p, r in zip(rows["backward_ms"], rows["projection_bwd_ms"],
+                                                                 rows["raster_bwd_ms"], strict=True)]  # fmt: skip
+    rows["total_ms"] = [1000.0 * s for s in seconds]
+    res: dict[str, Any] = {k: round(float(np.median(v)), 2) for k, v in rows.items()}
+    res["gaussians"] = len(trainer.params["means"])
     res["threads"] = torch.get_num_threads()
     return res
+
+
+# the events profile_step reads: Trainer.step's phases and the CPU backend's autograd functions
+_PHASES = {
+    "trainer.forward": "forward_ms",
+    "trainer.backward": "backward_ms",
+    "trainer.densify": "strategy_ms",
+    "trainer.adam": "optimizer_ms",
+    "ProjectNumba": "projection_fwd_ms",
+    "RasterizeNumba": "raster_fwd_ms",
+    "ProjectNumbaBackward": "projection_bwd_ms",
+    "RasterizeNumbaBackward": "raster_bwd_ms",
+}

@@ -5,9 +5,10 @@ Loss L1 + lambda * (1 - SSIM) over valid pixels, Adam with the per-parameter lea
 the end), the SH degree raised during the run, densification / pruning by gsplat's ``DefaultStrategy``
 operations (pure torch, so they run on the CPU too) with a cap on the number of Gaussians, optionally a
 coarse start (the views at a fraction of their resolution for the first part of the run), held-out
-evaluation, and atomic checkpoints that ``train(..., resume=True)`` resumes. A run ends at ``iterations``
-steps or ``max_seconds`` of training, whichever is first, and every schedule follows the run's progress
-(``schedule.py``), so a time budget holds on any device.
+evaluation, and atomic checkpoints that ``train(..., resume=True)`` resumes. :class:`Trainer` is one run, a
+step at a time (``step()``, ``save_checkpoint()``, ``resume()``); :func:`train` is the loop over it. A run ends at
+``iterations`` steps or ``max_seconds`` of training, whichever is first, and every schedule follows the run's
+progress (``schedule.py``), so a time budget holds on any device.
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager, nullcontext
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
@@ -23,6 +25,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from torch.profiler import record_function
 
 from ..atomic import atomic_path
 from ..progress import progress_bar
@@ -35,6 +38,7 @@ from .sh import num_sh_bases, rgb_to_sh_dc
 
 __all__ = [
     "TrainConfig",
+    "Trainer",
     "View",
     "downsample_view",
     "init_gaussians_from_points",
@@ -77,9 +81,11 @@ class TrainConfig:
     grow_grad2d: float = 2e-4
     prune_opa: float = 0.005
     opacity_reset_every: float = 0.0  # fraction of the run between opacity resets; 0: off (as gsplat 1.5.3's)
-    max_gaussians: int = 1_000_000
+    # the scene's cap and checkpoint cadence: the scene stage's defaults are these (stages/scene.py reads them; m2m
+    # bench train trains with them); object training passes its own
+    max_gaussians: int = 200_000
     eval_points: int = 0  # evaluations spread evenly over the run; 0: only before and after training
-    checkpoint_every: int = 1000
+    checkpoint_every: int = 200  # steps between the checkpoints of train(checkpoint_path=...); 0: only the last
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     backend: str = "auto"
     seed: int = 0
@@ -391,24 +397,279 @@ def evaluate(g: Gaussians, views: Sequence[View], config: TrainConfig, backend: 
     }
 
 
-# ---- checkpoints --------------------------------------------------------------------------------
-def _save_checkpoint(path: Path, params, optimizers, strategy_state, step: int, extra: dict) -> None:
-    blob = {
-        "step": step,
-        "params": {k: v.detach().cpu() for k, v in params.items()},
-        "optimizers": {k: o.state_dict() for k, o in optimizers.items()},
-        "strategy_state": strategy_state,
-        "torch_rng": torch.get_rng_state(),
-        **extra,
-    }
-    with atomic_path(path) as tmp:
-        torch.save(blob, tmp)
-
-
+# ---- the trainer --------------------------------------------------------------------------------
 def _view_order(n: int, seed: int, epoch: int) -> np.ndarray:
     """Training views visit order for one epoch; a function of (seed, epoch) so that a resumed
     run sees the same sequence as an uninterrupted one."""
     return np.random.default_rng([seed, epoch]).permutation(n)
+
+
+class Trainer:
+    """One 3DGS training run, a step at a time: the Gaussians as parameters, their Adam optimizers, the
+    densification strategy and its statistics, the run's schedule, its training time and its curve.
+
+    ``step()`` makes one optimisation step; ``finished`` says when the run is over (``config.iterations`` steps
+    or ``config.max_seconds`` of training time); ``evaluate()`` adds a point to the curve; ``save_checkpoint`` /
+    ``resume`` carry everything a step depends on, so a resumed trainer steps as the uninterrupted one would (bit
+    for bit on the CPU). ``clock`` (seconds) times the steps; tests inject a slow or fast one. :func:`train` is
+    the loop over it that the commands run, and ``m2m bench train`` times its steps.
+    """
+
+    def __init__(self, views_train: Sequence[View], views_eval: Sequence[View], init: Gaussians,
+                 config: TrainConfig, clock: Callable[[], float] = time.perf_counter):  # fmt: skip
+        if not views_train:
+            raise ValueError("train needs at least one training view")
+        self.length = config.run_length()  # validates iterations and max_seconds
+        if not self.length.bounded:
+            raise ValueError("train needs iterations > 0 or a max_seconds budget")
+        if not (0 <= config.coarse_fraction <= 1 and int(config.coarse_factor) >= 1):
+            raise ValueError(f"coarse_fraction must be in [0, 1] and coarse_factor >= 1, got {config.coarse_fraction} "
+                             f"and {config.coarse_factor}")  # fmt: skip
+        check_variance(config.filter_3d)
+        if not (0 <= config.lr_cooldown <= 1 and 0 < config.lr_cooldown_ratio <= 1):
+            raise ValueError(f"lr_cooldown must be in [0, 1] and lr_cooldown_ratio in (0, 1], got "
+                             f"{config.lr_cooldown} and {config.lr_cooldown_ratio}")  # fmt: skip
+        self.config = config
+        self.views_train, self.views_eval = list(views_train), list(views_eval)
+        self.clock = clock
+        self.backend = resolve_backend(config.backend)
+        self.device = torch.device("cuda" if self.backend == "cuda" else "cpu")
+        self.extent = scene_extent(self.views_train)
+        self.strategy = _make_strategy(config) if config.densify else None
+        self.params = _to_params(init, config.sh_degree, self.device)
+        self.optimizers = _make_optimizers(self.params, config.lr, self.extent)
+        self.strategy_state = self.strategy.initialize_state(scene_scale=self.extent) if self.strategy else None
+        if self.strategy:
+            self.strategy.check_sanity(self.params, self.optimizers)
+        self.schedule = _schedule(config, self.extent)
+        self.iteration = 0  # steps done
+        self.elapsed = 0.0  # training time: the steps' (evaluations and checkpoints are extra)
+        self.curve: list[dict[str, Any]] = []
+        self.initial: dict[str, Any] | None = None  # the evaluation before the first step
+        # gsplat's split samples with torch.randn from the global generator: the run keeps its own state of it,
+        # swapped in for the refinements, so that trainers (and whatever else draws) do not disturb each other
+        with torch.random.fork_rng(devices=[torch.cuda.current_device()] if self.device.type == "cuda" else []):
+            torch.manual_seed(config.seed)
+            self._rng = self._global_rng()
+        self._rates: torch.Tensor | None = None  # the 3D filter's sampling rates [N], refreshed as the Gaussians change
+        self._refresh_filter()
+        self._coarse: dict[int, View] = {}  # training views at 1/coarse_factor, made on first use
+        # the next step is expected to take the median of the last five (robust to one step stalled by a busy
+        # machine): the run stops before a step that would end past the budget
+        self._recent: deque[float] = deque(maxlen=5)
+        self._step_share = 1.0 / config.iterations if config.iterations else 0.0  # progress of the last step
+        self._last = {"progress": 0.0, "sh_degree": 0, "means_lr": self.schedule.means_lr(0.0), "lr_scale": 1.0}
+        self._warm = False
+
+    # -- where the run is
+    @property
+    def finished(self) -> bool:
+        """The run is over: its steps are done, or the next step would end past its time budget."""
+        expected = float(np.median(self._recent)) if self._recent else 0.0
+        return self.length.finished(self.iteration, self.elapsed, expected)
+
+    @property
+    def progress(self) -> float:
+        return self.length.fraction(self.iteration, self.elapsed)
+
+    def gaussians(self) -> Gaussians:
+        """The Gaussians now (detached, on the training device) with every SH band: the bands not yet active are
+        still zero, so this renders what was trained."""
+        return self._model(self.config.sh_degree).detach()
+
+    def _model(self, degree: int) -> Gaussians:
+        g = _to_gaussians(self.params, degree)
+        return g if self._rates is None else apply_3d_filter(g, self._rates, self.config.filter_3d)
+
+    def _refresh_filter(self) -> None:
+        if self.config.filter_3d > 0:
+            self._rates = max_sampling_rate(self.params["means"], self.views_train)
+
+    # -- training
+    def _global_rng(self) -> tuple[torch.Tensor, torch.Tensor | None]:
+        return torch.get_rng_state(), torch.cuda.get_rng_state(self.device) if self.device.type == "cuda" else None
+
+    @contextmanager
+    def _own_rng(self) -> Iterator[None]:
+        """The global torch generators at this run's state for the block (the run's state advanced after it)."""
+        outer = self._global_rng()
+        self._set_global_rng(self._rng)
+        try:
+            yield
+        finally:
+            self._rng = self._global_rng()
+            self._set_global_rng(outer)
+
+    def _set_global_rng(self, state: tuple[torch.Tensor, torch.Tensor | None]) -> None:
+        torch.set_rng_state(state[0])
+        if state[1] is not None and self.device.type == "cuda":
+            torch.cuda.set_rng_state(state[1], self.device)
+
+    def _start(self) -> None:
+        """Before the first step: the initial evaluation (a resumed run has it), and one untimed forward +
+        backward on a copy: numba compiles or loads its kernels (~35 s to compile the training step's on a busy
+        2-core machine, which the first step of a 4-minute budget paid), CUDA and gsplat initialise, so the budget
+        buys training steps only."""
+        if self.initial is None:
+            self._evaluate_initial()
+        if not self._warm:
+            self._warm = True
+            warm = _to_gaussians(self.params, self.config.sh_degree).map(lambda t: t.detach().clone().requires_grad_())
+            view_loss(warm, self.views_train[0], self.config, {}, self.backend)[0].backward()
+
+    def step(self) -> dict[str, Any]:
+        """One optimisation step on the next training view, densification included; returns its ``loss``, the
+        ``gaussians`` after it, the run's ``progress`` after it, whether densification ``refined``, whether an
+        ``evaluate`` is due on the schedule (the caller's: evaluations are not training time) and its ``seconds``.
+        The phases are labelled for ``torch.profiler`` (``trainer.forward`` / ``backward`` / ``densify`` /
+        ``adam``)."""
+        self._start()
+        cfg, params, schedule = self.config, self.params, self.schedule
+        t0 = self.clock()
+        p = self.length.fraction(self.iteration, self.elapsed)
+        n_views = len(self.views_train)
+        index = int(_view_order(n_views, cfg.seed, self.iteration // n_views)[self.iteration % n_views])
+        view = self.views_train[index]
+        if p < cfg.coarse_fraction:
+            if index not in self._coarse:
+                self._coarse[index] = downsample_view(view, cfg.coarse_factor)
+            view = self._coarse[index]
+        lr = schedule.means_lr(p)
+        self.optimizers["means"].param_groups[0]["lr"] = lr
+        lr_scale = schedule.lr_scale(p)
+        for k, o in self.optimizers.items():
+            if k != "means":
+                o.param_groups[0]["lr"] = cfg.lr[k] * lr_scale
+        degree = schedule.active_sh_degree(p)
+        info: dict = {}
+        try:
+            with record_function("trainer.forward"):
+                loss, _ = view_loss(self._model(degree), view, cfg, info, self.backend)
+            with record_function("trainer.backward"):
+                loss.backward()
+        except torch.cuda.OutOfMemoryError as e:
+            lower = "--max-gaussians (the densification cap) or the image size (--downscale)"
+            raise gpu_out_of_memory("training", len(params["means"]), view.width, view.height, lower) from e
+        refine = False
+        with record_function("trainer.densify"):
+            if self.strategy is not None and schedule.densifying(p):
+                refine = schedule.refine_now(self.iteration + 1, p, self._step_share)
+                sinfo = _strategy_info(info, view, len(params["means"]))
+                if sinfo is not None:  # None: nothing was rendered (no Gaussians), so nothing to refine
+                    with self._own_rng() if refine else nullcontext():
+                        self.strategy.update(params, self.optimizers, self.strategy_state, sinfo, refine,
+                                             self.iteration + 1)  # fmt: skip
+                if refine:
+                    schedule.refinements[-1] = (*schedule.refinements[-1], len(params["means"]))
+        with record_function("trainer.adam"):
+            for o in self.optimizers.values():
+                o.step()
+                o.zero_grad(set_to_none=True)
+        self.iteration += 1
+        if self._rates is not None and (refine or self.iteration % FILTER_3D_EVERY == 0):
+            self._refresh_filter()  # after a refinement (added / removed Gaussians) and as the means move
+        dt = self.clock() - t0
+        self.elapsed += dt
+        self._recent.append(dt)
+        p_after = self.length.fraction(self.iteration, self.elapsed)
+        self._step_share = p_after - p
+        if schedule.opacity_reset_now(p, p_after):
+            from gsplat.strategy.ops import reset_opa
+
+            reset_opa(params, self.optimizers, self.strategy_state or {}, value=cfg.prune_opa * 2)
+        self._last = {"progress": p, "sh_degree": degree, "means_lr": lr, "lr_scale": lr_scale}
+        return {"loss": float(loss.detach()), "gaussians": len(params["means"]), "progress": p_after,
+                "refined": refine, "evaluate": schedule.eval_now(p_after), "seconds": dt}  # fmt: skip
+
+    # -- evaluation
+    def _evaluate_initial(self) -> None:
+        self.initial = evaluate(self._model(0).detach(), self.views_eval, self.config, self.backend)
+        self.curve.append({"step": 0, "seconds": 0.0, "psnr": self.initial["psnr"], "ssim": self.initial["ssim"],
+                           "gaussians": len(self.params["means"])})  # fmt: skip
+
+    def evaluate(self) -> dict[str, Any]:
+        """PSNR / SSIM of the Gaussians now on the evaluation views (module :func:`evaluate`), added to the curve."""
+        m = evaluate(self.gaussians(), self.views_eval, self.config, self.backend)
+        self.curve.append({"step": self.iteration, "seconds": round(self.elapsed, 3), "psnr": m["psnr"],
+                           "ssim": m["ssim"], "gaussians": len(self.params["means"])})  # fmt: skip
+        return m
+
+    def metrics(self, last: dict[str, Any]) -> dict[str, Any]:
+        """:func:`train`'s metrics, ``last`` being the final :meth:`evaluate`."""
+        if self.initial is None:
+            self._evaluate_initial()
+        return {
+            "psnr": last["psnr"],
+            "ssim": last["ssim"],
+            "views": last["views"],
+            "initial": {"psnr": self.initial["psnr"], "ssim": self.initial["ssim"]},
+            "curve": self.curve,
+            "iterations": self.iteration,
+            "gaussians": len(self.params["means"]),
+            "seconds": self.elapsed,
+            "backend": self.backend,
+            "schedule": {
+                "progress": self.progress,
+                "last_step_progress": self._last["progress"],
+                "sh_degree": self._last["sh_degree"],
+                "means_lr": self._last["means_lr"],
+                "lr_scale": self._last["lr_scale"],
+                "refinements": [list(r) for r in self.schedule.refinements],
+            },
+        }
+
+    # -- checkpoints
+    def save_checkpoint(self, path: str | Path) -> None:
+        """Everything the next step depends on, written atomically: the Gaussians, Adam's moments, the strategy's
+        statistics, the step, the training time, the schedule's state, the RNG, the 3D filter's rates, the curve."""
+        blob = {
+            "step": self.iteration,
+            "params": {k: v.detach().cpu() for k, v in self.params.items()},
+            "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
+            "strategy_state": self.strategy_state,
+            "torch_rng": self._rng[0],
+            "cuda_rng": self._rng[1],
+            "elapsed": self.elapsed,
+            "curve": self.curve,
+            "initial": self.initial,
+            "config": asdict(self.config),
+            "schedule": self.schedule.state_dict(),
+            "recent": list(self._recent),
+            "step_share": self._step_share,
+            "last": self._last,
+            "filter_rates": None if self._rates is None else self._rates.cpu(),
+        }
+        with atomic_path(Path(path)) as tmp:
+            torch.save(blob, tmp)
+
+    def resume(self, path: str | Path) -> bool:
+        """Continue from the checkpoint at ``path`` (False: there is none); the trainer's views and config must be
+        the run's (the scene stage checks that with its plan)."""
+        path = Path(path)
+        if not path.exists():
+            return False
+        blob = torch.load(path, map_location=self.device, weights_only=False)
+        self.params = {k: torch.nn.Parameter(v.to(self.device)) for k, v in blob["params"].items()}
+        self.optimizers = _make_optimizers(self.params, self.config.lr, self.extent)
+        for k, o in self.optimizers.items():
+            o.load_state_dict(blob["optimizers"][k])
+        self.strategy_state = blob["strategy_state"]
+        self.iteration, self.elapsed, self.curve, self.initial = blob["step"], blob["elapsed"], blob["curve"], blob[
+            "initial"]  # fmt: skip
+        self.schedule.load_state_dict(blob["schedule"])
+        self._rng = (blob["torch_rng"].cpu(), blob.get("cuda_rng"))
+        if self._rng[1] is not None:
+            self._rng = (self._rng[0], self._rng[1].cpu())
+        # checkpoints written before these were kept: the first step's defaults, the rates recomputed
+        self._recent = deque(blob.get("recent", []), maxlen=5)
+        self._step_share = blob.get("step_share", self._step_share)
+        self._last = blob.get("last") or {**self._last, "progress": self.progress}
+        rates = blob.get("filter_rates")
+        if rates is not None and self.config.filter_3d > 0:
+            self._rates = rates.to(self.device)
+        else:
+            self._refresh_filter()
+        return True
 
 
 # ---- the loop -----------------------------------------------------------------------------------
@@ -423,203 +684,44 @@ def train(
     resume: bool = False,
     clock: Callable[[], float] = time.perf_counter,
 ) -> tuple[Gaussians, dict[str, Any]]:
-    """Train ``init`` on ``views_train``; returns (trained Gaussians, metrics).
+    """Train ``init`` on ``views_train`` (a :class:`Trainer` stepped to the end); returns (trained Gaussians,
+    metrics).
 
     metrics: ``psnr``/``ssim`` (mean over ``views_eval``), ``views`` (per view), ``initial``
     (the same before training), ``curve`` (list of {step, seconds, psnr, ssim, gaussians}; seconds
     count training time only), ``iterations``, ``gaussians``, ``seconds``, ``backend``, ``schedule``
     (where it ended: ``progress``, ``sh_degree``, ``means_lr``, ``refinements`` [(step, progress,
-    Gaussians after)]). ``callback(step, {"loss", "gaussians"})`` runs after every step. With
-    ``checkpoint_path`` a checkpoint is written atomically every ``config.checkpoint_every`` steps and at
-    the end; ``resume=True`` continues from it when it exists (Gaussians, Adam moments, strategy state,
-    step, training time, schedule state, RNG and the curve so far). ``clock`` (seconds) times the steps;
-    tests inject a slow or fast one.
+    Gaussians after)]). ``callback(step, stats)`` runs after every step with :meth:`Trainer.step`'s figures
+    (``loss``, ``gaussians``, ...). With ``checkpoint_path`` a checkpoint is written atomically every
+    ``config.checkpoint_every`` steps and at the end; ``resume=True`` continues from it when it exists.
+    ``clock`` (seconds) times the steps; tests inject a slow or fast one.
     """
-    if not views_train:
-        raise ValueError("train needs at least one training view")
-    length = config.run_length()  # validates iterations and max_seconds
-    if not length.bounded:
-        raise ValueError("train needs iterations > 0 or a max_seconds budget")
-    if not (0 <= config.coarse_fraction <= 1 and int(config.coarse_factor) >= 1):
-        raise ValueError(f"coarse_fraction must be in [0, 1] and coarse_factor >= 1, got {config.coarse_fraction} "
-                         f"and {config.coarse_factor}")  # fmt: skip
-    check_variance(config.filter_3d)
-    if not (0 <= config.lr_cooldown <= 1 and 0 < config.lr_cooldown_ratio <= 1):
-        raise ValueError(f"lr_cooldown must be in [0, 1] and lr_cooldown_ratio in (0, 1], got {config.lr_cooldown} "
-                         f"and {config.lr_cooldown_ratio}")  # fmt: skip
-    backend = resolve_backend(config.backend)
-    device = torch.device("cuda" if backend == "cuda" else "cpu")
-    extent = scene_extent(views_train)
+    trainer = Trainer(views_train, views_eval, init, config, clock)
     ckpt = Path(checkpoint_path) if checkpoint_path is not None else None
-
-    strategy = _make_strategy(config) if config.densify else None
-    params = _to_params(init, config.sh_degree, device)
-    optimizers = _make_optimizers(params, config.lr, extent)
-    strategy_state = strategy.initialize_state(scene_scale=extent) if strategy else None
-    if strategy:
-        strategy.check_sanity(params, optimizers)
-    schedule = _schedule(config, extent)
-    step, elapsed, curve, initial = 0, 0.0, [], None
-    torch.manual_seed(config.seed)  # gsplat's split samples with torch.randn
-
-    if resume and ckpt is not None and ckpt.exists():
-        blob = torch.load(ckpt, map_location=device, weights_only=False)
-        params = {k: torch.nn.Parameter(v.to(device)) for k, v in blob["params"].items()}
-        optimizers = _make_optimizers(params, config.lr, extent)
-        for k, o in optimizers.items():
-            o.load_state_dict(blob["optimizers"][k])
-        strategy_state = blob["strategy_state"]
-        step, elapsed, curve, initial = blob["step"], blob["elapsed"], blob["curve"], blob["initial"]
-        schedule.load_state_dict(blob["schedule"])
-        torch.set_rng_state(blob["torch_rng"])
-
-    nu: torch.Tensor | None = None  # the 3D filter's sampling rates [N], recomputed as the Gaussians change
-
-    def refresh_filter() -> None:
-        nonlocal nu
-        if config.filter_3d > 0:
-            nu = max_sampling_rate(params["means"], views_train)
-
-    def model(degree: int) -> Gaussians:
-        g = _to_gaussians(params, degree)
-        return g if nu is None else apply_3d_filter(g, nu, config.filter_3d)
-
-    def g_now(degree: int | None = None) -> Gaussians:
-        return model(config.sh_degree if degree is None else degree)
-
-    refresh_filter()
-
-    def checkpoint(at: int) -> None:
-        if ckpt is not None:
-            extra = {"elapsed": elapsed, "curve": curve, "initial": initial, "config": asdict(config),
-                     "schedule": schedule.state_dict()}  # fmt: skip
-            _save_checkpoint(ckpt, params, optimizers, strategy_state, at, extra)
-
-    def record(at: int) -> dict[str, Any]:
-        # bands not yet active are still zero, so the full-degree model renders what was trained
-        m = evaluate(g_now().detach(), views_eval, config, backend)
-        curve.append(
-            {
-                "step": at,
-                "seconds": round(elapsed, 3),
-                "psnr": m["psnr"],
-                "ssim": m["ssim"],
-                "gaussians": len(params["means"]),
-            }
-        )
-        return m
-
-    if initial is None:
-        initial = evaluate(g_now(0).detach(), views_eval, config, backend)
-        curve.append(
-            {
-                "step": 0,
-                "seconds": 0.0,
-                "psnr": initial["psnr"],
-                "ssim": initial["ssim"],
-                "gaussians": len(params["means"]),
-            }
-        )
-
-    if not length.finished(step, elapsed):
-        # one untimed forward + backward on a copy: numba compiles or loads its kernels (~35 s to compile
-        # the training step's on a busy 2-core machine, which the first step of a 4-minute budget paid),
-        # CUDA and gsplat initialise, so the budget buys training steps only
-        warm = _to_gaussians(params, config.sh_degree).map(lambda t: t.detach().clone().requires_grad_(True))
-        view_loss(warm, views_train[0], config, {}, backend)[0].backward()
-
+    if resume and ckpt is not None:
+        trainer.resume(ckpt)
     bar = None
     if progress:
         total = config.iterations if config.max_seconds is None else None  # a time budget: no step count
-        bar = progress_bar(total=total, initial=step, desc="train", dynamic_ncols=True)
-    n_views = len(views_train)
-    coarse: dict[int, View] = {}  # training views at 1/coarse_factor, made on first use
-    # the next step is expected to take the median of the last five (robust to one step stalled by a
-    # busy machine): the run stops before a step that would end past the budget
-    recent: deque[float] = deque(maxlen=5)
-    p, lr, lr_scale, degree = length.fraction(step, elapsed), schedule.means_lr(0.0), 1.0, 0
-    step_share = 1.0 / config.iterations if config.iterations else 0.0  # progress of one step (the last one's)
+        bar = progress_bar(total=total, initial=trainer.iteration, desc="train", dynamic_ncols=True)
     try:
-        while not length.finished(step, elapsed, float(np.median(recent)) if recent else 0.0):
-            t0 = clock()
-            p = length.fraction(step, elapsed)
-            index = int(_view_order(n_views, config.seed, step // n_views)[step % n_views])
-            view = views_train[index]
-            if p < config.coarse_fraction:
-                if index not in coarse:
-                    coarse[index] = downsample_view(view, config.coarse_factor)
-                view = coarse[index]
-            lr = schedule.means_lr(p)
-            optimizers["means"].param_groups[0]["lr"] = lr
-            lr_scale = schedule.lr_scale(p)
-            for k, o in optimizers.items():
-                if k != "means":
-                    o.param_groups[0]["lr"] = config.lr[k] * lr_scale
-            degree = schedule.active_sh_degree(p)
-            info: dict = {}
-            try:
-                loss, _ = view_loss(model(degree), view, config, info, backend)
-                loss.backward()
-            except torch.cuda.OutOfMemoryError as e:
-                lower = "--max-gaussians (the densification cap) or the image size (--downscale)"
-                raise gpu_out_of_memory("training", len(params["means"]), view.width, view.height, lower) from e
-            refine = False
-            if strategy is not None and schedule.densifying(p):
-                refine = schedule.refine_now(step + 1, p, step_share)
-                sinfo = _strategy_info(info, view, len(params["means"]))
-                if sinfo is not None:  # None: nothing was rendered (no Gaussians), so nothing to refine
-                    strategy.update(params, optimizers, strategy_state, sinfo, refine, step + 1)
-                if refine:
-                    schedule.refinements[-1] = (*schedule.refinements[-1], len(params["means"]))
-            for o in optimizers.values():
-                o.step()
-                o.zero_grad(set_to_none=True)
-            step += 1
-            if nu is not None and (refine or step % FILTER_3D_EVERY == 0):
-                refresh_filter()  # after a refinement (added / removed Gaussians) and as the means move
-            dt = clock() - t0
-            elapsed += dt
-            recent.append(dt)
-            p_after = length.fraction(step, elapsed)
-            step_share = p_after - p
-            if schedule.opacity_reset_now(p, p_after):
-                from gsplat.strategy.ops import reset_opa
-
-                reset_opa(params, optimizers, strategy_state or {}, value=config.prune_opa * 2)
-            stats = {"loss": float(loss.detach()), "gaussians": len(params["means"])}
+        while not trainer.finished:
+            stats = trainer.step()
             if bar is not None:
                 bar.update(1)
-                bar.set_postfix(loss=f"{stats['loss']:.4f}", n=stats["gaussians"], p=f"{p_after:.2f}", refresh=False)
+                bar.set_postfix(loss=f"{stats['loss']:.4f}", n=stats["gaussians"], p=f"{stats['progress']:.2f}",
+                                refresh=False)  # fmt: skip
             if callback is not None:
-                callback(step, stats)
-            if schedule.eval_now(p_after):
-                record(step)
-            if config.checkpoint_every and step % config.checkpoint_every == 0 and not length.finished(step, elapsed):
-                checkpoint(step)
+                callback(trainer.iteration, stats)
+            if stats["evaluate"]:
+                trainer.evaluate()
+            every = config.checkpoint_every
+            if ckpt is not None and every and trainer.iteration % every == 0 and not trainer.finished:
+                trainer.save_checkpoint(ckpt)  # the last one follows the loop
     finally:
         if bar is not None:
             bar.close()
-
-    last = record(step)
-    checkpoint(step)
-    final = g_now().detach()
-    metrics = {
-        "psnr": last["psnr"],
-        "ssim": last["ssim"],
-        "views": last["views"],
-        "initial": {"psnr": initial["psnr"], "ssim": initial["ssim"]},
-        "curve": curve,
-        "iterations": step,
-        "gaussians": len(final),
-        "seconds": elapsed,
-        "backend": backend,
-        "schedule": {
-            "progress": length.fraction(step, elapsed),
-            "last_step_progress": p,
-            "sh_degree": degree,
-            "means_lr": lr,
-            "lr_scale": lr_scale,
-            "refinements": [list(r) for r in schedule.refinements],
-        },
-    }
-    return final.to("cpu"), metrics
+    last = trainer.evaluate()
+    if ckpt is not None:
+        trainer.save_checkpoint(ckpt)
+    return trainer.gaussians().to("cpu"), trainer.metrics(last)

@@ -43,7 +43,7 @@ from .model import ModelSpec, VisuomotorPolicy
 from .plot import plot_loss_curve, smooth
 from .targets import future_tcp, robot_for
 
-__all__ = ["CHECKPOINT_FORMAT", "PolicyTrainConfig", "train_policy"]
+__all__ = ["CHECKPOINT_FORMAT", "PolicyTrainConfig", "PolicyTrainer", "train_policy"]
 
 
 Log = Callable[[str], None]
@@ -194,6 +194,196 @@ def _aux_targets(demos: Demonstrations, train_frames: np.ndarray, cfg: PolicyTra
     return (aux - mean) / std
 
 
+# ---- the trainer ------------------------------------------------------------------------------------
+class PolicyTrainer:
+    """One behaviour-cloning run, a step at a time: the datasets in memory (split, normalised, chunked), the
+    network, its EMA, AdamW, the per-step losses and the validation curve.
+
+    ``step()`` makes one optimisation step (and the validation the schedule asks for); ``finished`` says when the run
+    is over (``config.steps``, or ``config.minutes`` of training time); ``save_checkpoint`` / ``resume`` carry the
+    training state, and step i's random draws come from a generator seeded with (seed, i), so a resumed trainer
+    steps as the uninterrupted one would (bit for bit on the CPU with the same thread count). ``clock``: the time
+    source of the budget (a test's fake clock). :func:`train_policy` is the loop over it.
+    """
+
+    def __init__(self, datasets: Sequence[Path], config: PolicyTrainConfig, log: Log = print,
+                 clock: Callable[[], float] = time.perf_counter):  # fmt: skip
+        cfg = config
+        bad = cfg.problems()
+        if bad:
+            raise PolicyError("train-policy config: " + "; ".join(bad))
+        self.config, self.dirs, self.log, self.clock = cfg, [Path(d) for d in datasets], log, clock
+        self.device = resolve_device(cfg.device)
+        t_load = time.perf_counter()
+        self.demos = demos = load_episodes(self.dirs, cfg.image_size, cfg.cameras or None,
+                                           max_episodes=cfg.episodes or None)  # fmt: skip
+        self.load_seconds = time.perf_counter() - t_load
+        # the cadence of checkpoints does not change what is computed; everything else does
+        key_cfg = {k: v for k, v in cfg.to_json().items() if k != "checkpoint_every"}
+        self.fingerprint = fingerprint(key_cfg, str(self.device), torch.get_num_threads(),
+                                       *[d.resolve() for d in self.dirs])  # fmt: skip
+
+        self.train_episodes, self.val_episodes = split_episodes(demos.n_episodes, cfg.val_fraction, cfg.seed)
+        train_frames, self.val_frames = demos.frames_of(self.train_episodes), demos.frames_of(self.val_episodes)
+        self.stats = normalization_stats(demos.state[train_frames], demos.action[train_frames])
+        aux = _aux_targets(demos, train_frames, cfg, log)
+        self.batches = _Batches(demos, self.stats, cfg.chunk, self.device, aux)
+        self.spec = ModelSpec(demos.meta.cameras, cfg.image_size, len(demos.meta.state_names),
+                              len(demos.meta.action_names), cfg.chunk, tuple(cfg.widths), cfg.keypoints, cfg.hidden,
+                              0 if aux is None else int(aux.shape[1]), cfg.input_blur)  # fmt: skip
+
+        torch.manual_seed(cfg.seed)
+        self.model = VisuomotorPolicy(self.spec).to(self.device).to(memory_format=torch.channels_last)
+        self.ema = copy.deepcopy(self.model) if cfg.ema_decay > 0 else self.model
+        self.opt = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        self.n_parameters = sum(p.numel() for p in self.model.parameters())
+        self.model.train()
+
+        self.iteration, self.elapsed = 0, 0.0
+        self.losses: list[float] = []
+        self.aux_losses: list[float] = []
+        self.val_curve: list[tuple[int, float]] = []
+        self.total_steps = cfg.steps or None  # a step count, or None: the time budget decides
+        # 3 % of the minutes for loading, the last evaluation and saving
+        self.budget_s = None if self.total_steps else cfg.minutes * 60.0 * 0.97
+        self._train_idx = torch.from_numpy(train_frames)
+
+    @property
+    def finished(self) -> bool:
+        if self.total_steps:
+            return self.iteration >= self.total_steps
+        return self.elapsed >= self.budget_s
+
+    def lr(self) -> float:
+        """The learning rate of the next step."""
+        progress = _progress(self.iteration, self.elapsed, self.total_steps, self.budget_s, self.config.warmup_steps)
+        return lr_at(self.iteration, progress, self.config)
+
+    def step(self) -> dict[str, Any]:
+        """One optimisation step on a batch of step ``iteration``'s draw, the EMA updated; the validation loss when
+        it is due (every ``eval_every`` steps). Returns the step's ``loss`` (actions), ``aux_loss`` (or None),
+        ``lr``, ``val`` (or None) and ``seconds`` (validation included: it is training time)."""
+        cfg = self.config
+        t0 = self.clock()
+        lr = self.lr()
+        for group in self.opt.param_groups:
+            group["lr"] = lr
+        g = _step_generator(cfg.seed, self.iteration)
+        frames = self._train_idx[torch.randint(len(self._train_idx), (cfg.batch_size,), generator=g)]
+        images, state, target, mask = self.batches.get(frames, cfg.augment, g)
+        if cfg.state_noise > 0:  # blur what the joints tell, so the network must look (see the config)
+            state = state + cfg.state_noise * torch.randn(state.shape, generator=g).to(state.device)
+        total_loss, loss, aux_loss = step_loss(self.model, (images, state, target, mask), self.batches.aux_of(frames),
+                                               cfg.aux_weight)  # fmt: skip
+        self.opt.zero_grad(set_to_none=True)
+        total_loss.backward()
+        self.opt.step()
+        if cfg.ema_decay > 0:
+            _ema_update(self.ema, self.model, cfg.ema_decay, self.iteration)
+        self.losses.append(float(loss.detach()))
+        if aux_loss is not None:
+            self.aux_losses.append(float(aux_loss.detach()))
+        self.iteration += 1
+        val = None
+        if self.iteration % cfg.eval_every == 0 and len(self.val_frames):
+            val = self.validate()
+        dt = self.clock() - t0
+        self.elapsed += dt
+        return {"loss": self.losses[-1], "aux_loss": self.aux_losses[-1] if aux_loss is not None else None, "lr": lr,
+                "val": val, "seconds": dt}  # fmt: skip
+
+    def validate(self) -> float:
+        """The EMA weights' validation loss now, added to the curve (NaN without validation episodes)."""
+        if not len(self.val_frames):
+            return math.nan
+        val = _evaluate(self.ema, self.batches, self.val_frames, self.config.batch_size)
+        self.val_curve.append((self.iteration, val))
+        return val
+
+    # -- checkpoints
+    def save_checkpoint(self, path: str | Path) -> None:
+        """The training state (model, EMA, optimiser, step, training time, losses), written atomically."""
+        _save(Path(path), {
+            "format": CHECKPOINT_FORMAT, "fingerprint": self.fingerprint, "step": self.iteration,
+            "total_steps": self.total_steps or 0, "elapsed": self.elapsed, "model": self.model.state_dict(),
+            "ema": self.ema.state_dict() if self.config.ema_decay > 0 else {}, "optimizer": self.opt.state_dict(),
+            "losses": self.losses, "val_curve": [list(v) for v in self.val_curve], "aux_losses": self.aux_losses,
+        })  # fmt: skip
+
+    def resume(self, path: str | Path) -> bool:
+        """Continue from the checkpoint at ``path`` when it is this run's (same datasets, config, device and thread
+        count); False, and a word in the log when it is damaged or another run's (training starts afresh)."""
+        path = Path(path)
+        if not path.is_file():
+            return False
+        try:
+            ck = torch.load(path, map_location=self.device, weights_only=True)
+        except Exception as e:  # a damaged checkpoint: say so and start over rather than fail forever
+            self.log(f"train-policy: {path} does not load ({type(e).__name__}: {e}); training from scratch")
+            return False
+        if ck.get("fingerprint") != self.fingerprint:
+            self.log(f"train-policy: datasets or config changed since {path}; training from scratch")
+            return False
+        self.model.load_state_dict(ck["model"])
+        if self.config.ema_decay > 0:
+            self.ema.load_state_dict(ck["ema"])
+        self.opt.load_state_dict(ck["optimizer"])
+        self.iteration, self.elapsed = int(ck["step"]), float(ck["elapsed"])
+        self.losses, self.val_curve = list(ck["losses"]), [tuple(v) for v in ck["val_curve"]]
+        self.aux_losses = list(ck.get("aux_losses", []))
+        total, budget_s = self.total_steps, self.budget_s
+        done = f"{self.iteration}/{total}" if total else f"{self.iteration} ({self.elapsed / 60:.1f} of " \
+            f"{budget_s / 60:.1f} min)"  # fmt: skip
+        self.log(f"train-policy: resuming at step {done} from {path}")
+        return True
+
+    # -- results
+    def policy(self, summary: dict[str, Any]) -> dict[str, Any]:
+        """What ``policy.pt`` holds: the EMA weights, the model spec, the datasets' meta and normalisation."""
+        trained = {k: summary[k] for k in ("steps", "episodes", "frames")}
+        return policy_blob(self.ema, self.spec, self.demos.meta.to_json(), self.stats,
+                           {"inference": {"ensemble_decay": 0.1}, "trained": trained})  # fmt: skip
+
+    def summary(self, run_start: int, run_steps: int, run_s: float) -> dict[str, Any]:
+        """summary.json: what was trained on, how fast (``run_steps`` steps in ``run_s`` seconds this session, from
+        step ``run_start``), and the losses."""
+        cfg, losses, aux_losses, val_curve = self.config, self.losses, self.aux_losses, self.val_curve
+        step = self.iteration
+        window = max(1, min(50, len(losses) // 10))
+        return {
+            "datasets": [str(d) for d in self.dirs],
+            "episodes": {
+                "train": len(self.train_episodes),
+                "val": len(self.val_episodes),
+                "per_dataset": cfg.episodes or "all",
+            },
+            "frames": self.demos.n_frames,
+            "meta": self.demos.meta.to_json(),
+            "device": str(self.device),
+            "threads": torch.get_num_threads(),
+            "parameters": self.n_parameters,
+            "steps": step,
+            "budget_minutes": None if self.total_steps else cfg.minutes,
+            "final_lr": self.lr(),
+            "samples_seen": step * cfg.batch_size,
+            "seconds": {"load": round(self.load_seconds, 2), "train": round(self.elapsed, 2)},
+            "steps_per_second": round(run_steps / run_s, 3) if run_steps and run_s > 0 else None,
+            "samples_per_second": round(run_steps * cfg.batch_size / run_s, 1) if run_steps and run_s > 0 else None,
+            "resumed_from_step": run_start or None,
+            "loss": {
+                "first": float(np.mean(losses[:window])) if losses else None,
+                "last": float(np.mean(losses[-window:])) if losses else None,
+                "val": val_curve[-1][1] if val_curve else None,
+                "units": "mean |a - a_demo| in dataset-std units (normalised actions), unpadded chunk steps",
+                "aux_first": float(np.mean(aux_losses[:window])) if aux_losses else None,
+                "aux_last": float(np.mean(aux_losses[-window:])) if aux_losses else None,
+            },
+            "val_curve": [[s, round(v, 6)] for s, v in val_curve],
+            "config": cfg.to_json(),
+            "files": {"policy": POLICY_FILE, "checkpoint": CHECKPOINT_FILE, "loss_curve": "loss_curve.png"},
+        }
+
+
 # ---- the loop ---------------------------------------------------------------------------------------
 def train_policy(
     datasets: str | Path | Sequence[str | Path],
@@ -203,171 +393,68 @@ def train_policy(
     progress: bool = True,
     clock: Callable[[], float] = time.perf_counter,
 ) -> dict[str, Any]:
-    """Train a visuomotor policy on one or more of our LeRobot datasets; returns the summary (also written to
-    ``out_dir/summary.json``). Resumes from ``out_dir/checkpoint.pt`` when datasets and config are unchanged.
-    ``clock``: the time source of the budget (a test's fake clock)."""
+    """Train a visuomotor policy on one or more of our LeRobot datasets (a :class:`PolicyTrainer` stepped to the
+    end); returns the summary (also written to ``out_dir/summary.json``). Resumes from ``out_dir/checkpoint.pt``
+    when datasets and config are unchanged. ``clock``: the time source of the budget (a test's fake clock)."""
     cfg = config or PolicyTrainConfig()
-    bad = cfg.problems()
-    if bad:
-        raise PolicyError("train-policy config: " + "; ".join(bad))
     dirs = [Path(datasets)] if isinstance(datasets, str | Path) else [Path(d) for d in datasets]
+    trainer = PolicyTrainer(dirs, cfg, log, clock)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    device = resolve_device(cfg.device)
-
-    t_load = time.perf_counter()
-    demos = load_episodes(dirs, cfg.image_size, cfg.cameras or None, max_episodes=cfg.episodes or None)
-    load_s = time.perf_counter() - t_load
-    # the cadence of checkpoints does not change what is computed; everything else does
-    key_cfg = {k: v for k, v in cfg.to_json().items() if k != "checkpoint_every"}
-    fp = fingerprint(key_cfg, str(device), torch.get_num_threads(), *[d.resolve() for d in dirs])
-
-    train_eps, val_eps = split_episodes(demos.n_episodes, cfg.val_fraction, cfg.seed)
-    train_frames, val_frames = demos.frames_of(train_eps), demos.frames_of(val_eps)
-    stats = normalization_stats(demos.state[train_frames], demos.action[train_frames])
-    aux = _aux_targets(demos, train_frames, cfg, log)
-    batches = _Batches(demos, stats, cfg.chunk, device, aux)
-    spec = ModelSpec(demos.meta.cameras, cfg.image_size, len(demos.meta.state_names), len(demos.meta.action_names),
-                     cfg.chunk, tuple(cfg.widths), cfg.keypoints, cfg.hidden,
-                     0 if aux is None else int(aux.shape[1]), cfg.input_blur)  # fmt: skip
-
-    torch.manual_seed(cfg.seed)
-    model = VisuomotorPolicy(spec).to(device).to(memory_format=torch.channels_last)
-    ema = copy.deepcopy(model) if cfg.ema_decay > 0 else model
-    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    n_params = sum(p.numel() for p in model.parameters())
-
-    step, elapsed, losses, val_curve, aux_losses = 0, 0.0, [], [], []
     ckpt_path = out / CHECKPOINT_FILE
-    total = cfg.steps or None  # a step count, or None: the time budget decides
-    budget_s = None if total else cfg.minutes * 60.0 * 0.97  # 3 % for loading, the last evaluation and saving
-    if ckpt_path.is_file():
-        try:
-            ck = torch.load(ckpt_path, map_location=device, weights_only=True)
-        except Exception as e:  # a damaged checkpoint: say so and start over rather than fail forever
-            log(f"train-policy: {ckpt_path} does not load ({type(e).__name__}: {e}); training from scratch")
-            ck = None
-        if ck is not None and ck.get("fingerprint") == fp:
-            model.load_state_dict(ck["model"])
-            if cfg.ema_decay > 0:
-                ema.load_state_dict(ck["ema"])
-            opt.load_state_dict(ck["optimizer"])
-            step, elapsed = int(ck["step"]), float(ck["elapsed"])
-            losses, val_curve = list(ck["losses"]), [tuple(v) for v in ck["val_curve"]]
-            aux_losses = list(ck.get("aux_losses", []))
-            done = f"{step}/{total}" if total else f"{step} ({elapsed / 60:.1f} of {budget_s / 60:.1f} min)"
-            log(f"train-policy: resuming at step {done} from {ckpt_path}")
-        elif ck is not None:
-            log(f"train-policy: datasets or config changed since {ckpt_path}; training from scratch")
-    if step == 0:
+    if not trainer.resume(ckpt_path):
         # a fresh run: the outputs of an earlier, different run must not sit beside this run's checkpoints
         stale = [out / n for n in (POLICY_FILE, "summary.json", "loss_curve.png") if (out / n).is_file()]
         for f in stale:
             f.unlink()
         if stale:
             log(f"train-policy: removed the previous run's {', '.join(f.name for f in stale)} from {out}")
+    total, budget_s = trainer.total_steps, trainer.budget_s
     length = f"{total} steps" if total else f"{cfg.minutes:g} minutes of steps"
-    log(f"train-policy: {demos.n_episodes} episodes ({len(train_eps)} train, {len(val_eps)} val), "
-        f"{demos.n_frames} frames from {len(dirs)} dataset(s) loaded in {load_s:.1f} s; {n_params / 1e6:.2f} M "
-        f"parameters on {device}; {length} of {cfg.batch_size}")  # fmt: skip
+    log(f"train-policy: {trainer.demos.n_episodes} episodes ({len(trainer.train_episodes)} train, "
+        f"{len(trainer.val_episodes)} val), {trainer.demos.n_frames} frames from {len(dirs)} dataset(s) loaded in "
+        f"{trainer.load_seconds:.1f} s; {trainer.n_parameters / 1e6:.2f} M parameters on {trainer.device}; {length} of "
+        f"{cfg.batch_size}")  # fmt: skip
 
-    def checkpoint() -> None:
-        _save(ckpt_path, {
-            "format": CHECKPOINT_FORMAT, "fingerprint": fp, "step": step, "total_steps": total or 0, "elapsed": elapsed,
-            "model": model.state_dict(), "ema": ema.state_dict() if cfg.ema_decay > 0 else {},
-            "optimizer": opt.state_dict(), "losses": losses, "val_curve": [list(v) for v in val_curve],
-            "aux_losses": aux_losses,
-        })  # fmt: skip
-
-    train_idx = torch.from_numpy(train_frames)
     bar = None
     if progress:
         if total:
-            bar = progress_bar(total=total, initial=step, desc="train-policy", unit="step", dynamic_ncols=True)
+            bar = progress_bar(total=total, initial=trainer.iteration, desc="train-policy", unit="step",
+                               dynamic_ncols=True)  # fmt: skip
         else:  # the budget is time: the bar counts seconds
-            bar = progress_bar(total=round(budget_s), initial=round(elapsed), desc="train-policy", unit="s",
-                               dynamic_ncols=True)
-    run_start, run_steps = step, 0
+            bar = progress_bar(total=round(budget_s), initial=round(trainer.elapsed), desc="train-policy", unit="s",
+                               dynamic_ncols=True)  # fmt: skip
+    run_start, run_steps = trainer.iteration, 0
     t_run = clock()
     try:
-        model.train()
-        while (step < total) if total else (elapsed < budget_s):
-            t0 = clock()
-            for group in opt.param_groups:
-                group["lr"] = lr_at(step, _progress(step, elapsed, total, budget_s, cfg.warmup_steps), cfg)
-            g = _step_generator(cfg.seed, step)
-            frames = train_idx[torch.randint(len(train_idx), (cfg.batch_size,), generator=g)]
-            images, state, target, mask = batches.get(frames, cfg.augment, g)
-            if cfg.state_noise > 0:  # blur what the joints tell, so the network must look (see the config)
-                state = state + cfg.state_noise * torch.randn(state.shape, generator=g).to(state.device)
-            total_loss, loss, aux_loss = step_loss(model, (images, state, target, mask), batches.aux_of(frames),
-                                                   cfg.aux_weight)  # fmt: skip
-            opt.zero_grad(set_to_none=True)
-            total_loss.backward()
-            opt.step()
-            if cfg.ema_decay > 0:
-                _ema_update(ema, model, cfg.ema_decay, step)
-            losses.append(float(loss.detach()))
-            if aux_loss is not None:
-                aux_losses.append(float(aux_loss.detach()))
-            step += 1
+        while not trainer.finished:
+            trainer.step()
             run_steps += 1
-            if step % cfg.eval_every == 0 and len(val_frames):
-                val_curve.append((step, _evaluate(ema, batches, val_frames, cfg.batch_size)))
-            dt = clock() - t0
-            elapsed += dt
             if bar is not None:
-                bar.update(1 if total else min(round(elapsed) - bar.n, round(budget_s) - bar.n))
-                bar.set_postfix(step=step, loss=f"{np.mean(losses[-20:]):.4f}", refresh=False)
-            if step % cfg.checkpoint_every == 0 and ((step < total) if total else (elapsed < budget_s)):
-                checkpoint()
+                bar.update(1 if total else min(round(trainer.elapsed) - bar.n, round(budget_s) - bar.n))
+                bar.set_postfix(step=trainer.iteration, loss=f"{np.mean(trainer.losses[-20:]):.4f}", refresh=False)
+            if trainer.iteration % cfg.checkpoint_every == 0 and not trainer.finished:
+                trainer.save_checkpoint(ckpt_path)  # the last one follows the loop
     finally:
         if bar is not None:
             bar.close()
     run_s = clock() - t_run
-    if len(val_frames) and (not val_curve or val_curve[-1][0] != step):
-        val_curve.append((step, _evaluate(ema, batches, val_frames, cfg.batch_size)))
-    checkpoint()
+    if not trainer.val_curve or trainer.val_curve[-1][0] != trainer.iteration:
+        trainer.validate()
+    trainer.save_checkpoint(ckpt_path)
 
-    window = max(1, min(50, len(losses) // 10))
-    summary = {
-        "datasets": [str(d) for d in dirs],
-        "episodes": {"train": len(train_eps), "val": len(val_eps), "per_dataset": cfg.episodes or "all"},
-        "frames": demos.n_frames,
-        "meta": demos.meta.to_json(),
-        "device": str(device),
-        "threads": torch.get_num_threads(),
-        "parameters": n_params,
-        "steps": step,
-        "budget_minutes": None if total else cfg.minutes,
-        "final_lr": lr_at(step, _progress(step, elapsed, total, budget_s, cfg.warmup_steps), cfg),
-        "samples_seen": step * cfg.batch_size,
-        "seconds": {"load": round(load_s, 2), "train": round(elapsed, 2)},
-        "steps_per_second": round(run_steps / run_s, 3) if run_steps and run_s > 0 else None,
-        "samples_per_second": round(run_steps * cfg.batch_size / run_s, 1) if run_steps and run_s > 0 else None,
-        "resumed_from_step": run_start or None,
-        "loss": {
-            "first": float(np.mean(losses[:window])) if losses else None,
-            "last": float(np.mean(losses[-window:])) if losses else None,
-            "val": val_curve[-1][1] if val_curve else None,
-            "units": "mean |a - a_demo| in dataset-std units (normalised actions), unpadded chunk steps",
-            "aux_first": float(np.mean(aux_losses[:window])) if aux_losses else None,
-            "aux_last": float(np.mean(aux_losses[-window:])) if aux_losses else None,
-        },
-        "val_curve": [[s, round(v, 6)] for s, v in val_curve],
-        "config": cfg.to_json(),
-        "files": {"policy": POLICY_FILE, "checkpoint": CHECKPOINT_FILE, "loss_curve": "loss_curve.png"},
-    }
-    _save(out / POLICY_FILE, policy_blob(ema, spec, demos.meta.to_json(), stats, {
-        "inference": {"ensemble_decay": 0.1}, "trained": {k: summary[k] for k in ("steps", "episodes", "frames")},
-    }))  # fmt: skip
+    summary = trainer.summary(run_start, run_steps, run_s)
+    _save(out / POLICY_FILE, trainer.policy(summary))
+    losses, val_curve = trainer.losses, trainer.val_curve
     if losses:
+        window = max(1, min(50, len(losses) // 10))
         x = np.arange(1, len(losses) + 1)
         series = [("train (per step)", x, np.asarray(losses)), ("train (smoothed)", x, smooth(losses, window))]
         if val_curve:
             series.append(("val (EMA weights)", *map(np.asarray, zip(*val_curve, strict=True))))
         plot_loss_curve(out / "loss_curve.png", series, title=f"L1 of normalised action chunks, K={cfg.chunk}")
     _write_json(out / "summary.json", summary)
-    log(f"train-policy: {step} steps, loss {summary['loss']['first']:.4f} -> {summary['loss']['last']:.4f}"
-        + (f", val {summary['loss']['val']:.4f}" if val_curve else "") + f"; wrote {out / POLICY_FILE}")  # fmt: skip
+    log(f"train-policy: {trainer.iteration} steps, loss {summary['loss']['first']:.4f} -> "
+        f"{summary['loss']['last']:.4f}" + (f", val {summary['loss']['val']:.4f}" if val_curve else "")
+        + f"; wrote {out / POLICY_FILE}")  # fmt: skip
     return summary

@@ -25,6 +25,12 @@ import numpy as np
 from ..atomic import atomic_write
 from ..configs import ranged, to_dict
 from ..fingerprint import fingerprint
+from ..gaussians.budget import budget_config
+from ..gaussians.dataset import DatasetError, build_views, photo_view
+from ..gaussians.filter3d import FILTER_3D_VARIANCE, check_variance
+from ..gaussians.ply import write_ply
+from ..gaussians.render import render, resolve_backend
+from ..gaussians.train import TrainConfig, init_gaussians_from_points, train
 from ..workspace import Workspace, WorkspaceError
 from .base import ADDED_LATER, Input, Log, stage_fingerprint
 
@@ -67,16 +73,17 @@ class Config:
     iterations: int = ranged(0, ge=0, le=10**7)
     downscale: int = ranged(2, ge=1, le=16)
     holdout_every: int = ranged(8, ge=0, le=10_000)
-    max_gaussians: int = ranged(200_000, ge=1000, le=10**8)
+    # the cap and the checkpoint cadence are TrainConfig's defaults (it owns them: bench train trains with them too)
+    max_gaussians: int = ranged(TrainConfig.max_gaussians, ge=1000, le=10**8)
     sh_degree: int = ranged(3, ge=0, le=3)
     backend: Literal["auto", "cpu", "cuda"] = "auto"
     seed: int = ranged(0, ge=0, le=2**32 - 1)
-    checkpoint_every: int = ranged(200, ge=0, le=10**7)
+    checkpoint_every: int = ranged(TrainConfig.checkpoint_every, ge=0, le=10**7)
     head_photo: Path | None = field(default=None, metadata=ADDED_LATER)
     head_photo_mask: Path | None = field(default=None, metadata=ADDED_LATER)
     head_photo_repeat: int = ranged(4, ge=1, le=1000, metadata=ADDED_LATER)
-    # gaussians.filter3d.FILTER_3D_VARIANCE (bench train's too); in every fingerprint: scenes trained before it retrain
-    filter_3d: float = ranged(0.2, ge=0, le=4)
+    # bench train's too; in every fingerprint: scenes trained before it retrain
+    filter_3d: float = ranged(FILTER_3D_VARIANCE, ge=0, le=4)
     # pixels the robot's silhouette grows by before it is masked out of the keyframes (calib/robot.json): the link
     # meshes are the model's and the cameras a few tenths of a pixel off
     robot_margin_px: int = ranged(2, ge=0, le=100, metadata=ADDED_LATER)
@@ -92,8 +99,6 @@ class Config:
             )
         if not 0 <= self.sh_degree <= 3:
             raise WorkspaceError(f"train-scene: sh_degree must be 0..3, got {self.sh_degree}")
-        from ..gaussians.filter3d import check_variance
-
         try:
             check_variance(self.filter_3d)
         except ValueError as e:
@@ -112,8 +117,6 @@ def _heldout_sheet(g, views, config, backend: str, max_views: int = 4) -> np.nda
     """Held-out photos (top row) above their renders (bottom row), uint8."""
     import torch
 
-    from ..gaussians.render import render
-
     tops, bottoms = [], []
     bg = torch.tensor(config.background, dtype=torch.float32)
     for v in views[:max_views]:
@@ -123,7 +126,6 @@ def _heldout_sheet(g, views, config, backend: str, max_views: int = 4) -> np.nda
         bottoms.append(rgb.cpu().numpy())
     grid = np.concatenate([np.concatenate(tops, axis=1), np.concatenate(bottoms, axis=1)], axis=0)
     return (grid * 255 + 0.5).astype(np.uint8)
-
 
 
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
@@ -140,7 +142,6 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
 
 def head_photo_view(ws: Workspace, cfg: Config, frame: str):
     """The head photo as a training view (``gaussians.train.View``) from the calibrated head camera."""
-    from ..gaussians.dataset import DatasetError, photo_view
     from ..inputs import read_image_rgb
     from .head_view import head_camera
 
@@ -162,11 +163,6 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
     """Train the scene Gaussians; writes and returns the metrics of ``scene/metrics.json``."""
     from PIL import Image
 
-    from ..gaussians.budget import budget_config
-    from ..gaussians.dataset import build_views
-    from ..gaussians.ply import write_ply
-    from ..gaussians.render import resolve_backend
-    from ..gaussians.train import TrainConfig, init_gaussians_from_points, train
     from . import get_stage
 
     posed = ws.posed_capture()
@@ -308,13 +304,20 @@ def _robot_masks(ws: Workspace, views: list, frame: str, margin_px: int, log: Lo
             "record": record, "masked_fraction": frac, "line": line}  # fmt: skip
 
 
-def _robot_gaussians(ws: Workspace, scene, robot: dict[str, Any], views_train: list, views_eval: list, config: Config,
-                     backend: str, log: Log) -> None:
+def _robot_gaussians(
+    ws: Workspace,
+    scene,
+    robot: dict[str, Any],
+    views_train: list,
+    views_eval: list,
+    config: Config,
+    backend: str,
+    log: Log,
+) -> None:
     """The robot as the capture saw it (gaussians.robot): per-link Gaussians on its meshes, their colours fitted to
     the keyframes' robot pixels with the scene in front, written to scene/robot/ (<link>.ply in the link's frame,
     robot.json: the capture joints, how much of each link the keyframes saw, held-out PSNR on the robot's pixels of
     the mesh look and of the captured one)."""
-    from ..gaussians.ply import write_ply
     from ..gaussians.robot import fit_robot_colours, mesh_gaussians
 
     links = robot["links"]
@@ -346,9 +349,11 @@ def _robot_gaussians(ws: Workspace, scene, robot: dict[str, Any], views_train: l
     robot["gaussians_line"] = (f"the robot's Gaussians (scene/robot/): {100 * seen:.0f} % seen by the keyframes"
                                f"{figures}")  # fmt: skip
     if fit.disagreeing:
-        warning = (f"WARNING: the robot in keyframe(s) {', '.join(fit.disagreeing)} disagrees with the rest (its "
-                   "colours there are explained far worse): did the robot move while filming? Its joint state must "
-                   "be the same in every keyframe (align.capture_joints); remove those keyframes or film again")
+        warning = (
+            f"WARNING: the robot in keyframe(s) {', '.join(fit.disagreeing)} disagrees with the rest (its "
+            "colours there are explained far worse): did the robot move while filming? Its joint state must "
+            "be the same in every keyframe (align.capture_joints); remove those keyframes or film again"
+        )
         robot["gaussians_line"] += f"; {warning}"
         log(f"scene: {warning}")
     robot.update(psnr_mesh_look=fit.psnr_mesh, psnr_captured=fit.psnr_captured)
@@ -390,8 +395,10 @@ def _checkpoint_plan(out: Path, key: str, train_cfg) -> tuple[Path, bool]:
 def _frame_note(ws: Workspace, frame: str) -> str:
     """A loud word when the scene is not in the robot's metric base frame ("" when it is)."""
     if frame == "sfm":
-        return ("UNALIGNED: align-scene has not run, so the scene is in the SfM frame (not metric, not the robot's "
-                "base); run `m2m align-scene --board ...` for a robot twin, or `--unaligned` to say it is meant")
+        return (
+            "UNALIGNED: align-scene has not run, so the scene is in the SfM frame (not metric, not the robot's "
+            "base); run `m2m align-scene --board ...` for a robot twin, or `--unaligned` to say it is meant"
+        )
     if ws.alignment_file.is_file():
         try:
             method = json.loads(ws.alignment_file.read_text()).get("method")
