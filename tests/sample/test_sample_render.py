@@ -23,7 +23,7 @@ from mirage2matter.sample.render import (
     default_T_base_headcam,
     sample_handeye_configurations,
 )
-from mirage2matter.sample.types import PlacedAsset
+from mirage2matter.world.sample_assets import PlacedAsset
 
 HOME = np.asarray(ROBOT.home)
 

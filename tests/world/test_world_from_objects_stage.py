@@ -32,7 +32,7 @@ def staged_ws(tmp_path_factory) -> Path:
     from mirage2matter.objects.matting import MattingConfig
     from mirage2matter.objects.reconstruct import ObjectsConfig
     from mirage2matter.objects.splat import SplatConfig
-    from mirage2matter.sample.assets import build_assets
+    from mirage2matter.world.sample_assets import build_assets
 
     if not (SAMPLE / "ground_truth.json").is_file():
         pytest.skip(f"bundled sample missing at {SAMPLE}")

@@ -61,7 +61,7 @@ def _write_object(ws: Path, name: str, mesh: trimesh.Trimesh, placement: Sim3, s
 @pytest.fixture(scope="module")
 def recon_ws(tmp_path_factory) -> tuple[Path, dict[str, trimesh.Trimesh]]:
     """(workspace, {name: the object's mesh in the base frame where it really stands})."""
-    from mirage2matter.sample.assets import build_assets
+    from mirage2matter.world.sample_assets import build_assets
 
     gt_path = SAMPLE / "ground_truth.json"
     if not gt_path.is_file():

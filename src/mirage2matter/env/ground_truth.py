@@ -3,8 +3,8 @@
 In the sim-to-real experiment on the sample (issue 16) the "real world" is the textured-mesh scene that
 rendered ``samples/tabletop/scene.mp4``: room, table, ChArUco board, banana, croissant and the press button,
 lit and shaded by the sample maker's Genesis rasterizer. :class:`GroundTruthRenderer` rebuilds that scene from
-``ground_truth.json`` (the same ``build_assets(seed, board)``, the same lights and material settings, the same
-scene builder :func:`~mirage2matter.sample.render.new_scene`), adds the robot, and renders it from any number of
+``ground_truth.json`` (the same ``world.sample_assets.build_assets(seed, board)``, the same look and material
+settings, the same scene builder, ``mirage2matter.sim.scene``), adds the robot, and renders it from any number of
 named cameras with the movable objects at the poses the physics twin reports and the robot at its joint state.
 
 At the video's own camera poses, with the objects at their ground-truth poses and no robot in the pictures
@@ -22,7 +22,7 @@ Object names are the physics twin's (``Twin.object_poses()``): free objects by n
 sample's asset names (``"button_base"``, ``"button_cap"``) are accepted too.
 
 Cameras (OpenCV axes, ``K`` with pixel centres at +0.5, DESIGN.md section 1) are converted to Genesis' at the
-border as ``sample/render.py`` does: ``T_gl = T_base_cam @ GL_TO_CV``, vertical field of view from ``fy``.
+border by ``sim.scene``: ``T_gl = T_base_cam @ GL_TO_CV``, vertical field of view from ``fy``.
 Genesis renders only square pixels with the principal point at the image centre. ``intrinsics="exact"``
 (the default) refuses any other ``K`` with a clear error; ``intrinsics="twin"`` accepts it with the physics
 twin's approximation (``Twin.camera`` at another size, ``datagen.sim_source.render_K``: vertical field of
@@ -32,7 +32,6 @@ view kept, ``fx = fy``, principal point centred) and :meth:`GroundTruthRenderer.
 from __future__ import annotations
 
 import json
-import math
 import shutil
 import tempfile
 import time
@@ -45,12 +44,15 @@ from typing import Any
 
 import numpy as np
 
+from ..calib.board import target_from_json
 from ..errors import M2MError
-from ..geometry.camera import GL_TO_CV
-from ..geometry.rotation import quat_to_matrix
 from ..processes import TimedWorker, WorkerTimeout
 from ..robots import DEFAULT_ROBOT, RobotSpec, get_robot
-from ..robots.model import genesis_morph, resolve_model
+from ..robots.surface import robot_surface
+from ..sim.scene import RenderScene, SceneLook, pos_quat, pose_from
+from ..sim.twin import Twin, TwinOptions
+from ..world.sample_assets import build_assets
+from ..world.sample_robot_look import ROBOT_LOOK_PREFIX, robot_look_meshes
 
 __all__ = [
     "INTRINSICS_MODES",
@@ -176,9 +178,8 @@ class GroundTruthRenderer:
     robot        the robot: a registered name or a robot spec file (default:
                  :data:`~mirage2matter.robots.DEFAULT_ROBOT`, the sample's)
     intrinsics   "exact" (refuse a K Genesis cannot render) or "twin" (approximate it as the physics twin does)
-    config       the look (ambient, lights, background, shadow, near, far) as a
-                 :class:`~mirage2matter.sample.render.RenderConfig`; default: the sample maker's. Its size and
-                 field of view are not used (the cameras give them)
+    config       the look (ambient, lights, background, shadow, near, far): a
+                 :class:`~mirage2matter.sim.scene.SceneLook` (default: the sample's, as its video was rendered)
 
     Building takes ~25 s warm (~2 min with cold Genesis kernel caches); use it as a context manager or call
     :meth:`close`. Not thread-safe: one render at a time.
@@ -192,11 +193,11 @@ class GroundTruthRenderer:
         *,
         robot: str | None = None,
         intrinsics: str = "exact",
-        config: Any = None,
+        config: SceneLook | None = None,
     ) -> None:
         self._scene = None
         self._workdir: Path | None = None
-        gt = read_ground_truth(sample_dir)  # before any slow import: a capture fails at once
+        gt = read_ground_truth(sample_dir)  # before Genesis starts: a capture fails at once
         if not isinstance(cameras, Mapping) or not cameras:
             raise GroundTruthError("cameras: give at least one camera as {name: (K [3,3], width, height)}")
         self._K: dict[str, np.ndarray] = {}
@@ -213,20 +214,14 @@ class GroundTruthRenderer:
         self.spec: RobotSpec | None = get_robot(robot or DEFAULT_ROBOT) if with_robot else None
         self.sample_dir = Path(sample_dir)
         self.ground_truth = gt
-
-        from ..calib.board import target_from_json
-        from ..sample.assets import build_assets
-        from ..sample.render import RenderConfig, _pos_quat, add_asset, ensure_genesis, new_scene
-
-        self.config = config if config is not None else RenderConfig()
-        self._pos_quat = _pos_quat
+        self.config = config if config is not None else SceneLook()
         try:
             board = target_from_json(gt["board"]["spec"])
         except (KeyError, TypeError, ValueError) as exc:
             raise GroundTruthError(f"{self.sample_dir / 'ground_truth.json'}: bad board spec ({exc})") from None
         board_at = (gt.get("config") or {}).get("board_at")  # a sample with the robot in it: the board beside it
         assets = build_assets(seed=int(gt["seed"]), board=board, board_at=tuple(board_at) if board_at else None)
-        # a sample whose video filmed the robot in a look of its own (sample.robot_look): the robot is drawn so
+        # a sample whose video filmed the robot in a look of its own (world.sample_robot_look): the robot is drawn so
         look = (gt.get("robot") or {}).get("look") if self.spec is not None else None
         try:
             self._check_assets_match(assets, gt)
@@ -241,36 +236,22 @@ class GroundTruthRenderer:
         # the twin's names and the sample's asset names -> asset name
         self._aliases = {**self._twin_names, **{a: a for a in self._movable}}
 
-        gs = ensure_genesis()
         self._workdir = Path(tempfile.mkdtemp(prefix="m2m_ground_truth_"))
         self._rm_workdir = weakref.finalize(self, shutil.rmtree, self._workdir, True)  # also without close()
         try:
-            self._scene = new_scene(self.config)
-            self.entity_names: list[str] = []  # segmentation label i <-> entity_names[i]
-            self._entities: dict[str, Any] = {}
+            self._scene = RenderScene(self.config)
+            self.entity_names = self._scene.names  # segmentation label i <-> entity_names[i]
             for i, asset in enumerate(assets):  # the sample maker's order: same scene, same pixels
-                self._register(asset.name, add_asset(self._scene, asset, self._workdir / f"{i:03d}_{asset.name}"))
+                self._scene.add_mesh(asset.name, asset.mesh, asset.T_base_obj, self._workdir / f"{i:03d}_{asset.name}")
             self.robot = None
             self._look: dict[str, Any] = {}  # link -> its entity in the sample's robot look
             if self.spec is not None:
-                keep = (self.spec.ee_link, *self.spec.finger_links)
-                self.robot = self._scene.add_entity(genesis_morph(gs, resolve_model(self.spec.model), keep_links=keep))
-                self._register("robot", self.robot)
+                self.robot = self._scene.add_robot(self.spec)
                 if look:
-                    self._add_robot_look(int(gt["seed"]), add_asset)
-            self._cams: dict[str, Any] = {}
+                    self._add_robot_look(int(gt["seed"]))
             for name, K in self._K.items():
-                w, h = self._size[name]
-                self._cams[name] = self._scene.add_camera(
-                    res=(w, h), pos=(1.0, 0.0, 1.0), lookat=(0.0, 0.0, 0.0),
-                    fov=math.degrees(2.0 * math.atan(0.5 * h / K[1, 1])), near=self.config.near, far=self.config.far,
-                    GUI=False,
-                )  # fmt: skip
+                self._scene.add_camera(name, *self._size[name], K[1, 1])
             self._scene.build()
-            for name, cam in self._cams.items():
-                if not np.allclose(np.asarray(cam.intrinsics), self._K[name], atol=1e-6):
-                    raise RuntimeError(f"camera {name!r}: Genesis intrinsics {cam.intrinsics} != {self._K[name]}")
-            self._seg_lut: np.ndarray | None = None
             self._gt_poses = {name: np.asarray(a.T_base_obj, dtype=np.float64) for name, a in self._movable.items()}
             self._poses = {name: T.copy() for name, T in self._gt_poses.items()}
             if self.robot is not None:
@@ -289,20 +270,14 @@ class GroundTruthRenderer:
             raise
 
     # ---- construction helpers --------------------------------------------------------------------
-    def _add_robot_look(self, seed: int, add_asset: Any) -> None:
-        """The sample's robot in its own look: each link's textured mesh (sample.robot_look, the video's) as an
+    def _add_robot_look(self, seed: int) -> None:
+        """The sample's robot in its own look: each link's textured mesh (world.sample_robot_look, the video's) as an
         entity of its own, moved to the link's pose whenever the state changes (:meth:`_place_look`)."""
-        from ..robots.surface import robot_surface
-        from ..sample.robot_look import ROBOT_LOOK_PREFIX, robot_look_meshes
-        from ..sample.types import PlacedAsset
-
         links = robot_surface(self.spec, self.spec.home_q())
         for link, mesh in robot_look_meshes(self.spec, links, seed).items():
             T = next(x.T_base_link for x in links if x.link == link)
             name = f"{ROBOT_LOOK_PREFIX}{link}"
-            entity = add_asset(self._scene, PlacedAsset(name, mesh, T, "robot"), self._workdir / name)
-            self._register(name, entity)
-            self._look[link] = entity
+            self._look[link] = self._scene.add_mesh(name, mesh, T, self._workdir / name)
 
     def _place_look(self) -> None:
         """Every link of the robot's look at the model's link pose (under the floor while the robot is hidden)."""
@@ -310,7 +285,7 @@ class GroundTruthRenderer:
             T = self.robot_link_pose(link)
             if not self._robot_visible:
                 T[2, 3] += _HIDDEN_ROBOT_Z
-            pos, quat = self._pos_quat(T)
+            pos, quat = pos_quat(T)
             entity.set_pos(pos)
             entity.set_quat(quat)
 
@@ -342,10 +317,6 @@ class GroundTruthRenderer:
                 twin.update({twin_name: name, f"{twin_name}/cap": cap})
                 movable[name], movable[cap] = by_name[name], by_name[cap]
         return twin, movable
-
-    def _register(self, name: str, entity: Any) -> None:
-        self._entities[name] = entity
-        self.entity_names.append(name)
 
     # ---- lifecycle -------------------------------------------------------------------------------
     def close(self) -> None:
@@ -406,9 +377,7 @@ class GroundTruthRenderer:
         if self.robot is None:
             raise GroundTruthError("this renderer was built with with_robot=False")
         lk = self.robot.get_link(self.spec.ee_link if link is None else link)
-        pos, quat = np.asarray(lk.get_pos(), dtype=np.float64), np.asarray(lk.get_quat(), dtype=np.float64)
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = quat_to_matrix(quat / np.linalg.norm(quat)), pos
+        T = pose_from(lk.get_pos(), lk.get_quat())
         if self._look or not self._robot_visible:
             T[2, 3] -= _HIDDEN_ROBOT_Z  # where it would be at the origin
         return T
@@ -464,8 +433,8 @@ class GroundTruthRenderer:
         if self._look and (q is not None or robot_visible is not None):
             self._place_look()
         for asset, T in poses.items():
-            pos, quat = self._pos_quat(T)
-            entity = self._entities[asset]
+            pos, quat = pos_quat(T)
+            entity = self._scene.entities[asset]
             entity.set_pos(pos)
             entity.set_quat(quat)
             self._poses[asset] = T.copy()
@@ -481,12 +450,7 @@ class GroundTruthRenderer:
         return {self._camera_key(n): _check_rigid(T, f"T_base_cams[{n!r}]") for n, T in T_base_cams.items()}
 
     def _render_all(self, views: dict[str, np.ndarray], **what: bool) -> dict[str, tuple]:
-        out = {}
-        for name, T in views.items():
-            cam = self._cams[name]
-            cam.set_pose(transform=T @ GL_TO_CV)
-            out[name] = cam.render(force_render=True, **what)
-        return out
+        return {name: self._scene.render(name, T, **what) for name, T in views.items()}
 
     def render(
         self,
@@ -512,38 +476,19 @@ class GroundTruthRenderer:
         self._need_scene()
         views = self._views(T_base_cams)
         self.set_state(robot_q, object_poses)
-        lut = self._segmentation_lut()
-        out = {}
-        for name, (_, _, seg, _) in self._render_all(views, rgb=False, segmentation=True).items():
-            seg = np.asarray(seg).astype(np.int64)
-            seg = np.where((seg >= 0) & (seg < len(lut) - 1), seg, len(lut) - 1)
-            out[name] = lut[seg]
-        return out
+        renders = self._render_all(views, rgb=False, segmentation=True)
+        return {name: self._scene.labels(seg) for name, (_, _, seg, _) in renders.items()}
 
     def mask(self, labels: np.ndarray, name: str) -> np.ndarray:
         """bool [H,W] of a :meth:`segmentation` label image where object ``name`` (twin or asset name, or
         "robot") is the visible surface."""
         if name == "robot" and self._look:  # the robot's look: every link's entity
-            from ..sample.robot_look import ROBOT_LOOK_PREFIX
-
             ids = [self.entity_names.index(f"{ROBOT_LOOK_PREFIX}{link}") for link in self._look]
             return np.isin(np.asarray(labels), ids)
         asset = "robot" if name == "robot" else self._aliases.get(name)
         if asset is None or asset not in self.entity_names:
             raise GroundTruthError(f"unknown object {name!r}; known: {sorted(self._aliases)} and 'robot'")
         return np.asarray(labels) == self.entity_names.index(asset)
-
-    def _segmentation_lut(self) -> np.ndarray:
-        if self._seg_lut is None:
-            # Genesis numbers segmentation "idxc" in node-creation order; map them to our entity order.
-            by_entity_idx = {e.idx: i for i, e in enumerate(self._entities.values())}
-            idxc_map = self._scene.segmentation_idx_dict
-            lut = np.full(max(idxc_map) + 2, -1, dtype=np.int32)
-            for idxc, key in idxc_map.items():
-                if key in by_entity_idx:
-                    lut[idxc] = by_entity_idx[key]
-            self._seg_lut = lut
-        return self._seg_lut
 
 
 # ---- the environment's "ground_truth" observation renderer ----------------------------------------------------
@@ -617,10 +562,10 @@ class GroundTruthFrames:
                 warnings.warn(f"a ground-truth render took over {self.timeout_s:g} s (an llvmpipe stall); retrying with"
                               f" the cameras {1000 * STALL_NUDGES_M[0]:g} mm or more back", stacklevel=2)  # fmt: skip
         else:
+            cameras = {c: np.round(T, 5).tolist() for c, T in views.items()}
             raise GroundTruthError(
                 f"the ground-truth renderer stalled {len(STALL_NUDGES_M) + 1} times on one state (each over "
-                f"{self.timeout_s:g} s); cameras {({c: np.round(T, 5).tolist() for c, T in views.items()})}, robot_q "
-                f"{np.round(state['robot_q'], 5).tolist()}"
+                f"{self.timeout_s:g} s); cameras {cameras}, robot_q {np.round(state['robot_q'], 5).tolist()}"
             )
         self.timings["ground_truth_render"] += time.perf_counter() - t0
         return frames
@@ -639,7 +584,6 @@ def _moved_back(T_base_cam: np.ndarray, metres: float) -> np.ndarray:
 def build_ground_truth(cfg: Any) -> tuple[Any, GroundTruthFrames]:
     """The env's ``ground_truth`` renderer (``env.renderers``): a physics-only twin of ``cfg.world`` and the
     sample's world at ``cfg.ground_truth`` drawn at its state."""
-    from ..sim.twin import Twin, TwinOptions
     from .config import EnvError
 
     if cfg.ground_truth is None:

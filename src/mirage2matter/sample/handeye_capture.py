@@ -245,8 +245,8 @@ def make_handeye_capture(out_dir: str | Path, cfg: HandEyeCaptureConfig = HandEy
     Returns the ground truth."""
     from PIL import Image
 
-    from ..calib.kinematics import RobotKinematics
     from ..robots import DEFAULT_ROBOT, get_robot
+    from ..robots.kinematics import RobotKinematics
 
     cfg.check()
     robot = get_robot(DEFAULT_ROBOT)

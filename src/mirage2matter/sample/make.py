@@ -34,7 +34,7 @@ from ..calib.board import BoardSpec, GridSpec, MarkerSpec
 from ..errors import M2MError
 from ..robots import DEFAULT_ROBOT, get_robot
 from ..robots.surface import check_capture_joints
-from .assets import LAYOUTS
+from ..world.sample_assets import LAYOUTS
 from .inspect import BUNDLED_SAMPLE
 from .lens import LENSES, LensConfig
 from .trajectory import OrbitConfig, orbit_poses
@@ -67,12 +67,12 @@ class SampleConfig:
     # head camera's); a lens renders a wider pinhole of the same focal length and resamples it through the lens
     # (ground_truth.json "camera" holds its K and distortion). The head camera stays the pinhole.
     lens: LensConfig | None = None
-    # Where the objects stand (sample.assets.LAYOUTS): "nominal" (the shipped places, jittered for seeds != 0) or
-    # "random" (drawn anywhere in the workspace for the seed)
+    # Where the objects stand (world.sample_assets.LAYOUTS): "nominal" (the shipped places, jittered for seeds != 0)
+    # or "random" (drawn anywhere in the workspace for the seed)
     layout: str = "nominal"
     # The robot in the video (`with_robot_in_view`): it stands at its base at ``capture_joints`` (arm joints, rad;
-    # None: sample.robot_look.capture_joints_for) with a look of its own (sample.robot_look), and the board lies
-    # beside the base at ``board_at`` (x, y, yaw deg) instead of where the base stands
+    # None: world.sample_robot_look.capture_joints_for) with a look of its own (world.sample_robot_look), and the
+    # board lies beside the base at ``board_at`` (x, y, yaw deg) instead of where the base stands
     robot_in_view: bool = False
     capture_joints: tuple[float, ...] | None = None
     board_at: tuple[float, float, float] | None = None
@@ -100,7 +100,7 @@ def with_lens(config: SampleConfig, lens: str) -> SampleConfig:
 
 
 def with_layout(config: SampleConfig, layout: str) -> SampleConfig:
-    """``config`` with the objects placed by ``layout`` (one of sample.assets.LAYOUTS)."""
+    """``config`` with the objects placed by ``layout`` (one of world.sample_assets.LAYOUTS)."""
     if layout not in LAYOUTS:
         raise SampleError(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
     return replace(config, layout=layout)
@@ -171,7 +171,7 @@ def _robot_ref(robot: str, renderer: Any) -> str:
 
 def _write_settings(path: Path, config: SampleConfig, objects: list[str], capture_joints=None) -> None:
     """The sample's m2m.yaml: the bundled one; with another robot, lens or layout, changed where they matter: the robot
-    named where the stages take one (align, compose), no video intrinsics with a lens (SfM calibrates the camera
+    named once, at the top (the pipeline's), no video intrinsics with a lens (SfM calibrates the camera
     itself, as on a phone video), the objects named nearest the base first (``objects``: the names in that order)."""
     bundled = config.robot == DEFAULT_ROBOT and config.lens is None and config.layout == "nominal"
     if bundled and config.robot_in_view and config.capture_joints is None:
@@ -184,8 +184,7 @@ def _write_settings(path: Path, config: SampleConfig, objects: list[str], captur
     data = read_yaml(BUNDLED_SAMPLE / "m2m.yaml", "sample settings")
     notes = []
     if config.robot != DEFAULT_ROBOT:
-        data.setdefault("align", {})["robot"] = config.robot
-        data.setdefault("world", {})["robot"] = config.robot
+        data = {"robot": config.robot, **data}  # the whole pipeline's robot, at the top (align, handeye, compose)
         notes.append(f"The sample's robot: {config.robot} (`m2m sample make --robot {config.robot}`).")
     if config.lens is not None:
         data.get("sfm", {}).pop("intrinsics", None)
@@ -233,10 +232,10 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
     _check_output_dir(out)  # before the slow imports, so a bad path fails at once
 
     from ..video import write_video
-    from .assets import board_asset, build_assets, export_assets, ground_truth_entries
+    from ..world.sample_assets import board_asset, build_assets, export_assets, ground_truth_entries
+    from ..world.sample_robot_look import capture_joints_for, robot_look_assets
     from .lens import lens_rays, pinhole_cover, resample_through_lens
     from .render import RenderConfig, SampleRenderer, default_T_base_headcam, sample_handeye_configurations
-    from .robot_look import capture_joints_for, robot_look_assets
 
     t_start = time.perf_counter()
     with atomic_dir(out) as tmp:  # an existing out is empty (checked above)
@@ -296,7 +295,11 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
         table_board = next(a for a in assets if a.category == "board")
         held_board = board_asset(config.handeye_board)  # same name: it replaces the table board
         with SampleRenderer(
-            assets, render_cfg, with_robot=True, held_board=held_board, workdir=tmp / ".render_robot",
+            assets,
+            render_cfg,
+            with_robot=True,
+            held_board=held_board,
+            workdir=tmp / ".render_robot",
             robot=config.robot,
         ) as robot_renderer:
             try:
@@ -323,8 +326,10 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
             # the renderer mounts the slab's object frame; the ground truth is the ChArUco board frame
             T_hand_board = robot_renderer.T_hand_board @ np.asarray(held_board.meta["T_obj_board"])
         (tmp / "handeye" / "joints.json").write_text(
-            json.dumps({"robot": _robot_ref(config.robot, robot_renderer), "link": robot_renderer.ee_link,
-                        "views": records}, indent=1)  # fmt: skip
+            json.dumps(
+                {"robot": _robot_ref(config.robot, robot_renderer), "link": robot_renderer.ee_link, "views": records},
+                indent=1,
+            )
         )
         log(f"hand-eye: {len(records)} views of the held board from the head camera")
 
@@ -335,8 +340,12 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
             "units": "metres, seconds",
             "frame": "robot base: z up, origin at the robot base; the table top is z = 0",
             "camera_convention": "OpenCV (x right, y down, z forward); K pixel centres at +0.5; T_a_b maps b to a",
-            "camera": {"width": config.width, "height": config.height, "K": np.asarray(K).tolist(),
-                       "distortion": None if lens_camera is None else lens_camera.distortion_json()},
+            "camera": {
+                "width": config.width,
+                "height": config.height,
+                "K": np.asarray(K).tolist(),
+                "distortion": None if lens_camera is None else lens_camera.distortion_json(),
+            },
             "video": {"file": "scene.mp4", "fps": config.orbit.fps, "n_frames": len(poses), "crf": config.crf},
             "frames": [
                 {"index": i, "timestamp": float(t), "T_base_cam": T.tolist()}
@@ -368,6 +377,8 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
         if q_capture is not None:
             ground_truth["robot"] = {
                 "name": config.robot, "in_view": True, "capture_joints": q_capture.tolist(),
+                # the name the bundled sample records (the look lives in world.sample_robot_look now); kept, so a
+                # sample made again is the same bytes
                 "look": "mirage2matter.sample.robot_look (the sample's seed)",
                 "links": {a.meta["link"]: np.asarray(a.T_base_obj).tolist() for a in robot_assets},
             }  # fmt: skip

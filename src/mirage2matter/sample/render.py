@@ -2,54 +2,37 @@
 
 The scene holds the placed assets (textured meshes, robot-base frame = Genesis world) and, for the
 hand-eye images, the robot (base at the origin; the Franka Panda by default) holding a board between its fingers.
-
-Genesis 1.4.5 camera convention, converted here at the border (checked by
-``tests/sample/test_render.py::test_projection_convention``):
-
-- ``Camera.set_pose(transform=T)`` takes camera-to-world with OpenGL axes (x right, y up, looking
-  along -z; ``gs.utils.geom.pos_lookat_up_to_T`` builds ``z = pos - lookat``). Ours is OpenCV axes,
-  so ``T_gl = T_world_cam @ GL_TO_CV``.
-- Intrinsics: ``fx = fy = (H / 2) / tan(fov_y / 2)`` (``fov`` is vertical, degrees), principal point
-  ``(W / 2, H / 2)`` with pixel centres at +0.5 (Genesis' own depth unprojection uses ``u + 0.5``),
-  i.e. the same convention as ours. Only square pixels and a centred principal point are possible.
-- Depth is planar (distance along the optical axis), not the ray length.
-- Without a physics step, state changes (``set_qpos``, ``set_pos``) reach the rasterizer only with
-  ``render(force_render=True)``; every render here forces.
-- Anti-aliasing: the offscreen rasterizer always resolves 4x MSAA (``min(GL_MAX_SAMPLES, 4)``); it is
-  not configurable (``render(antialiasing=...)`` is for the batch renderer only).
+It is built by the package's scene builder (``mirage2matter.sim.scene``), as the ground-truth world that re-renders
+the sample is, so their pixels agree; Genesis' camera conventions are converted there.
 """
 
 from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 
 import numpy as np
 import trimesh
 
-from mirage2matter.geometry.camera import GL_TO_CV, look_at_pose
-from mirage2matter.geometry.rotation import axis_angle_to_matrix, matrix_to_quat, quat_to_matrix, rotation_angle
+from mirage2matter.geometry.camera import look_at_pose
+from mirage2matter.geometry.rotation import axis_angle_to_matrix, rotation_angle
 from mirage2matter.geometry.sim3 import invert_rigid
 from mirage2matter.robots import DEFAULT_ROBOT, RobotSpec, get_robot
-from mirage2matter.robots.model import genesis_morph, resolve_model
-from mirage2matter.sample.types import PlacedAsset
+from mirage2matter.sim.scene import RenderScene, SceneLook, pos_quat, pose_from
+from mirage2matter.world.sample_assets import PlacedAsset
 
 __all__ = [
     "ROBOT",
-    "DirectionalLight",
     "HandeyeCheck",
     "RenderConfig",
     "SampleRenderer",
-    "add_asset",
     "board_face",
     "check_handeye_configuration",
     "default_T_base_headcam",
     "default_T_hand_board",
-    "ensure_genesis",
-    "new_scene",
     "sample_handeye_configurations",
 ]
 
@@ -65,37 +48,14 @@ _PAD_INSET = 0.0015
 
 
 # ---- configuration -------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class DirectionalLight:
-    """A directional light (shadows come from these). ``dir`` is the direction light travels (world)."""
-
-    dir: tuple[float, float, float]
-    color: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    intensity: float = 3.0
-
-
-def _default_lights() -> tuple[DirectionalLight, ...]:
-    # A key light from above-front-left and a weaker fill from the other side: faces of a box get
-    # distinct shades, which SfM and the eye need.
-    return (
-        DirectionalLight(dir=(-0.6, -0.8, -1.0), intensity=3.0),
-        DirectionalLight(dir=(0.8, 0.5, -0.7), color=(0.95, 0.97, 1.0), intensity=1.2),
-    )
-
-
 @dataclass
-class RenderConfig:
-    """Camera and lighting of a :class:`SampleRenderer`.
+class RenderConfig(SceneLook):
+    """Camera and look of a :class:`SampleRenderer`: the scene's look (:class:`~mirage2matter.sim.scene.SceneLook`:
+    ambient, lights, background, shadow, near, far; the sample's by default) and one pinhole camera.
 
     width, height   image size in pixels
     fov_deg         vertical field of view in degrees; ignored when ``fy`` is given
     fy              focal length in pixels (fx = fy; principal point at the image centre)
-    ambient         ambient light colour (linear, 0..1)
-    lights          directional lights
-    background      background colour (0..1) where no geometry is hit
-    shadow          shadow maps for the directional lights
-    near, far       clipping planes (metres). Depth reads ~far where nothing is hit and is quantised to
-                    ~z^2 / (near * 2^24) (metres near ``far``), so readings beyond far / 2 count as "nothing"
     Anti-aliasing is fixed at 4x MSAA by Genesis' offscreen rasterizer.
     """
 
@@ -103,12 +63,6 @@ class RenderConfig:
     height: int = 480
     fov_deg: float = 50.0
     fy: float | None = None
-    ambient: tuple[float, float, float] = (0.3, 0.3, 0.3)
-    lights: tuple[DirectionalLight, ...] = field(default_factory=_default_lights)
-    background: tuple[float, float, float] = (0.62, 0.66, 0.70)
-    shadow: bool = True
-    near: float = 0.02
-    far: float = 20.0
 
     @property
     def focal(self) -> float:
@@ -147,11 +101,6 @@ def _rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     T[:3, :3] = R
     T[:3, 3] = t
     return T
-
-
-def _pos_quat(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Position [3] and wxyz quaternion [4] of a rigid [4,4]."""
-    return T[:3, 3].copy(), matrix_to_quat(np.ascontiguousarray(T[:3, :3], dtype=np.float64))
 
 
 def board_face(mesh: trimesh.Trimesh, face_normal_obj: np.ndarray = (0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
@@ -209,60 +158,9 @@ def _board_thickness(board: PlacedAsset) -> float:
     return float(np.abs(_face_normal_obj(board)) @ (hi - lo))
 
 
-# ---- Genesis -------------------------------------------------------------------------------------
-def ensure_genesis(backend: str = "cpu") -> object:
-    """Import Genesis and initialise it once per process (``gs.init`` may only run once)."""
-    import genesis as gs
-
-    if not gs._initialized:
-        gs.init(backend=getattr(gs, backend), logging_level="warning")
-    return gs
-
-
-def new_scene(config: RenderConfig) -> object:
-    """An empty Genesis rasterizer scene with the look of the sample's images: ``config``'s ambient light,
-    background, directional lights and shadows (its camera fields are not used here); entity-level
-    segmentation. Every renderer of the sample's world builds its scene here, so their pixels agree."""
-    gs = ensure_genesis()
-    return gs.Scene(
-        show_viewer=False,
-        renderer=gs.renderers.Rasterizer(),
-        vis_options=gs.options.VisOptions(
-            ambient_light=tuple(config.ambient),
-            background_color=tuple(config.background),
-            lights=[
-                {"type": "directional", "dir": tuple(li.dir), "color": tuple(li.color), "intensity": li.intensity}
-                for li in config.lights
-            ],
-            shadow=config.shadow,
-            segmentation_level="entity",
-        ),
-    )
-
-
-def add_asset(scene: object, asset: PlacedAsset, folder: Path) -> object:
-    """Add ``asset`` to an unbuilt ``scene`` as a fixed, non-colliding textured mesh at its ``T_base_obj``
-    (its OBJ is exported into ``folder``). It can be moved later with ``set_pos`` / ``set_quat`` (a render
-    with ``force_render=True`` shows the new pose). Returns the Genesis entity."""
-    gs = ensure_genesis()
-    obj = _export_obj(asset.mesh, Path(folder))
-    pos, quat = _pos_quat(np.asarray(asset.T_base_obj, dtype=np.float64))
-    return scene.add_entity(
-        gs.morphs.Mesh(file=str(obj), pos=tuple(pos), quat=tuple(quat), fixed=True, collision=False),
-        surface=gs.surfaces.Default(),
-    )
-
-
+# ---- the renderer ------------------------------------------------------------------------------
 def _slug(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "asset"
-
-
-def _export_obj(mesh: trimesh.Trimesh, folder: Path) -> Path:
-    """OBJ (+ MTL + texture PNG) of ``mesh`` in its own folder: trimesh names materials generically."""
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / "mesh.obj"
-    mesh.export(path)
-    return path
 
 
 class SampleRenderer:
@@ -300,32 +198,27 @@ class SampleRenderer:
         self.config = config or RenderConfig()
         cfg = self.config
         workdir = Path(workdir)
-        gs = ensure_genesis()
 
-        self._scene = new_scene(cfg)
-        self.entity_names: list[str] = []  # segmentation label i <-> entity_names[i]
-        self._entities: dict[str, object] = {}
+        self._scene = RenderScene(cfg)
+        self.entity_names = self._scene.names  # segmentation label i <-> entity_names[i]
 
-        def add_mesh(asset: PlacedAsset, index: int) -> object:
-            entity = add_asset(self._scene, asset, workdir / f"{index:03d}_{_slug(asset.name)}")
-            self._register(asset.name, entity)
-            return entity
+        def add_asset(asset: PlacedAsset, index: int) -> object:
+            folder = workdir / f"{index:03d}_{_slug(asset.name)}"
+            return self._scene.add_mesh(asset.name, asset.mesh, asset.T_base_obj, folder)
 
         if held_board is not None:  # one board, in the gripper
             assets = [a for a in assets if a.name != held_board.name]
         for i, asset in enumerate(assets):
-            add_mesh(asset, i)
+            add_asset(asset, i)
 
         self.robot = None
         self.board = held_board
         self._board_entity = None
         self.T_hand_board: np.ndarray | None = None
         if with_robot:
-            keep = (spec.ee_link, *spec.finger_links)
-            self.robot = self._scene.add_entity(genesis_morph(gs, resolve_model(spec.model), keep_links=keep))
-            self._register("robot", self.robot)
+            self.robot = self._scene.add_robot(spec)
         if held_board is not None:
-            self._board_entity = add_mesh(held_board, len(assets))
+            self._board_entity = add_asset(held_board, len(assets))
             self.T_hand_board = np.asarray(
                 default_T_hand_board(held_board, spec) if T_hand_board is None else T_hand_board, dtype=np.float64
             )
@@ -337,27 +230,10 @@ class SampleRenderer:
             self.board_corners_obj = self.board_axes_obj = None
             self.finger_q = spec.gripper_open
 
-        self._cam = self._scene.add_camera(
-            res=(cfg.width, cfg.height),
-            pos=(1.0, 0.0, 1.0),
-            lookat=(0.0, 0.0, 0.0),
-            fov=cfg.effective_fov_deg,
-            near=cfg.near,
-            far=cfg.far,
-            GUI=False,
-        )
+        self._scene.add_camera("camera", cfg.width, cfg.height, cfg.focal)
         self._scene.build()
-        if not np.allclose(np.asarray(self._cam.intrinsics), self.K, atol=1e-6):
-            raise RuntimeError(f"Genesis intrinsics {self._cam.intrinsics} differ from ours {self.K}")
-        self._seg_lut: np.ndarray | None = None
         if self.robot is not None:
             self.set_joints(spec.home)
-
-    def _register(self, name: str, entity: object) -> None:
-        if name in self._entities:
-            raise ValueError(f"duplicate entity name {name!r}")
-        self._entities[name] = entity
-        self.entity_names.append(name)
 
     # ---- lifecycle -------------------------------------------------------------------------------
     def close(self) -> None:
@@ -389,8 +265,7 @@ class SampleRenderer:
         T_world_cam = np.asarray(T_world_cam, dtype=np.float64)
         if T_world_cam.shape != (4, 4):
             raise ValueError(f"T_world_cam must be [4,4], got {T_world_cam.shape}")
-        self._cam.set_pose(transform=T_world_cam @ GL_TO_CV)
-        return self._cam.render(force_render=True, **what)
+        return self._scene.render("camera", T_world_cam, **what)
 
     def render(self, T_world_cam: np.ndarray) -> np.ndarray:
         """RGB image uint8 [H,W,3] seen by a camera with pose ``T_world_cam`` [4,4] (OpenCV axes)."""
@@ -416,19 +291,7 @@ class SampleRenderer:
     def render_segmentation(self, T_world_cam: np.ndarray) -> np.ndarray:
         """Entity labels int32 [H,W]: i -> ``entity_names[i]``, -1 where nothing is hit."""
         _, _, seg, _ = self._render(T_world_cam, rgb=False, segmentation=True)
-        seg = np.asarray(seg).astype(np.int64)
-        if self._seg_lut is None:
-            # Genesis numbers segmentation "idxc" in node-creation order; map them to our entity order.
-            idx_of = {id(e): i for i, e in enumerate(self._entities.values())}
-            by_entity_idx = {e.idx: idx_of[id(e)] for e in self._entities.values()}
-            idxc_map = self._scene.segmentation_idx_dict
-            lut = np.full(max(idxc_map) + 2, -1, dtype=np.int32)
-            for idxc, key in idxc_map.items():
-                if key in by_entity_idx:
-                    lut[idxc] = by_entity_idx[key]
-            self._seg_lut = lut
-        seg = np.where((seg >= 0) & (seg < len(self._seg_lut) - 1), seg, len(self._seg_lut) - 1)
-        return self._seg_lut[seg]
+        return self._scene.labels(seg)
 
     def render_mask(self, T_world_cam: np.ndarray, name: str) -> np.ndarray:
         """bool [H,W]: pixels where entity ``name`` (an asset's name, "robot") is the visible surface."""
@@ -467,7 +330,7 @@ class SampleRenderer:
             raise ValueError(f"q must have {spec.n_arm} or {spec.n_dofs} values, got {q.shape}")
         robot.set_qpos(q)
         if self._board_entity is not None:
-            pos, quat = _pos_quat(self.T_base_board)
+            pos, quat = pos_quat(self.T_base_board)
             self._board_entity.set_pos(pos)
             self._board_entity.set_quat(quat)
 
@@ -478,8 +341,7 @@ class SampleRenderer:
     def T_base_link(self, name: str | None = None) -> np.ndarray:
         """[4,4] pose of a robot link (default: the end-effector link) from Genesis FK."""
         link = self._need_robot().get_link(self.spec.ee_link if name is None else name)
-        q = np.asarray(link.get_quat(), dtype=np.float64)
-        return _rigid(quat_to_matrix(q / np.linalg.norm(q)), np.asarray(link.get_pos(), dtype=np.float64))
+        return pose_from(link.get_pos(), link.get_quat())
 
     @property
     def T_base_board(self) -> np.ndarray:
@@ -695,7 +557,7 @@ def sample_handeye_configurations(
         if any(rotation_angle(R.T @ R_base_board) < math.radians(min_separation_deg) for R in R_accepted):
             continue
         T_base_board = _rigid(R_base_board, p_base - R_base_board @ face_centre_obj)
-        pos, quat = _pos_quat(T_base_board @ T_board_hand)
+        pos, quat = pos_quat(T_base_board @ T_board_hand)
         q = renderer.robot.inverse_kinematics(
             link=hand, pos=pos, quat=quat, init_qpos=q_home, max_samples=10, seed=int(rng.integers(2**31))
         )

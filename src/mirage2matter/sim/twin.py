@@ -8,8 +8,8 @@ inertia from the watertight mesh) in the object frame scaled by the placement's 
 the rigid part of the object's current Sim3 (see ``world.config``). Genesis keeps its compiled kernels in
 ``~/.cache/quadrants`` and ``~/.cache/genesis``: the first build on a machine takes ~110 s, later ones ~15 s.
 
-Genesis camera conventions (OpenGL axes, vertical fov, centred principal point) are converted at the border
-as in ``sample.render``.
+The scene (look, physics, the robot, cameras) is set up by ``sim.scene``, which converts Genesis' camera
+conventions (OpenGL axes, vertical fov, centred principal point) at the border.
 """
 
 from __future__ import annotations
@@ -25,29 +25,30 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 import trimesh
 
-from ..geometry.camera import GL_TO_CV
-from ..geometry.rotation import matrix_to_quat, quat_to_matrix
+from ..geometry.rotation import matrix_to_quat
 from ..robots import RobotSpec
-from ..robots.model import genesis_morph, resolve_model
-from ..world.config import ArticulatedConfig, ObjectConfig, PartConfig, WorldConfig
+from ..robots.model import resolve_model
+from ..world.config import ArticulatedConfig, LightConfig, ObjectConfig, PartConfig, WorldConfig
 from ..world.validate import load_collision_parts, load_mesh, validate_world
+from .scene import (
+    SceneLook,
+    add_camera,
+    add_ground_plane,
+    add_robot,
+    ensure_genesis,
+    new_scene,
+    pos_quat,
+    pose_from,
+    render_view,
+)
 
-__all__ = ["CLOSED_MARGIN", "STOPPED_SPEED", "Twin", "TwinOptions", "ensure_genesis"]
+__all__ = ["CLOSED_MARGIN", "STOPPED_SPEED", "Twin", "TwinOptions"]
 
 # A gripper command within this fraction of the gripper's range of ``gripper_closed`` counts as "closed" and
 # squeezes with the spec's grasp force: a learned policy regresses "closed" only approximately.
 CLOSED_MARGIN = 0.25
 # Fingers closing slower than this (m/s) have stopped on something (free, they close at ~0.1-0.2 m/s).
 STOPPED_SPEED = 0.01
-
-
-def ensure_genesis(backend: str = "cpu") -> object:
-    """Import Genesis and initialise it once per process (``gs.init`` may only run once)."""
-    import genesis as gs
-
-    if not gs._initialized:
-        gs.init(backend=getattr(gs, backend), logging_level="warning")
-    return gs
 
 
 @dataclass
@@ -84,9 +85,22 @@ def _rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return T
 
 
-def _pose_of(pos, quat) -> np.ndarray:
-    q = np.asarray(quat, dtype=np.float64).reshape(4)
-    return _rigid(quat_to_matrix(q / np.linalg.norm(q)), np.asarray(pos, dtype=np.float64).reshape(3))
+def _rigid_part(T_base_obj: np.ndarray, scale: float) -> np.ndarray:
+    """The body's pose: the rigid part of a placement's Sim3 [4,4] (its rotation block divided by ``scale``)."""
+    return _rigid(T_base_obj[:3, :3] / scale, T_base_obj[:3, 3])
+
+
+def _twin_look(cfg: WorldConfig) -> SceneLook:
+    """The world's ambient light and lights (one light from above when it has none), no shadows, Genesis' background:
+    the twin's cameras draw the robot (and objects) that hybrid frames composite over the splats."""
+    return SceneLook(
+        ambient=tuple(cfg.ambient),
+        lights=tuple(cfg.lights) or (LightConfig(dir=(-0.5, -0.5, -1.0), color=(1.0, 1.0, 1.0), intensity=3.0),),
+        background=None,
+        shadow=False,
+        near=0.01,
+        far=20.0,
+    )
 
 
 def _inertial_xml(mesh: trimesh.Trimesh, mass: float, scale: float) -> str:
@@ -211,38 +225,22 @@ class Twin:
         workdir.mkdir(parents=True, exist_ok=True)
         self._workdir = workdir
 
-        vis = gs.options.VisOptions(
-            ambient_light=tuple(cfg.ambient),
-            lights=[
-                {"type": "directional", "dir": tuple(li.dir), "color": tuple(li.color), "intensity": li.intensity}
-                for li in cfg.lights
-            ]
-            or [{"type": "directional", "dir": (-0.5, -0.5, -1.0), "color": (1, 1, 1), "intensity": 3.0}],
-            shadow=False,
-            segmentation_level="entity",
-        )
-        self.scene = gs.Scene(
-            show_viewer=False,
-            sim_options=gs.options.SimOptions(dt=opt.dt, substeps=opt.substeps),
-            rigid_options=gs.options.RigidOptions(enable_self_collision=True),
-            renderer=gs.renderers.Rasterizer(),
-            vis_options=vis,
-        )
+        look = _twin_look(cfg)
+        self.scene = new_scene(look, dt=opt.dt, substeps=opt.substeps)
         draw = opt.draw_scene or not opt.render
         draw_objects = draw or opt.draw_objects
-        self.plane = self.scene.add_entity(gs.morphs.Plane(pos=(0.0, 0.0, cfg.table_z), visualization=draw))
+        self.plane = add_ground_plane(self.scene, cfg.table_z, visible=draw)
+        mounts = tuple({c.mount for c in cfg.cameras.values() if c.mount != "base"})
         robot_file = str(resolve_model(cfg.robot.file, cfg.root))
-        keep = (cfg.robot.ee_link, *spec.finger_links, *{c.mount for c in cfg.cameras.values() if c.mount != "base"})
-        self.robot = self.scene.add_entity(genesis_morph(gs, robot_file, keep_links=keep))
+        self.robot = add_robot(self.scene, spec, model=robot_file, ee_link=cfg.robot.ee_link, extra_links=mounts)
 
         for o in cfg.objects:
             path = workdir / f"{o.name}.urdf"
             path.write_text(object_urdf(o))
-            T = o.placement.matrix
-            R = T[:3, :3] / o.placement.scale
+            pos, quat = pos_quat(_rigid_part(o.placement.matrix, o.placement.scale))
             ent = self.scene.add_entity(
                 gs.morphs.URDF(
-                    file=str(path), pos=tuple(T[:3, 3]), quat=tuple(matrix_to_quat(R)), fixed=False, align=False,
+                    file=str(path), pos=tuple(pos), quat=tuple(quat), fixed=False, align=False,
                     convexify=True, decompose_object_error_threshold=float("inf"), visualization=draw_objects,
                 ),
                 material=gs.materials.Rigid(friction=o.friction),
@@ -251,11 +249,10 @@ class Twin:
         for a in cfg.articulated:
             path = workdir / f"{a.name}.urdf"
             path.write_text(button_urdf(a))
-            T = a.placement.matrix
-            R = T[:3, :3] / a.placement.scale
+            pos, quat = pos_quat(_rigid_part(a.placement.matrix, a.placement.scale))
             ent = self.scene.add_entity(
                 gs.morphs.URDF(
-                    file=str(path), pos=tuple(T[:3, 3]), quat=tuple(matrix_to_quat(R)), fixed=True,
+                    file=str(path), pos=tuple(pos), quat=tuple(quat), fixed=True,
                     merge_fixed_links=False, convexify=True, decompose_robot_error_threshold=float("inf"),
                     visualization=draw_objects,
                 ),
@@ -267,11 +264,7 @@ class Twin:
             for name, cam in cfg.cameras.items():
                 w, h = opt.camera_sizes.get(name, (cam.width, cam.height))
                 fy = cam.K[1, 1] * h / cam.height
-                fov = math.degrees(2.0 * math.atan(0.5 * h / fy))
-                self.cameras[name] = self.scene.add_camera(
-                    res=(int(w), int(h)), pos=(1.0, 0.0, 1.0), lookat=(0.0, 0.0, 0.0), fov=fov, near=0.01, far=20.0,
-                    GUI=False,
-                )  # fmt: skip
+                self.cameras[name] = add_camera(self.scene, w, h, fy, look.near, look.far)
         self.scene.build()
 
         robot = self.robot
@@ -355,7 +348,7 @@ class Twin:
         self.command = np.concatenate([q[: self.spec.n_arm], q[self.spec.n_arm : self.spec.n_arm + 1]])
 
     def _body_pose(self, b: _Body) -> np.ndarray:
-        return _pose_of(b.entity.get_pos(), b.entity.get_quat())
+        return pose_from(b.entity.get_pos(), b.entity.get_quat())
 
     def object_poses(self) -> dict[str, np.ndarray]:
         """{name: T_base_obj [4,4] float64} of every body (physics poses); a press button adds
@@ -365,7 +358,7 @@ class Twin:
             out[name] = self._body_pose(b)
             if b.kind == "press_button":
                 cap = b.entity.links[1]
-                out[f"{name}/cap"] = _pose_of(cap.get_pos(), cap.get_quat())
+                out[f"{name}/cap"] = pose_from(cap.get_pos(), cap.get_quat())
         return out
 
     def object_speed(self, name: str) -> tuple[float, float]:
@@ -383,7 +376,7 @@ class Twin:
     def T_base_link(self, link: str | None = None) -> np.ndarray:
         """[4,4] pose of a robot link (default: the end-effector link)."""
         lk = self.ee_link if link is None else self.robot.get_link(link)
-        return _pose_of(lk.get_pos(), lk.get_quat())
+        return pose_from(lk.get_pos(), lk.get_quat())
 
     # ---- reset -----------------------------------------------------------------------------------
     def sample_poses(
@@ -617,9 +610,8 @@ class Twin:
                 f"({width}, {height})}}) for another size"
             )
         T_base_cam, *_ = self.camera(name)
-        cam.set_pose(transform=T_base_cam @ GL_TO_CV)
         draw_scene = self.options.draw_scene
-        rgb, depth, seg, _ = cam.render(rgb=True, depth=True, segmentation=draw_scene, force_render=True)
+        rgb, depth, seg, _ = render_view(cam, T_base_cam, rgb=True, depth=True, segmentation=draw_scene)
         depth = np.array(depth, dtype=np.float32, copy=True)
         depth[depth >= 10.0] = np.inf
         if draw_scene:

@@ -37,6 +37,7 @@ from .config import (
     WorldConfigError,
     save_world,
 )
+from .sample_assets import build_assets
 
 __all__ = ["default_wrist_camera", "sample_world", "surface_gaussians", "convex_parts"]
 
@@ -144,8 +145,6 @@ def _final(part: PartConfig, tmp: Path, final: Path) -> PartConfig:
 
 def _scene_stand_in(seed: int, density_per_m2: float) -> Gaussians:
     """Gaussians on the sample's table top (and the board on it): a scene for worlds without a trained one."""
-    from ..sample.assets import build_assets
-
     parts = []
     for a in build_assets(0):
         if a.name not in ("table", "board"):

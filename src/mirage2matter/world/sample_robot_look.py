@@ -16,8 +16,7 @@ import trimesh
 
 from ..robots.spec import RobotSpec
 from ..robots.surface import LinkSurface, robot_surface
-from .assets import _fbm, _grain, _textured, _to_image
-from .types import PlacedAsset
+from .sample_assets import PlacedAsset, _fbm, _grain, _textured, _to_image
 
 __all__ = ["ROBOT_LOOK_PREFIX", "capture_joints_for", "robot_look_assets", "robot_look_meshes"]
 

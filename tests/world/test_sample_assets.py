@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from mirage2matter.calib.board import BoardSpec, board_frame_to_board_image
-from mirage2matter.sample.assets import (
+from mirage2matter.world.sample_assets import (
     FLOOR_Z,
     WORKSPACE_X,
     WORKSPACE_Y,

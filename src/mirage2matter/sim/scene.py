@@ -1,0 +1,254 @@
+"""The Genesis scene builder: every Genesis scene of the package is set up here.
+
+The physics twin (``sim.twin``), the ground-truth world (``env.ground_truth``) and the sample maker's renderer
+(``sample.render``) start Genesis, create their scene (look, lights, physics), add the robot, fixed textured
+meshes and cameras, convert poses and read entity-level segmentation through this module, so the sample's video
+and the ground-truth world that re-renders it draw the same pixels, and the twin's scene is set up the same way.
+
+Genesis 1.4.5 conventions, converted here at the border (checked by
+``tests/sample/test_sample_render.py::test_projection_convention``):
+
+- ``Camera.set_pose(transform=T)`` takes camera-to-world with OpenGL axes (x right, y up, looking along -z;
+  ``gs.utils.geom.pos_lookat_up_to_T`` builds ``z = pos - lookat``). Ours is OpenCV axes, so
+  ``T_gl = T_base_cam @ GL_TO_CV``.
+- Intrinsics: ``fx = fy = (H / 2) / tan(fov_y / 2)`` (``fov`` is vertical, degrees), principal point
+  ``(W / 2, H / 2)`` with pixel centres at +0.5 (Genesis' own depth unprojection uses ``u + 0.5``), i.e. the same
+  convention as ours. Only square pixels and a centred principal point are possible.
+- Depth is planar (distance along the optical axis), not the ray length.
+- Without a physics step, state changes (``set_qpos``, ``set_pos``) reach the rasterizer only with
+  ``render(force_render=True)``; every render here forces.
+- Anti-aliasing: the offscreen rasterizer always resolves 4x MSAA (``min(GL_MAX_SAMPLES, 4)``); it is not
+  configurable (``render(antialiasing=...)`` is for the batch renderer only).
+- Poses of entities and links are position [3] + wxyz quaternion [4] (:func:`pos_quat`, :func:`pose_from`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from ..geometry.camera import GL_TO_CV
+from ..geometry.rotation import matrix_to_quat, quat_to_matrix
+from ..robots import RobotSpec
+from ..robots.model import genesis_morph, resolve_model
+from ..world.config import LightConfig
+
+__all__ = [
+    "RenderScene",
+    "SceneLook",
+    "add_camera",
+    "add_ground_plane",
+    "add_robot",
+    "ensure_genesis",
+    "new_scene",
+    "pos_quat",
+    "pose_from",
+    "render_view",
+]
+
+
+def ensure_genesis(backend: str = "cpu") -> Any:
+    """Import Genesis and initialise it once per process (``gs.init`` may only run once)."""
+    import genesis as gs
+
+    if not gs._initialized:
+        gs.init(backend=getattr(gs, backend), logging_level="warning")
+    return gs
+
+
+# ---- the scene -----------------------------------------------------------------------------------------------
+def _sample_lights() -> tuple[LightConfig, ...]:
+    # A key light from above-front-left and a weaker fill from the other side: faces of a box get
+    # distinct shades, which SfM and the eye need.
+    return (
+        LightConfig(dir=(-0.6, -0.8, -1.0), intensity=3.0),
+        LightConfig(dir=(0.8, 0.5, -0.7), color=(0.95, 0.97, 1.0), intensity=1.2),
+    )
+
+
+@dataclass
+class SceneLook:
+    """How a scene is lit and shaded, and where its cameras clip. The defaults are the sample's look: its video,
+    its hand-eye images and the ground-truth world that re-renders them.
+
+    ambient      ambient light colour (linear, 0..1)
+    lights       directional lights (a world's ``LightConfig``; shadows come from these)
+    background   background colour (0..1) where no geometry is hit; None: Genesis' default
+    shadow       shadow maps for the directional lights
+    near, far    the cameras' clipping planes (metres). Depth reads ~far where nothing is hit and is quantised to
+                 ~z^2 / (near * 2^24) (metres near ``far``), so readings beyond far / 2 count as "nothing"
+    """
+
+    ambient: tuple[float, float, float] = (0.3, 0.3, 0.3)
+    lights: tuple[LightConfig, ...] = field(default_factory=_sample_lights)
+    background: tuple[float, float, float] | None = (0.62, 0.66, 0.70)
+    shadow: bool = True
+    near: float = 0.02
+    far: float = 20.0
+
+
+def new_scene(look: SceneLook, *, dt: float | None = None, substeps: int = 1) -> Any:
+    """An empty Genesis rasterizer scene (no viewer) with ``look``'s ambient light, background, lights and shadows;
+    entity-level segmentation. With ``dt`` a physics scene: that step (s) in ``substeps``, the robot's links
+    colliding with each other; without, Genesis' default simulation options (a scene that is posed and drawn)."""
+    gs = ensure_genesis()
+    vis: dict[str, Any] = {"ambient_light": tuple(look.ambient)}
+    if look.background is not None:
+        vis["background_color"] = tuple(look.background)
+    vis["lights"] = [
+        {"type": "directional", "dir": tuple(li.dir), "color": tuple(li.color), "intensity": li.intensity}
+        for li in look.lights
+    ]
+    physics: dict[str, Any] = {}
+    if dt is not None:
+        physics = {
+            "sim_options": gs.options.SimOptions(dt=dt, substeps=substeps),
+            "rigid_options": gs.options.RigidOptions(enable_self_collision=True),
+        }
+    return gs.Scene(
+        show_viewer=False,
+        **physics,
+        renderer=gs.renderers.Rasterizer(),
+        vis_options=gs.options.VisOptions(**vis, shadow=look.shadow, segmentation_level="entity"),
+    )
+
+
+# ---- entities ------------------------------------------------------------------------------------------------
+def pos_quat(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Genesis' pose of a rigid [4,4]: position [3] and wxyz quaternion [4]."""
+    T = np.asarray(T, dtype=np.float64)
+    return T[:3, 3].copy(), matrix_to_quat(np.ascontiguousarray(T[:3, :3]))
+
+
+def pose_from(pos: Any, quat: Any) -> np.ndarray:
+    """[4,4] rigid pose of a Genesis position [3] and wxyz quaternion [4] (normalised here)."""
+    q = np.asarray(quat, dtype=np.float64).reshape(4)
+    T = np.eye(4)
+    T[:3, :3] = quat_to_matrix(q / np.linalg.norm(q))
+    T[:3, 3] = np.asarray(pos, dtype=np.float64).reshape(3)
+    return T
+
+
+def add_ground_plane(scene: Any, z: float, visible: bool = True) -> Any:
+    """The table top as an infinite plane at height ``z`` (base frame); ``visible=False``: physics only."""
+    gs = ensure_genesis()
+    return scene.add_entity(gs.morphs.Plane(pos=(0.0, 0.0, z), visualization=visible))
+
+
+def add_robot(
+    scene: Any,
+    spec: RobotSpec,
+    *,
+    model: str | Path | None = None,
+    ee_link: str | None = None,
+    extra_links: tuple[str, ...] = (),
+) -> Any:
+    """The robot (base fixed at the origin) from ``model`` (default: the spec's model), keeping the end-effector link
+    (``ee_link``, default the spec's), the finger links and ``extra_links`` (e.g. a camera's mount) as links of their
+    own. Returns the Genesis entity."""
+    gs = ensure_genesis()
+    keep = (ee_link or spec.ee_link, *spec.finger_links, *extra_links)
+    path = resolve_model(spec.model) if model is None else model
+    return scene.add_entity(genesis_morph(gs, path, keep_links=keep))
+
+
+# ---- cameras -------------------------------------------------------------------------------------------------
+def add_camera(scene: Any, width: int, height: int, fy: float, near: float, far: float) -> Any:
+    """A camera of ``width`` x ``height`` pixels and focal length ``fy`` (px; fx = fy, principal point centred)
+    to an unbuilt ``scene``; pose it at each render (:func:`render_view`)."""
+    fov_deg = math.degrees(2.0 * math.atan(0.5 * height / fy))
+    return scene.add_camera(
+        res=(int(width), int(height)), pos=(1.0, 0.0, 1.0), lookat=(0.0, 0.0, 0.0), fov=fov_deg, near=near, far=far,
+        GUI=False,
+    )  # fmt: skip
+
+
+def render_view(camera: Any, T_base_cam: np.ndarray, **what: bool) -> tuple:
+    """Genesis' ``(rgb, depth, segmentation, normal)`` render of ``camera`` posed at ``T_base_cam`` [4,4] (OpenCV
+    axes); ``what`` picks the outputs (``rgb=True, depth=True, segmentation=True``)."""
+    camera.set_pose(transform=np.asarray(T_base_cam, dtype=np.float64) @ GL_TO_CV)
+    return camera.render(force_render=True, **what)
+
+
+# ---- a scene that is posed and drawn -------------------------------------------------------------------------
+class RenderScene:
+    """A Genesis scene that is posed and drawn, not stepped: fixed textured meshes and the robot as named entities
+    (segmentation label i is ``names[i]``, in the order added), and named cameras. Add everything, :meth:`build`,
+    then move entities (``set_pos`` / ``set_quat`` / ``set_qpos``) and :meth:`render`. The sample maker's renderer
+    and the ground-truth world both draw through one, so the same assets give the same pixels."""
+
+    def __init__(self, look: SceneLook) -> None:
+        self.look = look
+        self.scene = new_scene(look)
+        self.names: list[str] = []
+        self.entities: dict[str, Any] = {}
+        self.cameras: dict[str, Any] = {}
+        self._K: dict[str, np.ndarray] = {}
+        self._lut: np.ndarray | None = None
+
+    def _add(self, name: str, entity: Any) -> Any:
+        if name in self.entities:
+            raise ValueError(f"duplicate entity name {name!r}")
+        self.entities[name] = entity
+        self.names.append(name)
+        return entity
+
+    def add_mesh(self, name: str, mesh: trimesh.Trimesh, T_base_obj: np.ndarray, folder: str | Path) -> Any:
+        """A fixed, non-colliding textured mesh at ``T_base_obj`` (its OBJ + MTL + texture written into ``folder``:
+        trimesh names materials generically, so each mesh needs a folder of its own). Returns the Genesis entity."""
+        gs = ensure_genesis()
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        obj = folder / "mesh.obj"
+        mesh.export(obj)
+        pos, quat = pos_quat(T_base_obj)
+        morph = gs.morphs.Mesh(file=str(obj), pos=tuple(pos), quat=tuple(quat), fixed=True, collision=False)
+        return self._add(name, self.scene.add_entity(morph, surface=gs.surfaces.Default()))
+
+    def add_robot(self, spec: RobotSpec, name: str = "robot") -> Any:
+        """The robot of ``spec`` (its model, base at the origin; see :func:`add_robot`). Returns the Genesis entity."""
+        return self._add(name, add_robot(self.scene, spec))
+
+    def add_camera(self, name: str, width: int, height: int, fy: float) -> Any:
+        """Camera ``name``: ``width`` x ``height`` pixels, focal length ``fy`` (px, fx = fy, principal point centred),
+        clipped at the look's near and far planes."""
+        self._K[name] = np.array([[fy, 0.0, 0.5 * width], [0.0, fy, 0.5 * height], [0.0, 0.0, 1.0]])
+        self.cameras[name] = add_camera(self.scene, width, height, fy, self.look.near, self.look.far)
+        return self.cameras[name]
+
+    def build(self) -> None:
+        """Build the scene; every camera's intrinsics are checked against ours."""
+        self.scene.build()
+        for name, cam in self.cameras.items():
+            if not np.allclose(np.asarray(cam.intrinsics), self._K[name], atol=1e-6):
+                raise RuntimeError(
+                    f"camera {name!r}: Genesis intrinsics {cam.intrinsics} differ from ours {self._K[name]}"
+                )
+
+    def render(self, camera: str, T_base_cam: np.ndarray, **what: bool) -> tuple:
+        """Genesis' ``(rgb, depth, segmentation, normal)`` from ``camera`` at ``T_base_cam`` (:func:`render_view`)."""
+        return render_view(self.cameras[camera], T_base_cam, **what)
+
+    def labels(self, seg: Any) -> np.ndarray:
+        """int32 [H,W] labels of a segmentation render: i -> ``names[i]``, -1 where nothing (or no named entity)."""
+        if self._lut is None:
+            # Genesis numbers segmentation "idxc" in node-creation order; map them to our entity order.
+            by_entity_idx = {e.idx: i for i, e in enumerate(self.entities.values())}
+            idxc_map = self.scene.segmentation_idx_dict
+            lut = np.full(max(idxc_map) + 2, -1, dtype=np.int32)
+            for idxc, key in idxc_map.items():
+                if key in by_entity_idx:
+                    lut[idxc] = by_entity_idx[key]
+            self._lut = lut
+        seg = np.asarray(seg).astype(np.int64)
+        seg = np.where((seg >= 0) & (seg < len(self._lut) - 1), seg, len(self._lut) - 1)
+        return self._lut[seg]
+
+    def destroy(self) -> None:
+        """Free the Genesis scene (GL context, solver)."""
+        self.scene.destroy()
