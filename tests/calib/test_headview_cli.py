@@ -42,3 +42,60 @@ def test_head_view_cli_writes_the_comparison_and_names_missing_stages(tmp_path, 
     report = json.loads((ws / "calib" / "head_view.json").read_text())
     assert report["corners_vs_photo_px"]["median"] < 1.5 and report["psnr"] is not None
     assert (ws / "calib" / "head_view.png").is_file()
+
+
+@pytest.mark.skipif(not (SAMPLE / "ground_truth.json").is_file(), reason="samples/tabletop not built")
+def test_head_view_cli_draws_the_robots_gaussians_at_the_photo_joints(tmp_path, capsys):
+    """With scene/robot/ (the robot's Gaussians train-scene fits) the check draws the robot at the capture joints
+    (photo_joints: another state), says so, and its robot pixels match the photo; a photo_joints in degrees is
+    refused naming the setting, nothing written."""
+    from PIL import Image
+    from test_headview import photo_coloured_robot
+
+    from mirage2matter.geometry.camera import Camera
+
+    gt = json.loads((SAMPLE / "ground_truth.json").read_text())
+    board = BoardSpec.from_json(gt["board"]["spec"])
+    T_base_board = np.asarray(gt["board"]["T_base_board"])
+    head = gt["head_camera"]
+    ws = tmp_path / "ws"
+    (ws / "scene" / "robot").mkdir(parents=True)
+    write_ply(ws / "scene" / "gaussians.ply", board_gaussians(board, T_base_board, pps=20))
+    (ws / "calib").mkdir()
+    (ws / "calib" / "handeye.json").write_text(json.dumps({
+        "mount": "head", "T_base_headcam": head["T_base_headcam"], "K": head["K"],
+        "width": head["width"], "height": head["height"]}))  # fmt: skip
+    (ws / "calib" / "sim3_sfm_to_base.json").write_text(
+        json.dumps({"board": board.to_json(), "T_base_board": T_base_board.tolist()})
+    )
+    photo = SAMPLE / "head_view.png"
+    run = ["head-view", "-w", str(ws), "--photo", str(photo), "--backend", "cpu"]
+    assert main(run) == 0  # no robot Gaussians: the scene alone, as before, and the line says so
+    assert "the robot not drawn: the workspace has no robot Gaussians" in capsys.readouterr().out
+    alone = json.loads((ws / "calib" / "head_view.json").read_text())
+    assert "robot_drawn" not in alone
+
+    cam = Camera(head["K"], head["T_base_headcam"], head["width"], head["height"], "head")
+    q = gt["robot"]["capture_joints"]
+    robot, _ = photo_coloured_robot(cam, np.asarray(Image.open(photo).convert("RGB")), q)
+    for link, g in robot.items():
+        write_ply(ws / "scene" / "robot" / f"{link}.ply", g)
+    (ws / "scene" / "robot" / "robot.json").write_text(json.dumps({
+        "robot": "panda", "capture_joints": q, "links": {link: f"{link}.ply" for link in robot}}))  # fmt: skip
+    assert main(run) == 0
+    out = capsys.readouterr().out
+    assert "the robot drawn from its Gaussians (scene/robot/) at the capture joints" in out and "robot's pixels" in out
+    drawn = json.loads((ws / "calib" / "head_view.json").read_text())
+    assert drawn["robot_drawn"] and drawn["psnr"] > alone["psnr"] + 0.5 and drawn["psnr_robot"] > 20.0
+
+    away = [str(v) for v in np.asarray(q[:7]) + [0.4, 0, 0, 0, 0, 0, 0]]
+    assert main([*run, "--photo-joints", *away]) == 0
+    assert "at photo_joints" in capsys.readouterr().out
+    assert json.loads((ws / "calib" / "head_view.json").read_text())["psnr_robot"] < drawn["psnr_robot"] - 5.0
+
+    before = (ws / "calib" / "head_view.json").read_bytes()
+    degrees = [str(round(float(np.degrees(v)), 1)) for v in q[:7]]
+    assert main([*run, "--photo-joints", *degrees]) == 2
+    err = capsys.readouterr().err
+    assert "head_view photo_joints" in err and "reads as degrees" in err
+    assert (ws / "calib" / "head_view.json").read_bytes() == before

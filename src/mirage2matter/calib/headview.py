@@ -4,6 +4,10 @@ Render the scene Gaussians (robot-base frame) from ``T_base_headcam`` and compar
 head camera took: PSNR, and where the ChArUco board lands — corners detected in the render against
 the same corners detected in the photo, and against the board's known pose projected through the
 calibrated camera. A wrong scale, alignment or hand-eye shows up as pixels of offset.
+
+The photo shows the robot, which the scene has taken out: the robot's own per-link Gaussians, posed by forward
+kinematics at the photo's joint state, are drawn in the same splat pass as the scene (``render.splat_world``, as
+the hybrid renderer draws them), so the robot's pixels are compared with the robot, not with the room behind it.
 """
 
 from __future__ import annotations
@@ -31,19 +35,28 @@ def detect_corners(image_rgb: np.ndarray, board: BoardSpec) -> dict[int, np.ndar
 @dataclass
 class HeadViewCheck:
     """render uint8 [H,W,3]; psnr vs the photo (dB, None without one); corner offsets in pixels:
-    render vs photo detections and render vs the board's known pose (median / max, ids used)."""
+    render vs photo detections and render vs the board's known pose (median / max, ids used).
+    With the robot drawn: robot_mask bool [H,W], the pixels the robot covers (drawn alone, alpha >= 0.5), and the
+    PSNR vs the photo on them (psnr_robot) and on the rest (psnr_elsewhere)."""
 
     render: np.ndarray
     psnr: float | None = None
     corners_vs_photo_px: dict[str, float] = field(default_factory=dict)
     corners_vs_known_px: dict[str, float] = field(default_factory=dict)
+    robot_mask: np.ndarray | None = None
+    psnr_robot: float | None = None
+    psnr_elsewhere: float | None = None
 
     def to_json(self) -> dict[str, Any]:
-        return {
+        out = {
             "psnr": self.psnr,
             "corners_vs_photo_px": self.corners_vs_photo_px,
             "corners_vs_known_px": self.corners_vs_known_px,
         }
+        if self.robot_mask is not None:
+            out.update(robot_drawn=True, robot_fraction=float(self.robot_mask.mean()), psnr_robot=self.psnr_robot,
+                       psnr_elsewhere=self.psnr_elsewhere)  # fmt: skip
+        return out
 
 
 def _offsets(a: dict[int, np.ndarray], b: dict[int, np.ndarray]) -> dict[str, float]:
@@ -54,19 +67,10 @@ def _offsets(a: dict[int, np.ndarray], b: dict[int, np.ndarray]) -> dict[str, fl
     return {"n": len(common), "median": float(np.median(d)), "max": float(d.max())}
 
 
-def check_head_view(
-    gaussians,
-    camera: Camera,
-    photo: np.ndarray | None = None,
-    board: BoardSpec | None = None,
-    T_base_board: np.ndarray | None = None,
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0),
-    backend: str = "auto",
-) -> HeadViewCheck:
-    """Render ``gaussians`` from the head ``camera`` (T_world_cam = T_base_headcam) and compare."""
+def _render_scene(gaussians, camera: Camera, background, backend: str) -> np.ndarray:
+    """float32 [H,W,3] in [0,1]: ``gaussians`` alone from the head camera."""
     import torch
 
-    from ..gaussians.losses import psnr
     from ..gaussians.render import render
 
     with torch.no_grad():
@@ -79,14 +83,73 @@ def check_head_view(
             torch.tensor(background, dtype=torch.float32),
             backend,
         )
-    rgb = out.rgb.clamp(0, 1).cpu().numpy()
-    result = HeadViewCheck(render=(rgb * 255 + 0.5).astype(np.uint8))
+    return out.rgb.clamp(0, 1).cpu().numpy()
+
+
+def _render_with_robot(gaussians, robot: dict, T_base_link: dict[str, np.ndarray], camera: Camera, background,
+                       backend: str) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """(rgb float32 [H,W,3], the robot's pixels bool [H,W]): the scene and the robot's links ({link: Gaussians in
+    its frame}) posed at ``T_base_link`` in one splat pass, as the hybrid renderer composes them; the robot's pixels
+    from the robot drawn alone (alpha >= 0.5)."""
+    from ..render.splat_world import MovablePart, SplatRenderOptions, SplatWorld
+
+    missing = sorted(set(robot) - set(T_base_link))
+    if missing:
+        raise ValueError(f"no pose for the robot's link(s) {', '.join(missing)}")
+    options = SplatRenderOptions(backend=backend)
+    parts = [MovablePart(link, g) for link, g in robot.items()]
+    view = (camera.viewmat, camera.K, camera.width, camera.height)
+    worlds = [SplatWorld(gaussians, parts, options), SplatWorld(None, parts, options)]
+    for w in worlds:
+        w.set_poses(T_base_link)
+    rgb = worlds[0].render(*view, background)[0]
+    alpha = worlds[1].render(*view)[1]
+    return rgb, alpha >= 0.5
+
+
+def _psnr_on(rgb: np.ndarray, photo: np.ndarray, mask: np.ndarray) -> float | None:
+    """PSNR (dB, data range 1) of ``rgb`` vs ``photo`` (float [H,W,3]) over ``mask`` [H,W]; None when it is empty."""
+    if not mask.any():
+        return None
+    mse = float(np.mean((rgb[mask] - photo[mask]) ** 2))
+    return float(-10.0 * np.log10(max(mse, 1e-12)))
+
+
+def check_head_view(
+    gaussians,
+    camera: Camera,
+    photo: np.ndarray | None = None,
+    board: BoardSpec | None = None,
+    T_base_board: np.ndarray | None = None,
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    backend: str = "auto",
+    robot: dict | None = None,
+    T_base_link: dict[str, np.ndarray] | None = None,
+) -> HeadViewCheck:
+    """Render ``gaussians`` from the head ``camera`` (T_world_cam = T_base_headcam) and compare. ``robot``: the
+    robot's Gaussians per link ({link: Gaussians in the link's frame}, ``gaussians.robot``), drawn with the scene at
+    ``T_base_link`` ({link: [4,4]}, forward kinematics at the photo's joint state); None: the scene alone."""
+    import torch
+
+    from ..gaussians.losses import psnr
+
+    if robot:
+        if T_base_link is None:
+            raise ValueError("the robot's Gaussians need its link poses (T_base_link) to be drawn")
+        rgb, robot_mask = _render_with_robot(gaussians, robot, T_base_link, camera, background, backend)
+    else:
+        rgb, robot_mask = _render_scene(gaussians, camera, background, backend), None
+    result = HeadViewCheck(render=(rgb * 255 + 0.5).astype(np.uint8), robot_mask=robot_mask)
     if photo is not None:
         if photo.shape[:2] != (camera.height, camera.width):
             raise ValueError(
                 f"the head photo is {photo.shape[1]}x{photo.shape[0]} but the camera is {camera.width}x{camera.height}"
             )
-        result.psnr = float(psnr(torch.from_numpy(rgb), torch.from_numpy(photo[..., :3].astype(np.float32) / 255)))
+        seen = photo[..., :3].astype(np.float32) / 255
+        result.psnr = float(psnr(torch.from_numpy(rgb), torch.from_numpy(seen)))
+        if robot_mask is not None:
+            result.psnr_robot = _psnr_on(rgb, seen, robot_mask)
+            result.psnr_elsewhere = _psnr_on(rgb, seen, ~robot_mask)
     if board is not None:
         seen = detect_corners(result.render, board)
         if photo is not None:

@@ -1,6 +1,7 @@
 """Stage ``head_view``: the scene rendered through the calibrated head camera, compared with a photo the
 head camera took (PSNR, board corners) -> ``calib/head_view.png`` + ``head_view.json``. A wrong scale,
-alignment or hand-eye shows up as pixels of offset."""
+alignment or hand-eye shows up as pixels of offset. The robot's own Gaussians (scene/robot/, when the capture
+showed it) are drawn with the scene at the photo's joint state: the photo shows the robot too."""
 
 from __future__ import annotations
 
@@ -12,25 +13,33 @@ from typing import Any, Literal
 
 import numpy as np
 
+from ..configs import ranged
 from ..workspace import Workspace, WorkspaceError
-from .base import Input, Log
+from .base import ADDED_LATER, Input, Log
 
 
 @dataclass
 class Config:
     """head-view settings.
 
-    photo     an image the head camera took of the same scene (without one: the render alone)
-    backend   renderer: auto (cuda when available), cpu, cuda
+    photo         an image the head camera took of the same scene (without one: the render alone)
+    backend       renderer: auto (cuda when available), cpu, cuda
+    photo_joints  the robot's joint state when the photo was taken (the arm's joint angles in radians, or every
+                  joint's with the fingers); its Gaussians (scene/robot/) are drawn there. Default: the capture
+                  joints (the state the robot was filmed at)
     """
 
     photo: Path | None = None
     backend: Literal["auto", "cpu", "cuda"] = "auto"
+    # wide: degrees given for radians are the robot's check to name (check_capture_joints), not a bare range
+    photo_joints: list[float] | None = ranged(None, ge=-1000, le=1000, metadata=ADDED_LATER)
 
 
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
     out = [Input(ws.scene_ply, made_by="train-scene"), Input(ws.handeye_file, made_by="calibrate-handeye"),
            Input(ws.alignment_file, made_by="align-scene")]  # fmt: skip
+    robot = ws.robot_gaussians_dir / "robot.json"  # the robot's Gaussians, when train-scene fitted them
+    out += [Input(robot, made_by="train-scene")] if robot.is_file() else []
     return out + ([Input(Path(cfg.photo), field="head-view photo")] if cfg.photo is not None else [])
 
 
@@ -53,19 +62,58 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         ideal, _ = undistort_image(photo.astype(np.float32) / 255.0, cam)
         photo = np.clip(np.round(ideal * 255.0), 0, 255).astype(np.uint8)
     cam = dataclasses.replace(cam, distortion={}, distortion_model="")
+    robot, T_base_link, robot_words = robot_at_photo(ws, cfg)
     check = check_head_view(read_ply(ws.scene_ply), cam, photo, target_from_json(board[0]), board[1],
-                            backend=cfg.backend)  # fmt: skip
+                            backend=cfg.backend, robot=robot, T_base_link=T_base_link)  # fmt: skip
     save_head_view(ws.head_view_png, check, photo)
     known, seen = check.corners_vs_known_px, check.corners_vs_photo_px
     trained_on = cfg.photo is not None and _scene_trained_on(ws, Path(cfg.photo))
-    parts = [] if check.psnr is None else [f"PSNR {check.psnr:.2f} dB vs the photo"
-                                           + (" (a training view: train-scene --head-photo)" if trained_on else "")]
+    parts = []
+    if check.psnr is not None:
+        trained = " (a training view: train-scene --head-photo)" if trained_on else ""
+        robot_px = "" if check.psnr_robot is None else (
+            f" (the robot's pixels {check.psnr_robot:.2f} dB, {100 * check.robot_mask.mean():.0f} % of the photo; "
+            f"elsewhere {check.psnr_elsewhere:.2f} dB)")  # fmt: skip
+        parts.append(f"PSNR {check.psnr:.2f} dB vs the photo{trained}{robot_px}")
     if known.get("n"):
         parts.append(f"board corners {known['median']:.2f} px (median, {known['n']}) from the board's known pose")
     if seen.get("n"):
         parts.append(f"{seen['median']:.2f} px from the photo's")
-    return {**check.to_json(), "photo_trained_on": trained_on,
-            "line": "; ".join(parts) or "rendered (the board is not seen in the render)"}
+    line = "; ".join(parts) or "rendered (the board is not seen in the render)"
+    return {**check.to_json(), "photo_trained_on": trained_on, "robot": robot_words, "line": f"{line}; {robot_words}"}
+
+
+def robot_at_photo(ws: Workspace, cfg: Config) -> tuple[dict | None, dict | None, str]:
+    """(the robot's Gaussians {link: Gaussians, link frame}, their poses {link: T_base_link [4,4]} at the photo's
+    joint state, the words for the stage line); (None, None, words) when the workspace has no robot Gaussians (the
+    capture did not show the robot): the scene is drawn alone. A ``photo_joints`` that does not fit the robot
+    (length, limits, degrees) is refused, naming the setting."""
+    from ..gaussians.ply import read_ply
+    from ..robots import get_robot
+    from ..robots.kinematics import RobotKinematics
+    from ..robots.surface import check_capture_joints
+
+    info_file = ws.robot_gaussians_dir / "robot.json"
+    if not info_file.is_file():
+        unused = "; photo_joints unused" if cfg.photo_joints is not None else ""
+        return None, None, ("the robot not drawn: the workspace has no robot Gaussians (scene/robot/: train-scene "
+                            f"fits them when the keyframes show the robot){unused}")  # fmt: skip
+    try:
+        info = json.loads(info_file.read_text(encoding="utf-8"))
+        name, links, capture = info["robot"], dict(info["links"]), info["capture_joints"]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise WorkspaceError(f"{info_file}: unreadable ({e}); run `m2m train-scene -w {ws.root}` again") from None
+    given = cfg.photo_joints is not None
+    what = "head_view photo_joints" if given else f"{info_file} capture_joints"
+    q = check_capture_joints(get_robot(name), cfg.photo_joints if given else capture, what)
+    T_base_link = RobotKinematics(name).link_poses(q)
+    unknown = sorted(set(links) - set(T_base_link))
+    if unknown:
+        raise WorkspaceError(f"{info_file}: link(s) {', '.join(unknown)} are not {name}'s; run `m2m train-scene -w "
+                             f"{ws.root}` again")  # fmt: skip
+    robot = {link: read_ply(ws.robot_gaussians_dir / f) for link, f in links.items()}
+    where = "photo_joints" if given else "the capture joints (photo_joints: the photo's, if it was taken at another)"
+    return robot, T_base_link, f"the robot drawn from its Gaussians (scene/robot/) at {where}"
 
 
 def head_camera(ws: Workspace, who: str, photo: np.ndarray | None = None, photo_path: Path | None = None):
