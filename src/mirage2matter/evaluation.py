@@ -18,7 +18,7 @@ import numpy as np
 
 from .progress import progress_bar
 
-__all__ = ["contact_sheet", "evaluate_policy", "frame_of", "wilson_interval"]
+__all__ = ["contact_sheet", "evaluate_policy", "frame_of", "run_episode", "summarize", "wilson_interval"]
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -72,52 +72,74 @@ def evaluate_policy(
     todo = [seed + i for i in range(episodes) if seed + i not in seen]
     bar = progress_bar(todo, desc="evaluation", unit="ep", disable=not progress, leave=False)
     for s in bar:
-        t0 = clock()
-        obs, _ = env.reset(seed=s)
-        start = getattr(getattr(env, "unwrapped", env), "start_poses", None)
-        if hasattr(policy, "reset"):
-            policy.reset()
-        frames = [frame_of(obs, camera)] if len(kept) < keep_frames else None
-        steps, success, info, slowest, cut = 0, False, {}, 0.0, False
-        while True:
-            t_step = clock()
-            obs, _, terminated, truncated, info = env.step(np.asarray(policy(obs), dtype=np.float32))
-            now = clock()
-            slowest = max(slowest, now - t_step)
-            steps += 1
-            if frames is not None:
-                frames.append(frame_of(obs, camera))
-            if terminated or truncated:
-                success = bool(terminated)
-                break
-            if max_episode_seconds is not None and now - t0 > max_episode_seconds:
-                cut = True
-                break
+        row, frames = run_episode(env, policy, s, keep=len(kept) < keep_frames, camera=camera,
+                                  max_episode_seconds=max_episode_seconds, clock=clock)  # fmt: skip
         if frames is not None:
             kept.append(frames)
-        row = {"seed": s, "success": success, "steps": steps, "seconds": round(clock() - t0, 2),
-               "max_step_seconds": round(slowest, 3)}  # fmt: skip
-        if isinstance(start, dict) and start:
-            row["start_xy"] = {n: [round(float(T[0][3]), 4), round(float(T[1][3]), 4)] for n, T in start.items()}
-            # the heading of the object's x axis (its footprint's long axis) about the base's z: which headings fail
-            row["start_yaw_deg"] = {n: round(float(np.degrees(np.arctan2(T[1][0], T[0][0]))), 1)
-                                    for n, T in start.items()}  # fmt: skip
-        timings = info.get("timings") if isinstance(info, dict) else None
-        if timings is None:  # an episode cut short: the env's running totals
-            timings = getattr(getattr(env, "unwrapped", env), "timings", None)
-        if isinstance(timings, dict) and timings:
-            row["timings"] = {k: round(float(v), 2) for k, v in timings.items()}
-        if cut:
-            row["cut"] = True
-            row["reason"] = (f"wall-clock limit: still running after {max_episode_seconds:g} s at step {steps} "
-                             f"(slowest step {slowest:.1f} s); counted as a failure")  # fmt: skip
-        elif isinstance(info, dict) and info.get("reason"):
-            row["reason"] = str(info["reason"])
         rows.append(row)
         if on_episode is not None:
             on_episode(row)
         bar.set_postfix(success=f"{sum(r['success'] for r in rows)}/{len(rows)}")
-    rows.sort(key=lambda r: r["seed"])
+    return summarize(rows, log), kept
+
+
+def run_episode(
+    env: Any,
+    policy: Callable[[dict], np.ndarray],
+    seed: int,
+    keep: bool = False,
+    camera: str | None = None,
+    max_episode_seconds: float | None = None,
+    clock: Callable[[], float] = time.perf_counter,
+) -> tuple[dict[str, Any], list[np.ndarray] | None]:
+    """One episode of :func:`evaluate_policy` (reset seed ``seed``): its record, and its pictures when ``keep``.
+    A function of the env, the policy and the seed alone (``reset`` draws everything), so it runs the same episode
+    wherever it runs (``eval_workers`` runs it on Ray workers)."""
+    t0 = clock()
+    obs, _ = env.reset(seed=seed)
+    start = getattr(getattr(env, "unwrapped", env), "start_poses", None)
+    if hasattr(policy, "reset"):
+        policy.reset()
+    frames = [frame_of(obs, camera)] if keep else None
+    steps, success, info, slowest, cut = 0, False, {}, 0.0, False
+    while True:
+        t_step = clock()
+        obs, _, terminated, truncated, info = env.step(np.asarray(policy(obs), dtype=np.float32))
+        now = clock()
+        slowest = max(slowest, now - t_step)
+        steps += 1
+        if frames is not None:
+            frames.append(frame_of(obs, camera))
+        if terminated or truncated:
+            success = bool(terminated)
+            break
+        if max_episode_seconds is not None and now - t0 > max_episode_seconds:
+            cut = True
+            break
+    row = {"seed": seed, "success": success, "steps": steps, "seconds": round(clock() - t0, 2),
+           "max_step_seconds": round(slowest, 3)}  # fmt: skip
+    if isinstance(start, dict) and start:
+        row["start_xy"] = {n: [round(float(T[0][3]), 4), round(float(T[1][3]), 4)] for n, T in start.items()}
+        # the heading of the object's x axis (its footprint's long axis) about the base's z: which headings fail
+        row["start_yaw_deg"] = {n: round(float(np.degrees(np.arctan2(T[1][0], T[0][0]))), 1)
+                                for n, T in start.items()}  # fmt: skip
+    timings = info.get("timings") if isinstance(info, dict) else None
+    if timings is None:  # an episode cut short: the env's running totals
+        timings = getattr(getattr(env, "unwrapped", env), "timings", None)
+    if isinstance(timings, dict) and timings:
+        row["timings"] = {k: round(float(v), 2) for k, v in timings.items()}
+    if cut:
+        row["cut"] = True
+        row["reason"] = (f"wall-clock limit: still running after {max_episode_seconds:g} s at step {steps} "
+                         f"(slowest step {slowest:.1f} s); counted as a failure")  # fmt: skip
+    elif isinstance(info, dict) and info.get("reason"):
+        row["reason"] = str(info["reason"])
+    return row, frames
+
+
+def summarize(rows: list[dict], log: Callable[[str], None] = print) -> dict[str, Any]:
+    """The summary of an evaluation's episode records (any order; ``runs`` in seed order), logged in one line."""
+    rows = sorted(rows, key=lambda r: r["seed"])
     n_ok = sum(bool(r["success"]) for r in rows)
     lo, hi = wilson_interval(n_ok, len(rows))
     summary = {
@@ -133,7 +155,7 @@ def evaluate_policy(
     cut = f"; {summary['cut']} cut at the wall-clock limit (failures)" if summary["cut"] else ""
     log(f"evaluation: {n_ok}/{len(rows)} successes = {100 * summary['success_rate']:.1f}% "
         f"(95% Wilson interval {100 * lo:.1f}-{100 * hi:.1f}%){cut}")  # fmt: skip
-    return summary, kept
+    return summary
 
 
 def contact_sheet(episodes: list[list[np.ndarray]], path: Path, columns: int = 8) -> None:

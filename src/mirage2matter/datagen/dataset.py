@@ -102,6 +102,23 @@ def _median(xs: list[float]) -> float | None:
     return statistics.median(xs) if xs else None
 
 
+def _round_trip_pct(mine: list[dict[str, Any]]) -> float | None:
+    """The share (%) of each worker's time from its first attempt's start to its last one's end spent between
+    attempts - its result travelling back and being committed, the next attempt handed out -, over all workers: what
+    returning episodes to the parent costs the throughput (start-up and the last attempts' uneven end left out).
+    Each worker's own clock, so it holds for workers on other machines too."""
+    by_worker: dict[Any, list[dict[str, Any]]] = {}
+    for r in mine:
+        if "worker_end" in r:
+            by_worker.setdefault(r["worker"], []).append(r)
+    span = gaps = 0.0
+    for rs in by_worker.values():
+        rs.sort(key=lambda r: r["t_start"])
+        span += rs[-1]["worker_end"] - rs[0]["t_start"]
+        gaps += sum(max(0.0, b["t_start"] - a["worker_end"]) for a, b in zip(rs, rs[1:], strict=False))
+    return round(100.0 * gaps / span, 2) if span > 0 else None
+
+
 def summarize(run: RunStats, cfg: RunConfig, fingerprint: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
     results = run.results
     tried = sorted(results)  # a prefix 0..K-1 of attempts (runner.py)
@@ -141,6 +158,7 @@ def summarize(run: RunStats, cfg: RunConfig, fingerprint: dict[str, Any], extra:
         # wall-clock rate above says little; 60 / cpu_s_per_demo is the rate per core given to the workers.
         "cpu_s_per_demo": round(cpu / mine_ok, 2) if mine_ok else None,
         "demos_per_cpu_min": round(60.0 * mine_ok / cpu, 3) if cpu > 0 and mine_ok else None,
+        "round_trip_pct": _round_trip_pct(mine),
         "stage_seconds_total": {k: round(v, 3) for k, v in sorted(stage_totals.items())},
         "attempt_selection": {"selected": run.selected, "failed": [r["attempt"] for r in failures]},
         "fingerprint": fingerprint,

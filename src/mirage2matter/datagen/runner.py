@@ -47,7 +47,7 @@ def commit(staging_root: Path, ran: dict[str, Any]) -> dict[str, Any]:
     committed = dict(write_attempt(staging_root, ran["result"], ran["files"]))
     committed["timings"] = {**committed.get("timings", {}), "commit": ran["encode_s"] + time.time() - t}
     committed.update(t_start=ran["t_start"], t_end=ran["t_end"] + time.time() - t, cpu_s=ran["cpu_s"],
-                     worker=ran["worker"])  # fmt: skip
+                     worker=ran["worker"], worker_end=ran["t_end"])  # fmt: skip
     return committed
 
 

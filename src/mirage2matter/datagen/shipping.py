@@ -21,7 +21,7 @@ from typing import Any
 
 from ..errors import M2MError
 
-__all__ = ["ShipError", "Shipment", "ShippedFactory", "pack", "relocate", "unpack"]
+__all__ = ["ShipError", "Shipment", "ShippedFactory", "pack", "pack_under", "relocate", "unpack", "world_files"]
 
 
 class ShipError(M2MError, RuntimeError):
@@ -74,6 +74,37 @@ def pack(paths: Iterable[Path], origin: Path) -> Shipment:
     return Shipment(str(origin), files, h.hexdigest())
 
 
+def pack_under(paths: Iterable[Path], origins: Iterable[Path]) -> tuple[Shipment, ...]:
+    """The files ``paths`` as one shipment per folder of ``origins`` holding some of them (each path goes to the first
+    origin it lies under; outside all of them: left out, as :func:`pack` leaves them)."""
+    origins = [Path(o).resolve() for o in origins]
+    groups: dict[Path, list[Path]] = {}
+    for p in paths:
+        p = Path(p).resolve()
+        home = next((o for o in origins if o == p or o in p.parents), None)
+        if home is not None:
+            groups.setdefault(home if home != p else p.parent, []).append(p)
+    return tuple(pack(ps, o) for o, ps in groups.items())
+
+
+def world_files(world: Any) -> list[Path]:
+    """Every file or folder an environment built on the world (``world.config.WorldConfig``) opens (a mesh with the
+    materials and textures beside it, as ``m2m world insert`` copies them)."""
+    from ..robots import is_spec_file
+
+    out: list[Path] = [world.root]
+    parts = [o.part for o in world.objects] + [p for a in world.articulated for p in (a.base, a.cap)]
+    for part in parts:
+        out += [p for p in (part.gaussians, part.collision) if p is not None]
+        if part.mesh is not None:
+            out.append(part.mesh)
+            out += [x for x in part.mesh.parent.glob("*") if x.suffix.lower() in (".mtl", ".png", ".jpg", ".jpeg")]
+    robot = world.robot
+    out += [p for p in (world.scene_gaussians, robot.gaussians) if p is not None]
+    out += [Path(f) for f in (robot.name if is_spec_file(robot.name) else "", robot.file) if f and Path(f).exists()]
+    return out
+
+
 def unpack(shipment: Shipment, cache: Path | None = None) -> Path:
     """The folder on this machine holding ``shipment``'s files, written once per content: several workers of a node
     share it, each writing its own temporary copy and renaming it into place (the first rename wins)."""
@@ -123,13 +154,17 @@ def relocate(obj: Any, src: Path, dst: Path) -> Any:
 class ShippedFactory:
     """A source factory with the files it reads, for a worker on any machine: ``local()`` is the factory with its
     files unpacked on this machine and its paths renamed there (a worker asks once per run); calling it builds the
-    source from that."""
+    source from that. ``others``: files from other folders (a policy or a sample outside the workspace)."""
 
     factory: Any
     shipment: Shipment
+    others: tuple[Shipment, ...] = ()
 
     def local(self) -> Any:
-        return relocate(self.factory, Path(self.shipment.origin), unpack(self.shipment))
+        out = self.factory
+        for s in (self.shipment, *self.others):
+            out = relocate(out, Path(s.origin), unpack(s))
+        return out
 
     def __call__(self) -> Any:
         return self.local()()
