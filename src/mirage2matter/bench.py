@@ -15,6 +15,7 @@ from dataclasses import dataclass, fields, replace
 from typing import Any
 
 from .configs import ranged
+from .env.config import EpisodeSpec
 
 __all__ = ["RenderBenchConfig", "bench_render"]
 
@@ -40,7 +41,7 @@ class RenderBenchConfig:
     """
 
     gaussians: int = ranged(100_000, ge=1, le=10**8)
-    size: int = ranged(224, ge=1, le=16384)
+    size: int = ranged(EpisodeSpec.size[0], ge=1, le=16384)
     backend: str = "auto"
     sh_degree: int = ranged(3, ge=0, le=3)
     cameras_per_call: int = ranged(1, ge=1, le=1024)

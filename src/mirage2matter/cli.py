@@ -58,9 +58,7 @@ def run_stage_command(stage: Stage, args: argparse.Namespace) -> int:
     summary, skipped = run_stage(stage, ws, cfg, log=info, force=args.force)
     # read-modify-write of m2m.yaml (another stage's section may have changed), beside running policy stages
     with workspace_lock(ws, alongside=True, wait_s=60.0):
-        pipeline = load()
-        setattr(pipeline, stage.name, cfg)
-        pipeline.save(ws.config_file)
+        load().with_stage(stage.name, cfg).save(ws.config_file)
     for line in summary.get("details", []):
         print(line)
     note = " (up to date: same settings and inputs as the last run; --force to rerun)" if skipped else ""

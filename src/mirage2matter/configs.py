@@ -17,7 +17,10 @@ each field on a line of its own (``name   what it is``, continuation lines inden
 Supported field types: bool, int, float, str, Path, ``X | None``, ``Literal[...]``, ``tuple[T, ...]`` /
 ``list[T]`` (several values), fixed tuples ``tuple[T, T]`` (``a,b``), ``dict[str, T]`` (``NAME=VALUE``,
 repeatable) and nested dataclasses. Field metadata: ``{"positional": True}`` makes a field the command's
-optional positional argument; ``{"flag": False}`` keeps an internal field off the command line; ``{"output": True}``
+optional positional argument; ``{"flag": False}`` keeps an internal field off the command line; ``{"flags": ("-w",
+"--workspace")}`` names its flag otherwise, ``{"metavar": "PX"}`` its value, ``{"parse": fn}`` reads the flag's word
+(an argparse type); ``{"shared": True}`` marks a stage's field that is the whole pipeline's (``stages.base.SHARED``:
+m2m.yaml holds it once, at the top, and its section no flag of its own); ``{"output": True}``
 marks a path the stage writes (a pipeline run checks every other path exists before it starts); ``{"range":
 Range(...)}`` (:func:`ranged`) the numbers a field may hold.
 
@@ -38,6 +41,7 @@ import math
 import re
 import types
 import typing
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any, Literal, Union
 
@@ -366,6 +370,8 @@ def to_yaml(cfg: Any, base_dir: Path | None = None, header: str = "", notes: dic
     def emit(cls: type, values: dict[str, Any], pad: str) -> None:
         docs, hints = field_docs(cls), _hints(cls)
         for f in dataclasses.fields(cls):
+            if pad and f.metadata.get("shared"):  # the whole pipeline's: written once, at the top
+                continue
             value, (tp, _) = values[f.name], _unwrap_optional(hints[f.name])
             section = _is_config(tp) and isinstance(value, dict)
             if not pad and (section or notes):
@@ -510,16 +516,19 @@ def add_flags(
     prefix: str = "",
     base: Any = None,
     sections: bool = False,
+    skip: Collection[str] = (),
 ) -> dict[str, argparse._ArgumentGroup]:
     """One flag per field of ``cls`` (recursively), documented from the docstring; ``base`` supplies the
     defaults shown in ``--help`` (default: ``cls()``). With ``sections`` each nested Config field of ``cls`` gets
-    a help section (argument group) of its own, described by its doc; returns them, {field: group}."""
+    a help section (argument group) of its own, described by its doc; returns them, {field: group}. ``skip``:
+    fields (top-level) that get no flag here (a command that adds them itself). A nested Config's field marked
+    ``{"shared": True}`` is the enclosing Config's own field of that name and gets no flag of its own."""
     base = cls() if base is None else base
     own = cls()  # the defaults the docs describe
     docs, hints = field_docs(cls), _hints(cls)
     groups: dict[str, argparse._ArgumentGroup] = {}
     for f in dataclasses.fields(cls):
-        if f.metadata.get("flag", True) is False:
+        if f.metadata.get("flag", True) is False or f.name in skip or (prefix and f.metadata.get("shared")):
             continue
         tp, _ = _unwrap_optional(hints[f.name])
         default = getattr(base, f.name)
@@ -535,7 +544,9 @@ def add_flags(
         help_text = _help_text(docs.get(f.name, ""), default, getattr(own, f.name))
         kw: dict[str, Any] = {"dest": dest, "default": argparse.SUPPRESS, "help": help_text.replace("%", "%%")}
         origin, args = typing.get_origin(tp), typing.get_args(tp)
-        if tp is bool:
+        if f.metadata.get("parse"):  # the flag's own reading of its word (``R,G,B`` or one grey value)
+            kw.update(type=f.metadata["parse"], metavar=f.name.upper())
+        elif tp is bool:
             kw.update(action=_Switch, negative=_flag(prefix, f.name, negate=True))
         elif typing.get_origin(tp) is Literal:
             kw["choices"] = typing.get_args(tp)
@@ -547,12 +558,14 @@ def add_flags(
             kw.update(action="append", type=_key_value_parser(args[1], where), metavar="NAME=VALUE")
         else:
             kw.update(type=_word_parser(tp, where), metavar=f.name.upper())
+        if "metavar" in f.metadata:
+            kw["metavar"] = f.metadata["metavar"]
         if f.metadata.get("positional") and not prefix:
             # absent -> None (argparse stores its SUPPRESS marker for an optional positional); from_flags skips it
             kw.update(default=None, nargs="?")
             parser.add_argument(dest, **{k: v for k, v in kw.items() if k not in ("metavar", "dest")})
         else:
-            parser.add_argument(where, **kw)
+            parser.add_argument(*f.metadata.get("flags", (where,)), **kw)
     return groups
 
 

@@ -283,16 +283,11 @@ class Workspace:
         return self._posed_sfm()
 
     def _posed_sfm(self) -> PosedCapture:
-        import pycolmap
-
-        from .sfm import load_sfm_summary
+        from .sfm import load_model_points, load_sfm_summary
 
         self.require(self.sfm_file, "sfm")
         _, cameras = load_sfm_summary(self.sfm_dir)
-        rec = pycolmap.Reconstruction(str(self.require(self.sfm_model, "sfm")))
-        pts = list(rec.points3D.values())
-        points = np.array([p.xyz for p in pts], dtype=np.float64).reshape(-1, 3)
-        colors = np.array([p.color for p in pts], dtype=np.uint8).reshape(-1, 3)
+        points, colors = load_model_points(self.require(self.sfm_model, "sfm"))
         return PosedCapture(sorted(cameras, key=lambda c: c.name), points, colors, self.capture_dir, "sfm")
 
     def _posed_base(self) -> PosedCapture:

@@ -18,8 +18,8 @@ from mirage2matter.calib.handeye import (
     calibrate_handeye,
     detect_board_pose,
 )
-from mirage2matter.calib.kinematics import RobotKinematics
 from mirage2matter.cli import main
+from mirage2matter.robots.kinematics import RobotKinematics
 
 
 def _pose(rng: np.random.Generator, angle_deg: float, shift: float) -> np.ndarray:

@@ -21,7 +21,7 @@ INPUTS = {
              "--handeye-poses", "--handeye-board", "--handeye-intrinsics", "--head-photo", "--objects", "--task",
              "--episodes", "--robot", "--force"],
     "run": ["--workspace", "--until", "--from"],
-    "demo": ["--workspace", "--sample", "--until", "--from"],
+    "demo": ["--workspace", "--sample", "--until", "--from", "--robot"],
 }  # fmt: skip
 PREFIXES = "|".join(re.escape(s.name.replace("_", "-")) for s in STAGES)
 STAGE_FLAG_LINE = re.compile(rf"^\s+--({PREFIXES})\.")  # a --<stage>.<field> flag's line in a help
@@ -44,7 +44,7 @@ def _fields(cls: type, prefix: str) -> list[str]:
     """The flags of ``cls``'s fields as ``--<prefix><field>`` (nested Configs' fields below theirs)."""
     flags, defaults = [], cls()
     for f in dataclasses.fields(cls):
-        if f.metadata.get("flag", True) is False:
+        if f.metadata.get("flag", True) is False or f.metadata.get("shared"):  # shared: the pipeline's --robot
             continue
         value = getattr(defaults, f.name)
         if dataclasses.is_dataclass(value):

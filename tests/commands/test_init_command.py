@@ -80,7 +80,7 @@ def test_inputs_inside_the_workspace_are_written_relative_to_it(tmp_path, capsys
         (["--video", f"{S}/scene.mp4", "--board", f"{S}/board.json", "--intrinsics", f"{S}/board.json"],
          "--intrinsics / --sfm.intrinsics: .*board.json"),
         (["--video", f"{S}/scene.mp4", "--board", f"{S}/board.json", "--robot", "robbie"],
-         "--robot / --align.robot: unknown robot 'robbie'; known robots: panda"),
+         "--robot: unknown robot 'robbie'; known robots: panda"),
         (["--video", f"{S}/scene.mp4", "--board", f"{S}/board.json", "--scene.minutes", "0"],
          r"section scene: train-scene: give a positive --minutes budget .*\(flag --scene\.\*\)"),
     ],

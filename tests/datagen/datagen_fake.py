@@ -23,7 +23,9 @@ BUILDS_ENV = "M2M_TEST_FAKE_BUILDS"  # a file to log every FakeSource built to (
 
 # Any names do: the writers know no robot.
 SPEC = DatasetSpec(
-    state_names=tuple(f"q{i}" for i in range(9)), action_names=tuple(f"a{i}" for i in range(8)),
+    state_names=tuple(f"q{i}" for i in range(9)),
+    action_names=tuple(f"a{i}" for i in range(8)),
+    fps=10,
     cameras={"head": (32, 48), "wrist": (32, 32)},
 )
 
@@ -95,4 +97,3 @@ class SpawnOnlyFactory(FakeFactory):
     handle holds queues and shared buffers)."""
 
     inherited: object = None
-

@@ -6,11 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mirage2matter.datagen import GenerateConfig, GenerateError, generate, task_slug
+from mirage2matter.datagen import GenerateConfig, GenerateError, RunConfig, generate, task_slug
 from mirage2matter.datagen.simulated import world_fingerprint
 from mirage2matter.geometry.sim3 import Sim3
 from mirage2matter.sim.tasks import GraspTask, PressTask
 from mirage2matter.world.config import CameraConfig, ObjectConfig, PartConfig, WorldConfig
+
+ONE = RunConfig(episodes=1)
 
 
 def _world(root, cameras=("head", "wrist")) -> WorldConfig:
@@ -20,7 +22,7 @@ def _world(root, cameras=("head", "wrist")) -> WorldConfig:
 
 
 def test_refused_before_any_worker(tmp_path):
-    cfg = GenerateConfig(episodes=1)
+    cfg = GenerateConfig(ONE)
     with pytest.raises(GenerateError, match="no calibrated camera wrist"):
         generate(_world(tmp_path, cameras=("head",)), GraspTask("banana"), tmp_path / "ds", cfg, progress=False)
     with pytest.raises(GenerateError, match="no object named 'kiwi'"):
@@ -78,13 +80,13 @@ def test_a_splat_server_is_refused_with_ray_and_is_not_part_of_the_dataset(tmp_p
     from mirage2matter.datagen import dataset_fingerprint
 
     world, task = _world(tmp_path), GraspTask("banana")
-    plain, served = GenerateConfig(episodes=1), GenerateConfig(episodes=1, splat_server=True)
+    plain, served = GenerateConfig(ONE), GenerateConfig(ONE, splat_server=True)
     assert dataset_fingerprint(world, task, plain) == dataset_fingerprint(world, task, served)
     world.cameras = {c: CameraConfig(mount="base", T_mount_cam=np.eye(4), K=np.array([[50.0, 0, 32], [0, 50.0, 24],
                      [0, 0, 1]]), width=64, height=48) for c in ("head", "wrist")}  # fmt: skip
     with pytest.raises(GenerateError, match="cannot serve Ray actors"):
-        generate(world, task, tmp_path / "ds", GenerateConfig(episodes=1, splat_server=True, ray_address="local"),
-                 progress=False)  # fmt: skip
+        cfg = GenerateConfig(RunConfig(episodes=1, ray_address="local"), splat_server=True)
+        generate(world, task, tmp_path / "ds", cfg, progress=False)
     assert not (tmp_path / "ds").exists()
 
 
@@ -93,15 +95,16 @@ def test_supersample_enters_the_fingerprint_only_when_used(tmp_path):
     option; on, the source records it and the hybrid renderer gets it."""
     from mirage2matter.datagen import dataset_fingerprint
     from mirage2matter.datagen.simulated import _source
+    from mirage2matter.env.config import hybrid_options
     from mirage2matter.stages.generate import Config
 
     world, task = _world(tmp_path), GraspTask("banana")
-    plain, ss = GenerateConfig(episodes=1), GenerateConfig(episodes=1, supersample=4)
+    plain, ss = GenerateConfig(ONE), GenerateConfig(ONE, hybrid=hybrid_options(supersample=4))
     assert "supersample" not in _source(world, task, plain).to_json()["hybrid"]["splat"]
     assert _source(world, task, ss).to_json()["hybrid"]["splat"]["supersample"] == 4
     assert _source(world, task, ss).env_config().hybrid.splat.supersample == 4
     assert dataset_fingerprint(world, task, plain) != dataset_fingerprint(world, task, ss)
-    assert Config(task=("grasp banana",), supersample=3).generation().supersample == 3
+    assert Config(task=("grasp banana",), supersample=3).generation().hybrid.splat.supersample == 3
     with pytest.raises(GenerateError, match="supersample must be from 1"):
         Config(task=("grasp banana",), supersample=0).validate()
 
@@ -119,8 +122,8 @@ def test_start_regions_are_checked_and_enter_the_fingerprint_only_when_used(tmp_
     rand = cfg.generation().randomization
     assert rand.start_regions == (("banana", 0.55, 0.62, -0.3, -0.2), ("banana", 0.35, 0.4, 0.2, 0.3))
     assert rand.regions() == {"banana": [(0.55, 0.62, -0.3, -0.2), (0.35, 0.4, 0.2, 0.3)]}
-    plain = GenerateConfig(episodes=1)
-    aimed = GenerateConfig(episodes=1, randomization=rand)
+    plain = GenerateConfig(ONE)
+    aimed = GenerateConfig(ONE, randomization=rand)
     assert "start_regions" not in _source(world, task, plain).to_json()["randomization"]
     assert dataset_fingerprint(world, task, plain) != dataset_fingerprint(world, task, aimed)
     for text in ("banana", "banana:0.5,0.6,0.1", "banana:a,b,c,d", ":0.5,0.6,0.1,0.2"):
@@ -134,7 +137,7 @@ def test_start_regions_are_checked_and_enter_the_fingerprint_only_when_used(tmp_
     }
     for region, message in bad.values():
         with pytest.raises(GenerateError, match=message):
-            generate(world, task, tmp_path / "ds", GenerateConfig(episodes=1,
+            generate(world, task, tmp_path / "ds", GenerateConfig(ONE,
                      randomization=Randomization(start_regions=(region,))), progress=False)  # fmt: skip
     assert not (tmp_path / "ds").exists()
 

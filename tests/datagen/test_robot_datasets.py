@@ -9,7 +9,8 @@ import json
 import numpy as np
 import pytest
 
-from mirage2matter.datagen import GenerateConfig, generate
+from mirage2matter.datagen import GenerateConfig, RunConfig, generate
+from mirage2matter.env.config import EpisodeSpec
 from mirage2matter.export.validate import validate
 from mirage2matter.robots import get_robot
 from mirage2matter.sim.tasks import parse_task
@@ -23,8 +24,8 @@ def test_ur5e_datasets_validate_with_its_names(sample_world_ws, tmp_path, text):
     world = load_world(ws / "world")
     spec = get_robot("ur5e")
     out = tmp_path / "ds"
-    summary = generate(world, parse_task(text, world), out, GenerateConfig(episodes=2, size=(96, 96), preview=0),
-                       log=lambda _m: None, progress=False)  # fmt: skip
+    cfg = GenerateConfig(RunConfig(episodes=2, preview=0), EpisodeSpec((96, 96)))
+    summary = generate(world, parse_task(text, world), out, cfg, log=lambda _m: None, progress=False)
     assert summary["episodes"] == 2
     assert validate(out) == []
     info = json.loads((out / "meta" / "info.json").read_text())

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from mirage2matter.datagen.sim_source import SimEpisodeSource, SimSourceConfig, SimSourceFactory
+from mirage2matter.env.config import EpisodeSpec
 from mirage2matter.sim.tasks import parse_task
 from mirage2matter.world import load_world
 
@@ -19,7 +20,7 @@ def world(sample_world_ws):
 
 
 def _config(world, text: str, size=SIZE) -> SimSourceConfig:
-    return SimSourceConfig(world=world, task=parse_task(text, world), size=size)
+    return SimSourceConfig(world=world, task=parse_task(text, world), episode=EpisodeSpec(size))
 
 
 def test_a_retargeted_source_makes_the_new_tasks_episodes(world):

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from mirage2matter.env import ENV_ID
+from mirage2matter.env.config import EpisodeSpec
 from mirage2matter.env.twin_env import STATE_KEY, image_key
 from mirage2matter.world import load_world
 
@@ -28,7 +29,7 @@ def _generate(world, text: str, seed: int, size: tuple[int, int]):
     from mirage2matter.datagen.sim_source import SimEpisodeSource, SimSourceConfig
     from mirage2matter.sim.tasks import parse_task
 
-    source = SimEpisodeSource(SimSourceConfig(world=world, task=parse_task(text, world), size=size))
+    source = SimEpisodeSource(SimSourceConfig(world=world, task=parse_task(text, world), episode=EpisodeSpec(size)))
     try:
         return source.run(0, seed)
     finally:
@@ -88,11 +89,11 @@ def test_a_splat_server_draws_the_same_episode(world):
     from mirage2matter.render.splat_server import SplatServer
     from mirage2matter.sim.tasks import parse_task
 
-    cfg = SimSourceConfig(world=world, task=parse_task("grasp banana", world), size=(32, 24),
+    cfg = SimSourceConfig(world=world, task=parse_task("grasp banana", world), episode=EpisodeSpec((32, 24)),
                           randomization=Randomization(object_shrink=0.3, table_texture=0.3))  # fmt: skip
     runs = []
-    server = SplatServer(splat_parts(world), cfg.hybrid.splat, slots=1, cameras=len(cfg.cameras), size=cfg.size,
-                         background=cfg.hybrid.background, table_z=world.table_z)  # fmt: skip
+    server = SplatServer(splat_parts(world), cfg.hybrid.splat, slots=1, cameras=len(cfg.episode.cameras),
+                         size=cfg.episode.size, background=cfg.hybrid.background, table_z=world.table_z)  # fmt: skip
     with server as handle:
         for splat_server in (None, handle):
             source = SimEpisodeSource(cfg, splat_server)
@@ -114,11 +115,11 @@ def test_a_splat_server_draws_the_same_episode(world):
 def test_generate_with_a_splat_server_and_two_workers_writes_a_valid_dataset(world, tmp_path):
     """The server's handle travels into spawned worker processes, which draw through it: a dataset an independent
     reader loads, every frame drawn by the server."""
-    from mirage2matter.datagen import GenerateConfig, generate
+    from mirage2matter.datagen import GenerateConfig, RunConfig, generate
     from mirage2matter.export.validate import validate
     from mirage2matter.sim.tasks import parse_task
 
-    cfg = GenerateConfig(episodes=2, workers=2, size=(32, 24), preview=0, splat_server=True)
+    cfg = GenerateConfig(RunConfig(episodes=2, workers=2, preview=0), EpisodeSpec((32, 24)), splat_server=True)
     s = generate(world, parse_task("grasp banana", world), tmp_path / "ds", cfg, progress=False)
     assert s["episodes"] == 2 and validate(s["dataset"]) == []
     assert s["splat_server"]["frames"] >= s["frames"] and s["splat_server"]["largest_batch"] <= 2

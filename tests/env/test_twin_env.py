@@ -11,6 +11,7 @@ import pytest
 
 import mirage2matter.env  # noqa: F401  (registers mirage2matter/Twin-v0)
 from mirage2matter.env import ENV_ID, EnvError
+from mirage2matter.env.config import EpisodeSpec
 from mirage2matter.errors import M2MError
 from mirage2matter.sim.tasks import GraspTask, TaskError
 from mirage2matter.world import load_world
@@ -49,7 +50,7 @@ def test_gymnasium_env_checker_passes(env):
 def test_spaces_are_the_datasets_features(env, world):
     from mirage2matter.datagen.sim_source import SimSourceConfig
 
-    features = SimSourceConfig(world=world, task=GraspTask("banana"), size=SIZE).spec().features()
+    features = SimSourceConfig(world=world, task=GraspTask("banana"), episode=EpisodeSpec(SIZE)).spec().features()
     obs_space = env.observation_space
     assert set(obs_space.spaces) == {k for k in features if k.startswith("observation.")}
     for key, space in obs_space.spaces.items():

@@ -25,7 +25,7 @@ from mirage2matter.robots import DEFAULT_ROBOT, get_robot
 
 ROBOT = get_robot(DEFAULT_ROBOT)
 SPEC = DatasetSpec(
-    ROBOT.state_names, ROBOT.action_names, ROBOT.robot_type, cameras={"head": (48, 64), "wrist": (32, 32)}
+    ROBOT.state_names, ROBOT.action_names, ROBOT.robot_type, fps=10, cameras={"head": (48, 64), "wrist": (32, 32)}
 )
 
 

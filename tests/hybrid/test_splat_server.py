@@ -11,10 +11,10 @@ import pytest
 from test_composite import H, K, W, _blob, _camera
 from test_splat_batch import _poses
 
-from mirage2matter.env.table_texture import TableGaussians, TableTexture
 from mirage2matter.gaussians.ply import write_ply
 from mirage2matter.render import SplatRenderOptions, SplatWorld
 from mirage2matter.render.splat_server import RemoteSplatLayer, SplatServer, SplatServerError
+from mirage2matter.render.table_texture import TableGaussians, TableTexture
 
 OPTIONS = SplatRenderOptions(backend="cpu", sh_degree=1)
 TABLE_Z = -0.05

@@ -94,8 +94,8 @@ def test_a_splat_server_on_the_gpu_draws_each_slot_as_the_cpu_does(tmp_path):
     from test_splat_batch import _poses
     from test_splat_server import KS, OPTIONS, TABLE_Z, VIEWS, _alone, write_parts
 
-    from mirage2matter.env.table_texture import TableTexture
     from mirage2matter.render.splat_server import RemoteSplatLayer, SplatServer
+    from mirage2matter.render.table_texture import TableTexture
 
     parts = write_parts(tmp_path)
     texture = TableTexture.sample(np.random.default_rng(1), 0.3)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mirage2matter.env.table_texture import TableTexture, table_rows
+from mirage2matter.render.table_texture import TableTexture, table_rows
 
 
 def test_table_rows_are_coloured_gaussians_on_the_table_plane_near_the_robot():

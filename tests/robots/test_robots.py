@@ -106,7 +106,7 @@ def test_reach_and_shoulder_bound_the_kinematics(robot, model):
 
 
 def test_home_points_the_gripper_down_with_the_closing_axis_as_specified(robot):
-    from mirage2matter.calib.kinematics import RobotKinematics
+    from mirage2matter.robots.kinematics import RobotKinematics
 
     kin = RobotKinematics(robot.name)  # a robot name: its model, its end-effector link by default
     T = kin.link_pose(np.asarray(robot.home)) @ robot.T_ee_tcp
@@ -278,7 +278,7 @@ def test_a_composed_arm_and_gripper(tmp_path):
     info = model_info(resolve_model(robot.model))
     assert info.joint_names == (*robot.arm_joints, *robot.gripper_joints)
     assert robot.force_limit[:7] == (300.0,) * 7 and robot.velocity_limit == (10.0,) * 7  # the iiwa URDF's
-    from mirage2matter.calib.kinematics import RobotKinematics
+    from mirage2matter.robots.kinematics import RobotKinematics
 
     kin = RobotKinematics(str(tmp_path / "robot.yaml"))
     q = np.asarray(robot.home)

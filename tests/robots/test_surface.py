@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mirage2matter.calib.kinematics import RobotKinematics
 from mirage2matter.robots import get_robot
+from mirage2matter.robots.kinematics import RobotKinematics
 from mirage2matter.robots.surface import CaptureJointsError, check_capture_joints, robot_surface, sample_surface
 
 

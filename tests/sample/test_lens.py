@@ -76,15 +76,20 @@ def test_the_command_line_offers_every_lens_and_layout():
     import argparse
 
     from mirage2matter.cli import build_parser
-    from mirage2matter.sample.assets import LAYOUTS
+    from mirage2matter.commands.sample import SampleMakeConfig
+    from mirage2matter.configs import from_flags
+    from mirage2matter.world.sample_assets import LAYOUTS
 
     def sub(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser:
         return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[name]
 
-    sample = sub(sub(build_parser(None), "sample"), "make")
+    parser = build_parser(None)
+    sample = sub(sub(parser, "sample"), "make")
     options = {a.dest: a for a in sample._actions}
-    assert tuple(options["lens"].choices) == tuple(LENSES) and options["lens"].default == "pinhole"
-    assert tuple(options["layout"].choices) == LAYOUTS and options["layout"].default == "nominal"
+    assert tuple(options["lens"].choices) == tuple(LENSES) and tuple(options["layout"].choices) == LAYOUTS
+    # the defaults are the command's Config's (argparse holds none of its own)
+    cfg = from_flags(SampleMakeConfig, parser.parse_args(["sample", "make", "out"]))
+    assert cfg.lens == "pinhole" and cfg.layout == "nominal"
 
 
 def test_a_default_samples_settings_and_ground_truth_record_no_new_fields(tmp_path):
@@ -117,7 +122,7 @@ def test_a_default_samples_settings_and_ground_truth_record_no_new_fields(tmp_pa
     settings = read_yaml(tmp_path / "m2m.yaml")
     assert "intrinsics" not in settings.get("sfm", {}) and settings["handeye"]["intrinsics"] == "ground_truth.json"
     assert settings["objects"]["names"] == ["croissant", "button", "banana"]
-    assert settings["align"]["robot"] == settings["world"]["robot"] == "ur5e"
+    assert settings["robot"] == "ur5e" and "robot" not in settings["align"]  # one robot for the whole pipeline
     assert settings["align"]["capture_joints"] == list(ur5e_q)
     text = (tmp_path / "m2m.yaml").read_text()
     assert "SfM calibrates the camera itself" in text and text.count("The robot stands in the video") == 1

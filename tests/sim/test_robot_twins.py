@@ -31,7 +31,7 @@ def _random_q(spec, rng: np.random.Generator, spread: float = 0.6) -> np.ndarray
 
 
 def test_the_twin_is_the_spec_and_agrees_with_the_hand_eye_kinematics(twin):
-    from mirage2matter.calib.kinematics import RobotKinematics
+    from mirage2matter.robots.kinematics import RobotKinematics
 
     spec = twin.spec
     assert twin.cfg.robot.spec is get_robot(twin.cfg.robot.name) and twin.robot.n_dofs == spec.n_dofs

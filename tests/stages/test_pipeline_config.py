@@ -22,9 +22,12 @@ SAMPLE_YAML = SAMPLE / "m2m.yaml"
 
 
 def _leaves(cls: type, at: tuple = ()):
-    """(key path, doc) of every field, nested Configs walked (their own key too)."""
+    """(key path, doc) of every field, nested Configs walked (their own key too); a section's field that is the
+    whole pipeline's (the robot) is written once, at the top."""
     docs, hints = field_docs(cls), _hints(cls)
     for f in dataclasses.fields(cls):
+        if at and f.metadata.get("shared"):
+            continue
         yield (*at, f.name), docs.get(f.name)
         tp, _ = _unwrap_optional(hints[f.name])
         if _is_config(tp):
@@ -140,7 +143,7 @@ def _plain(tmp_path: Path, **sections) -> PipelineConfig:
     cfg = replace(cfg, capture=replace(cfg.capture, source=SAMPLE / "scene.mp4"),
                   align=replace(cfg.align, board=SAMPLE / "board.json"))  # fmt: skip
     for name, changes in sections.items():
-        cfg = replace(cfg, **{name: replace(getattr(cfg, name), **changes)})
+        cfg = replace(cfg, **{name: replace(getattr(cfg, name), **changes) if isinstance(changes, dict) else changes})
     return cfg
 
 
@@ -183,7 +186,7 @@ def test_stages_whose_optional_inputs_are_absent_are_skipped_with_the_reason(tmp
         ({"align": {"board": None}}, "align.board", r"align\.board: no calibration target; .*align\.unaligned: true"),
         ({"handeye": {"images": SAMPLE / "handeye/images"}}, "handeye",
          r"the hand-eye calibration lacks handeye\.joints .*handeye\.board .*handeye\.intrinsics \(the head camera's"),
-        ({"world": {"robot": "robbie"}}, "world.robot", r"world\.robot: unknown robot 'robbie'; known robots: panda"),
+        ({"robot": "robbie"}, "robot", r"robot: unknown robot 'robbie'; known robots: panda"),
         ({"scene": {"minutes": 0.0}}, "scene", r"section scene: train-scene: give a positive --minutes budget"),
     ],
     ids=["no capture", "no board", "hand-eye half given", "unknown robot", "a stage refuses a value"],
@@ -224,3 +227,22 @@ def test_a_failing_stage_is_named_with_how_to_go_on(tmp_path):
     assert not ws.record_file.exists() or "capture" not in json.loads(ws.record_file.read_text())
     with pytest.raises(ConfigError, match="--from align comes after --until capture"):
         run_pipeline(ws, cfg, until="capture", start="align")
+
+
+def test_an_m2m_yaml_with_the_robot_under_the_sections_still_loads(tmp_path):
+    """Before the robot was the pipeline's, `m2m init --robot` wrote it under align, world and (as its model file)
+    handeye: those name one robot, which becomes the top-level one; sections naming different robots are an error
+    saying how to fix the file."""
+    from mirage2matter.robots import get_robot
+
+    path = tmp_path / "m2m.yaml"
+    model = get_robot("ur5e").model
+    path.write_text(f"align: {{robot: ur5e}}\nhandeye: {{robot: {model}}}\nworld: {{robot: ur5e, max_mm: 2.0}}\n")
+    cfg = PipelineConfig.load(path)
+    assert cfg.robot == cfg.align.robot == cfg.handeye.robot == cfg.world.robot == "ur5e" and cfg.world.max_mm == 2.0
+    cfg.save(path)  # written the new way: once, at the top
+    assert "\nrobot: ur5e\n" in path.read_text() and PipelineConfig.load(path) == cfg
+    path.write_text("align: {robot: ur5e}\nworld: {robot: panda}\n")
+    with pytest.raises(ConfigError, match=r"align\.robot: ur5e, world\.robot: panda: one robot for the whole pipeline "
+                       r"now, set once at the top of the file; write `robot: \.\.\.` there"):  # fmt: skip
+        PipelineConfig.load(path)

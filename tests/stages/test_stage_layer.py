@@ -12,6 +12,7 @@ from fixtures import SAMPLE
 from mirage2matter.cli import build_parser, main
 from mirage2matter.configs import field_docs, from_dict, from_flags, to_dict
 from mirage2matter.stages import STAGES, get_stage, run_stage
+from mirage2matter.stages.base import PipelineSettings
 from mirage2matter.stages.pipeline import PipelineConfig
 from mirage2matter.workspace import Workspace, WorkspaceError
 
@@ -38,8 +39,13 @@ def _all_fields(cls, prefix=""):
             yield prefix + f.name, f
 
 
-def test_pipeline_config_has_one_section_per_stage_in_order():
-    assert [f.name for f in dataclasses.fields(PipelineConfig)] == [s.name for s in STAGES]
+def test_pipeline_config_has_the_pipelines_settings_then_one_section_per_stage_in_order():
+    own = [f.name for f in dataclasses.fields(PipelineSettings)]
+    assert [f.name for f in dataclasses.fields(PipelineConfig)] == [*own, *(s.name for s in STAGES)]
+    # the robot is the pipeline's: every stage that takes one reads that one
+    cfg = dataclasses.replace(PipelineConfig(), robot="ur5e")
+    assert cfg.align.robot == cfg.handeye.robot == cfg.world.robot == "ur5e"
+    assert cfg.with_stage("world", dataclasses.replace(cfg.world, robot="panda")).align.robot == "panda"
     assert [get_stage(s.command) for s in STAGES] == list(STAGES)
 
 

@@ -229,7 +229,7 @@ def _side_stage() -> Stage:
     mod.writes = lambda ws, cfg: [ws.path("side", cfg.name)]
     mod.record_key = lambda ws, cfg: f"side/{cfg.name}"
     sys.modules[mod.__name__] = mod
-    return Stage(name="side", command="side", help="", module="_side_test", pipeline=False)
+    return Stage(name="_side_test", command="side", help="", pipeline=False)
 
 
 def _fork_stage(ws: Workspace, cfg) -> int:

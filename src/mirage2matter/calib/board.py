@@ -574,7 +574,10 @@ def board_frame_to_board_image(
     return p[..., :2] * (px_per_square / spec.feature_size) + m
 
 
-def write_printable(spec, pdf_path: str | os.PathLike, dpi: int = 300, margin_squares: float = 0.5) -> dict:
+PRINT_DPI = 300  # a laser printer's native resolution
+
+
+def write_printable(spec, pdf_path: str | os.PathLike, dpi: int = PRINT_DPI, margin_squares: float = 0.5) -> dict:
     """Write the board as a PDF and a PNG at true scale (``dpi``; print at 100%, no "fit to page"),
     and its spec as JSON beside them (same stem). Returns {"pdf", "png", "json", "size_mm", "px_per_square"}."""
     from PIL import Image

@@ -631,7 +631,7 @@ def calibrate_from_files(
                            "end-effector poses (poses: ee)")  # fmt: skip
     kin = None
     if use_joints:
-        from .kinematics import RobotKinematics
+        from ..robots.kinematics import RobotKinematics
 
         kin = RobotKinematics(robot)
         n_chain, limits = kin.chain(link)

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import textwrap
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from ..configs import add_flags
 from ..errors import M2MError
 
 __all__ = [
@@ -202,7 +204,8 @@ def _rest(parser: argparse.ArgumentParser, sections: dict[str, argparse._Argumen
 
 
 def add_settings(parser: argparse.ArgumentParser, full: bool, base: Any = None) -> None:
-    """Every stage's settings as ``--<stage>.<field>`` flags (when ``full``: this imports every stage's
+    """The pipeline's own settings (``--robot``) and every stage's as ``--<stage>.<field>`` flags (the stages' when
+    ``full``: this imports every stage's
     libraries; ``base``: the PipelineConfig whose values ``--help`` shows, default the Configs' defaults), and the
     help flags of a command that has them all. Call it on a parser made with ``add_help=False``, after its own
     flags: its usage line shows those, and the stages' flags as one ``[--<stage>.<field> VALUE]``.
@@ -213,6 +216,10 @@ def add_settings(parser: argparse.ArgumentParser, full: bool, base: Any = None) 
 
     The stages' flags parse the same whichever help lists them.
     """
+    from ..stages.base import PipelineSettings
+
+    pipeline = {f.name for f in dataclasses.fields(PipelineSettings)}  # the whole pipeline's settings (the robot)
+    add_flags(parser, PipelineSettings, base=base, skip={a.dest for a in parser._actions})  # unless listed already
     short = "show this help; --help STAGE: that stage's settings instead (e.g. --help scene)"
     helps = [
         parser.add_argument("-h", "--help", action=_Help, nargs="?", metavar="STAGE", help=short),
@@ -224,9 +231,8 @@ def add_settings(parser: argparse.ArgumentParser, full: bool, base: Any = None) 
     f.add_usage(None, [*parser._actions, stages], parser._mutually_exclusive_groups)
     parser.usage = f.format_help().strip("\n").removeprefix("usage: ")
     if full:
-        from ..configs import add_flags
         from ..stages.pipeline import PipelineConfig
 
-        sections = add_flags(parser, PipelineConfig, base=base, sections=True)
+        sections = add_flags(parser, PipelineConfig, base=base, sections=True, skip=pipeline)
         for action in helps:
             action.sections = sections  # type: ignore[attr-defined]

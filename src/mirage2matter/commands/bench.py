@@ -5,15 +5,89 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
 from .. import configure_threads
 from ..bench import RenderBenchConfig
 from ..configs import add_flags, from_flags, ranged
-from .args import backend, info, int_at_least, positive_float
+from ..env.config import EpisodeSpec
+from .args import backend, info
+from .sim2real import Sim2RealConfig
+
+
+@dataclass
+class TrainBenchConfig:
+    """bench train settings (``gaussians.bench_train``'s).
+
+    minutes        training time
+    downscale      1/F resolution
+    poses          given poses or our own SfM
+    work_dir       cache for the SfM used for initial points
+    max_gaussians  most Gaussians (without it: the scene stage's, TrainConfig's)
+    filter_3d      Mip-Splatting's 3D filter, a variance in squared pixels (default: train-scene's, 0.2; 0: off)
+    """
+
+    minutes: float = ranged(15.0, gt=0, metadata={"metavar": "M"})
+    downscale: int = ranged(4, ge=1, metadata={"metavar": "F"})
+    poses: Literal["given", "sfm"] = "given"
+    work_dir: Path | None = field(default=None, metadata={"metavar": "DIR"})
+    max_gaussians: int | None = ranged(None, ge=1000, metadata={"metavar": "N"})
+    filter_3d: float | None = field(default=None, metadata={"parse": lambda text: _filter_variance(text),
+                                                           "metavar": "V"})  # fmt: skip
+
+
+@dataclass
+class SplatsBenchConfig:
+    """bench splats settings.
+
+    task      the expert's task
+    episodes  recorded episodes
+    demos     episodes replayed per run, the recorded ones in turn
+    seed      episode seed of the first
+    size      frame side
+    batch     episodes per render call; 1 = generation's path
+    server    also through a splat server (generate --splat-server) fed by W worker processes, for each W given
+    backend   render backend: auto, cpu, cuda
+    runs      repetitions
+    export    instead of timing: write DIR, a workspace holding only the recorded episodes and the world's Gaussians
+              as generation draws them (SH 1, faint ones dropped; the sample's: 35 MB), for a GPU machine without the
+              simulator: there, bench splats -w DIR
+    """
+
+    task: str = "grasp banana"
+    episodes: int = ranged(8, ge=1, metadata={"metavar": "N"})
+    demos: int = ranged(64, ge=1, metadata={"metavar": "D"})
+    seed: int = 3_000_000
+    size: int = ranged(EpisodeSpec.size[0], ge=16, metadata={"metavar": "PX"})
+    batch: tuple[int, ...] = ranged((1, 16), ge=1, metadata={"metavar": "B"})
+    server: tuple[int, ...] = ranged((), ge=1, metadata={"metavar": "W"})
+    backend: str = "auto"
+    runs: int = ranged(3, ge=1, metadata={"metavar": "R"})
+    export: Path | None = field(default=None, metadata={"metavar": "DIR"})
+
+
+@dataclass
+class PolicyGapConfig:
+    """bench policy-gap settings.
+
+    task          the expert's task
+    episodes      expert episodes
+    seed          episode seed of the first
+    size          frame side
+    stride        compare every K-th step
+    ground_truth  the sample folder (default: the workspace's capture's, e.g. samples/tabletop)
+    """
+
+    task: str = "grasp banana"
+    episodes: int = ranged(10, ge=1, metadata={"metavar": "N"})
+    seed: int = 2_000_000
+    size: int = ranged(Sim2RealConfig.size, ge=16, metadata={"metavar": "PX"})  # sim2real's frames
+    stride: int = ranged(2, ge=1, metadata={"metavar": "K"})
+    ground_truth: Path | None = field(default=None, metadata={"metavar": "DIR"})
 
 
 def datagen_config() -> type:
@@ -51,19 +125,16 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
         "train", help="train 3DGS on a transforms.json capture for M minutes; held-out PSNR/SSIM as a JSON line last"
     )
     t.add_argument("--data", required=True, metavar="DIR", help="folder with transforms.json + images (e.g. fox)")
-    t.add_argument("--minutes", type=positive_float, default=15.0, metavar="M", help="training time (default 15)")
-    t.add_argument("--downscale", type=int_at_least(1), default=4, metavar="F", help="1/F resolution (default 4)")
-    t.add_argument("--poses", default="given", choices=("given", "sfm"), help="given poses or our own SfM")
-    t.add_argument("--work-dir", metavar="DIR", help="cache for the SfM used for initial points")
-    t.add_argument("--max-gaussians", type=int_at_least(1000), default=150_000, metavar="N")
-    t.add_argument("--filter-3d", type=_filter_variance, default=None, metavar="V",
-                   help="Mip-Splatting's 3D filter, a variance in squared pixels (default: train-scene's, 0.2; 0: off)")
+    add_flags(t, TrainBenchConfig)
     t.set_defaults(func=_train)
 
     d = bench_sub.add_parser(
         "datagen", help="demonstrations per minute on a workspace's world; JSON line last",
         description="Generate N episodes R times into throw-away folders; the last stdout line is JSON with "
-        "demos_per_min (workers warm), success_rate, episodes, frames, workers, backend, ms_per_frame (medians).",
+        "demos_per_min (workers warm), success_rate, episodes, frames, workers, backend, ms_per_frame and "
+        "round_trip_pct (the share of the workers' time between attempts: an episode shipped back and committed, the "
+        "next handed out), medians. --ray-address local --workers N runs it on Ray, to set against the process "
+        "runner (docs/guides/multi-machine.md).",
     )  # fmt: skip
     d.add_argument("-w", "--workspace", required=True, type=Path, help="workspace with world/world.yaml")
     if full:
@@ -81,23 +152,7 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
         "for each B (medians of --runs).",
     )  # fmt: skip
     p.add_argument("-w", "--workspace", required=True, type=Path, help="workspace with a composed world")
-    p.add_argument("--task", default="grasp banana", help="the expert's task (default: grasp banana)")
-    p.add_argument("--episodes", type=int_at_least(1), default=8, metavar="N", help="recorded episodes (default 8)")
-    p.add_argument("--demos", type=int_at_least(1), default=64, metavar="D",
-                   help="episodes replayed per run, the recorded ones in turn (default 64)")  # fmt: skip
-    p.add_argument("--seed", type=int, default=3_000_000, help="episode seed of the first (default 3000000)")
-    p.add_argument("--size", type=int_at_least(16), default=224, metavar="PX", help="frame side (default 224)")
-    p.add_argument("--batch", type=int_at_least(1), nargs="+", default=[1, 16], metavar="B",
-                   help="episodes per render call; 1 = generation's path (default: 1 16)")  # fmt: skip
-    p.add_argument("--server", type=int_at_least(1), nargs="*", default=[], metavar="W",
-                   help="also through a splat server (generate --splat-server) fed by W worker processes, for each W "
-                   "given (default: none)")  # fmt: skip
-    p.add_argument("--backend", default="auto", help="render backend: auto, cpu, cuda (default auto)")
-    p.add_argument("--runs", type=int_at_least(1), default=3, metavar="R", help="repetitions (default 3)")
-    p.add_argument("--export", type=Path, metavar="DIR",
-                   help="instead of timing: write DIR, a workspace holding only the recorded episodes and the world's "
-                   "Gaussians as generation draws them (SH 1, faint ones dropped; the sample's: 35 MB), for a GPU "
-                   "machine without the simulator: there, bench splats -w DIR")  # fmt: skip
+    add_flags(p, SplatsBenchConfig)
     p.set_defaults(func=_splats)
 
     from .sim2real import Sim2RealConfig
@@ -129,13 +184,7 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     g.add_argument("--policy", nargs="+", required=True, metavar="POLICY",
                    help="policies: names under <workspace>/policies or folders that train-policy wrote (A,B,C: "
                         "one ensemble of them)")
-    g.add_argument("--task", default="grasp banana", help="the expert's task (default: grasp banana)")
-    g.add_argument("--episodes", type=int_at_least(1), default=10, metavar="N", help="expert episodes (default 10)")
-    g.add_argument("--seed", type=int, default=2_000_000, help="episode seed of the first (default 2000000)")
-    g.add_argument("--size", type=int_at_least(16), default=128, metavar="PX", help="frame side (default 128)")
-    g.add_argument("--stride", type=int_at_least(1), default=2, metavar="K", help="compare every K-th step")
-    g.add_argument("--ground-truth", type=Path, metavar="DIR",
-                   help="the sample folder (default: the workspace's capture's, e.g. samples/tabletop)")  # fmt: skip
+    add_flags(g, PolicyGapConfig)
     g.set_defaults(func=_policy_gap)
 
 
@@ -167,11 +216,12 @@ def _filter_variance(text: str) -> float:
 def _train(args: argparse.Namespace) -> int:
     from ..gaussians.bench_train import bench_train
 
+    cfg = from_flags(TrainBenchConfig, args)
     configure_threads()
     result = bench_train(
-        args.data, minutes=args.minutes, downscale=args.downscale, poses=args.poses, work_dir=args.work_dir,
-        max_gaussians=args.max_gaussians, progress=True,
-        **({} if args.filter_3d is None else {"filter_3d": args.filter_3d}),
+        args.data, minutes=cfg.minutes, downscale=cfg.downscale, poses=cfg.poses, work_dir=cfg.work_dir,
+        progress=True, **({} if cfg.max_gaussians is None else {"max_gaussians": cfg.max_gaussians}),
+        **({} if cfg.filter_3d is None else {"filter_3d": cfg.filter_3d}),
     )  # fmt: skip
     keys = ("psnr_heldout", "ssim_heldout", "iterations", "gaussians", "minutes", "budget_used", "backend")
     info(json.dumps(result.get("curve", []), separators=(",", ":")))
@@ -227,35 +277,36 @@ def _policy_gap(args: argparse.Namespace) -> int:
     from ..stages import eval_policy
     from ..workspace import Workspace
 
+    gap = from_flags(PolicyGapConfig, args)
     configure_threads()
     ws = Workspace(args.workspace)
-    cfg = eval_policy.Config(task=args.task, renderer="ground_truth", ground_truth=args.ground_truth)
+    cfg = eval_policy.Config(task=gap.task, renderer="ground_truth", ground_truth=gap.ground_truth)
     gt = eval_policy.ground_truth_dir(ws, cfg)
-    world = make_config(ws.committed.world_dir, args.task, size=args.size).world  # the task and world, checked
+    world = make_config(ws.committed.world_dir, gap.task, size=gap.size).world  # the task and world, checked
     policies = {}
     for ref in args.policy:  # every policy opened and checked against the robot before the long recording
         if not eval_policy.policy_paths(ws, replace(cfg, policy=ref)):
             raise eval_policy.PolicyError(f"bench policy-gap: {ref!r} is a callable; it needs a trained policy (the "
                                           "error is in its action-std units)")  # fmt: skip
         policies[ref] = eval_policy.open_policy(ws, replace(cfg, policy=ref), world)
-    seeds = list(range(args.seed, args.seed + args.episodes))
+    seeds = list(range(gap.seed, gap.seed + gap.episodes))
     # keyed on the world's description too: a world composed again (other objects, other placements) records anew
     world_id = hashlib.sha256(ws.committed.world_yaml.read_bytes()).hexdigest()[:8]
-    folder = ws.evals_dir / "expert_pairs" / f"{task_slug(args.task)}-{args.size}px-{world_id}"
-    episodes = load_or_record_pairs(folder, ws.committed.world_dir, args.task, gt, seeds, args.size, log=info)
+    folder = ws.evals_dir / "expert_pairs" / f"{task_slug(gap.task)}-{gap.size}px-{world_id}"
+    episodes = load_or_record_pairs(folder, ws.committed.world_dir, gap.task, gt, seeds, gap.size, log=info)
     ok = sum(bool(e["success"]) for e in episodes)
     info(f"expert: {ok}/{len(episodes)} episodes succeeded (only those are compared)")
     if not ok:
         raise eval_policy.PolicyError(f"bench policy-gap: the scripted expert failed all {len(episodes)} episodes of "
-                                      f"{args.task!r} in this world ({folder}); check it with `m2m task -w "
-                                      f"{ws.root} {args.task!r}`")  # fmt: skip
+                                      f"{gap.task!r} in this world ({folder}); check it with `m2m task -w "
+                                      f"{ws.root} {gap.task!r}`")  # fmt: skip
     rows = {}
     for ref, policy in policies.items():
-        err = open_loop_error(policy, episodes, stride=args.stride)
+        err = open_loop_error(policy, episodes, stride=gap.stride)
         rows[ref] = {**{k: round(v, 5) for k, v in err.items()}, "gap": round(err["ground_truth"] - err["hybrid"], 5)}
         info(f"{ref}: open-loop error hybrid {err['hybrid']:.4f}, ground truth {err['ground_truth']:.4f}")
-    result = {"task": args.task, "episodes": len(episodes), "expert_successes": ok, "size": args.size,
-              "stride": args.stride, "seeds": [seeds[0], seeds[-1]], "policies": rows}  # fmt: skip
+    result = {"task": gap.task, "episodes": len(episodes), "expert_successes": ok, "size": gap.size,
+              "stride": gap.stride, "seeds": [seeds[0], seeds[-1]], "policies": rows}  # fmt: skip
     print(json.dumps(result), flush=True)
     return 0
 
@@ -272,57 +323,58 @@ def _splats(args: argparse.Namespace) -> int:
     from ..render import SplatWorld, SplatWorldBatch
     from ..workspace import Workspace
 
+    cfg = from_flags(SplatsBenchConfig, args)
     threads = configure_threads()
     ws = Workspace(args.workspace)
     world_yaml = ws.committed.world_yaml
-    seeds = list(range(args.seed, args.seed + args.episodes))
+    seeds = list(range(cfg.seed, cfg.seed + cfg.episodes))
     world_id = hashlib.sha256(world_yaml.read_bytes()).hexdigest()[:8]  # a world composed again records anew
-    folder = ws.evals_dir / "splat_streams" / f"{task_slug(args.task)}-{args.size}px-{world_id}"
-    streams, parts = load_or_record_streams(folder, ws.committed.world_dir, args.task, seeds, args.size, log=info)
-    options = replace(HybridOptions().splat, backend=backend(args.backend))  # generation's splat settings
-    if args.export is not None:
+    folder = ws.evals_dir / "splat_streams" / f"{task_slug(cfg.task)}-{cfg.size}px-{world_id}"
+    streams, parts = load_or_record_streams(folder, ws.committed.world_dir, cfg.task, seeds, cfg.size, log=info)
+    options = replace(HybridOptions().splat, backend=backend(cfg.backend))  # generation's splat settings
+    if cfg.export is not None:
         from ..env.splat_replay import export_splat_bench
 
-        rows = export_splat_bench(ws.committed, folder, parts, options, args.export)
-        info(f"bench splats: {len(streams)} recorded episodes and {rows:,} Gaussians -> {args.export}")
-        print(json.dumps({"export": str(args.export), "episodes": len(streams), "gaussians": rows}), flush=True)
+        rows = export_splat_bench(ws.committed, folder, parts, options, cfg.export)
+        info(f"bench splats: {len(streams)} recorded episodes and {rows:,} Gaussians -> {cfg.export}")
+        print(json.dumps({"export": str(cfg.export), "episodes": len(streams), "gaussians": rows}), flush=True)
         return 0
     world = SplatWorld.from_files(parts, options)  # the Gaussians alone: no simulator, no robot model
     dev = world.device
     name = torch.cuda.get_device_name(dev) if dev.type == "cuda" else f"cpu ({threads} threads)"
     frames_per_demo = float(np.mean([len(s["poses"]) for s in streams]))
     info(f"bench splats: {len(world):,} Gaussians on {name}, {len(streams)} recorded episodes of {frames_per_demo:.1f}"
-         f" frames, {args.demos} replayed per run, {args.size} px")  # fmt: skip
-    replay_generation(world, streams[:1], 1, args.size)  # warm-up: kernels compiled / loaded, caches allocated
+         f" frames, {cfg.demos} replayed per run, {cfg.size} px")  # fmt: skip
+    replay_generation(world, streams[:1], 1, cfg.size)  # warm-up: kernels compiled / loaded, caches allocated
     results = []
 
     def timed(label: dict, what: str, replay) -> None:
-        """``args.runs`` runs of ``replay()`` -> one row of results: demos/min and ms per frame of the median run."""
+        """``cfg.runs`` runs of ``replay()`` -> one row of results: demos/min and ms per frame of the median run."""
         runs = []
-        for _ in range(args.runs):
+        for _ in range(cfg.runs):
             r = replay()
             runs.append(r)
             batch = f", mean batch {r['server']['mean_batch']:.1f}" if "server" in r else ""
             info(f"{what}: {r['demos'] / r['seconds'] * 60:.1f} demos/min ({r['seconds']:.1f} s{batch})")
         secs = statistics.median(r["seconds"] for r in runs)
-        row = {**label, "demos_per_min": round(args.demos / secs * 60, 1),
+        row = {**label, "demos_per_min": round(cfg.demos / secs * 60, 1),
                "ms_per_frame": round(1000 * secs / runs[0]["frames"], 3)}  # fmt: skip
         if "server" in runs[0]:
             row["mean_batch"] = round(statistics.median(r["server"]["mean_batch"] for r in runs), 2)
         results.append({**row, "seconds": [round(r["seconds"], 2) for r in runs]})
 
-    for b in args.batch:
+    for b in cfg.batch:
         batch = None if b == 1 else SplatWorldBatch(world, b)
         if batch is not None:
-            replay_batched(batch, streams[:1], 1, args.size)
-        timed({"batch": b}, f"batch {b}", lambda batch=batch: replay_generation(world, streams, args.demos, args.size)
-              if batch is None else replay_batched(batch, streams, args.demos, args.size))  # fmt: skip
+            replay_batched(batch, streams[:1], 1, cfg.size)
+        timed({"batch": b}, f"batch {b}", lambda batch=batch: replay_generation(world, streams, cfg.demos, cfg.size)
+              if batch is None else replay_batched(batch, streams, cfg.demos, cfg.size))  # fmt: skip
         del batch
-    for w in args.server:
+    for w in cfg.server:
         timed({"server_workers": w}, f"server, {w} workers",
-              lambda w=w: replay_served(parts, options, streams, args.demos, args.size, w))  # fmt: skip
+              lambda w=w: replay_served(parts, options, streams, cfg.demos, cfg.size, w))  # fmt: skip
     cams = sorted(k[len("view.") :] for k in streams[0] if k.startswith("view."))
-    print(json.dumps({"backend": dev.type, "device": name, "gaussians": len(world), "size": args.size,
-                      "cameras": cams, "frames_per_demo": round(frames_per_demo, 1), "demos": args.demos,
-                      "runs": args.runs, "results": results}), flush=True)  # fmt: skip
+    print(json.dumps({"backend": dev.type, "device": name, "gaussians": len(world), "size": cfg.size,
+                      "cameras": cams, "frames_per_demo": round(frames_per_demo, 1), "demos": cfg.demos,
+                      "runs": cfg.runs, "results": results}), flush=True)  # fmt: skip
     return 0

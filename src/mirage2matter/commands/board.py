@@ -4,10 +4,44 @@ single ArUco marker, an AprilTag or an ArUco grid."""
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass, field
+from typing import Literal
 
-from .args import CliError, int_at_least, positive_float, show
+from ..calib.board import PRINT_DPI
+from ..configs import add_flags, from_flags, ranged
+from .args import CliError, show
 
 _DEFAULT_DICT = {"charuco": "5X5_100", "aruco": "6X6_250", "apriltag": "APRILTAG_36h11", "aruco_grid": "4X4_50"}
+
+
+@dataclass
+class BoardConfig:
+    """m2m board settings (sizes in metres).
+
+    type        the kind of target
+    squares     charuco: squares across x down
+    square      charuco: square side
+    marker      the marker's side (default: charuco 0.03, aruco_grid 0.04)
+    size        aruco / apriltag: the marker's side, outer edge of the black border
+    id          aruco / apriltag: the marker's id
+    markers     aruco_grid: markers across x down
+    separation  aruco_grid: gap between markers
+    first_id    aruco_grid: id of the top-left marker
+    dict        dictionary (default: 5X5_100 charuco, 6X6_250 aruco, APRILTAG_36h11 apriltag, 4X4_50 grid)
+    dpi         print resolution
+    """
+
+    type: Literal["charuco", "aruco", "apriltag", "aruco_grid"] = "charuco"
+    squares: str = "5x7"
+    square: float = ranged(0.04, gt=0, metadata={"metavar": "M"})
+    marker: float | None = ranged(None, gt=0, metadata={"metavar": "M"})
+    size: float = ranged(0.15, gt=0, metadata={"metavar": "M"})
+    id: int = ranged(0, ge=0)
+    markers: str = "4x5"
+    separation: float = ranged(0.01, gt=0, metadata={"metavar": "M"})
+    first_id: int = ranged(0, ge=0)
+    dict: str | None = field(default=None, metadata={"metavar": "DICT"})
+    dpi: int = ranged(PRINT_DPI, ge=72)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -18,21 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "metres; a marker's size is the outer edge of its black border. Print at 100% and measure it.",
     )  # fmt: skip
     bd.add_argument("--out", required=True, metavar="PDF", help="output .pdf (a .png and .json go beside it)")
-    bd.add_argument("--type", choices=tuple(_DEFAULT_DICT), default="charuco", help="the kind of target (charuco)")
-    bd.add_argument("--squares", default="5x7", help="charuco: squares across x down (default 5x7)")
-    bd.add_argument("--square", type=positive_float, default=0.04, metavar="M", help="charuco: square side (0.04)")
-    bd.add_argument("--marker", type=positive_float, default=None, metavar="M",
-                    help="charuco: marker side (0.03); aruco_grid: marker side (0.04)")
-    bd.add_argument("--size", type=positive_float, default=0.15, metavar="M",
-                    help="aruco / apriltag: the marker's side, outer edge of the black border (0.15)")
-    bd.add_argument("--id", type=int_at_least(0), default=0, help="aruco / apriltag: the marker's id (0)")
-    bd.add_argument("--markers", default="4x5", help="aruco_grid: markers across x down (default 4x5)")
-    bd.add_argument("--separation", type=positive_float, default=0.01, metavar="M",
-                    help="aruco_grid: gap between markers (0.01)")
-    bd.add_argument("--first-id", type=int_at_least(0), default=0, help="aruco_grid: id of the top-left marker (0)")
-    bd.add_argument("--dict", default=None,
-                    help="dictionary (default: 5X5_100 charuco, 6X6_250 aruco, APRILTAG_36h11 apriltag, 4X4_50 grid)")
-    bd.add_argument("--dpi", type=int_at_least(72), default=300, help="print resolution (default 300)")
+    add_flags(bd, BoardConfig)
     bd.set_defaults(func=run)
 
 
@@ -47,6 +67,7 @@ def _pair(text: str, flag: str) -> tuple[int, int]:
 def run(args: argparse.Namespace) -> int:
     from ..calib.board import BoardSpec, GridSpec, MarkerSpec, write_printable
 
+    out_pdf, args = args.out, from_flags(BoardConfig, args)
     dictionary = f"DICT_{(args.dict or _DEFAULT_DICT[args.type]).upper().removeprefix('DICT_')}"
     if args.type == "charuco":
         sx, sy = _pair(args.squares, "--squares")
@@ -56,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
         spec = GridSpec(mx, my, args.marker or 0.04, args.separation, dictionary, args.first_id)
     else:
         spec = MarkerSpec(args.size, args.id, dictionary, args.type)
-    out = write_printable(spec, args.out, dpi=args.dpi)
+    out = write_printable(spec, out_pdf, dpi=args.dpi)
     w, h = out["size_mm"]
     unit = "one square" if args.type == "charuco" else "a marker's black square"
     print(

@@ -10,13 +10,27 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..configs import from_flags
+from ..configs import add_flags, from_flags
 from ..sample.inspect import BUNDLED_SAMPLE
-from ..stages import PIPELINE
 from ..workspace import Workspace, WorkspaceError
 from .args import Formatter, add_settings
+from .run import StagesConfig
+
+
+@dataclass
+class DemoConfig:
+    """m2m demo settings (besides the stages': the sample's m2m.yaml, changed by --<stage>.<field>).
+
+    workspace  the workspace folder
+    sample     a capture in the bundled sample's layout, with its m2m.yaml (default: the bundled one)
+    """
+
+    workspace: Path = field(default=Path("workspaces/demo"), metadata={"flags": ("-w", "--workspace"),
+                                                                       "metavar": "DIR"})  # fmt: skip
+    sample: Path = field(default=BUNDLED_SAMPLE, metadata={"metavar": "DIR"})
 
 
 def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
@@ -33,13 +47,8 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
         formatter_class=Formatter,
         add_help=False,
     )
-    d.add_argument("-w", "--workspace", default="workspaces/demo", metavar="DIR", help="the workspace folder "
-                   "(default: ./workspaces/demo)")  # fmt: skip
-    d.add_argument("--sample", type=Path, default=BUNDLED_SAMPLE, metavar="DIR",
-                   help="a capture in the bundled sample's layout, with its m2m.yaml (default: the bundled one)")
-    names = [s.name for s in PIPELINE]
-    d.add_argument("--until", choices=names, help="last stage to run (default: all)")
-    d.add_argument("--from", dest="start", choices=names, help="first stage to run (default: the first)")
+    add_flags(d, DemoConfig)
+    add_flags(d, StagesConfig)
     base = None
     if full:  # the defaults --help shows: the bundled sample's settings
         from ..stages.pipeline import PipelineConfig
@@ -64,14 +73,15 @@ def run(args: argparse.Namespace) -> int:
     from ..stages.transaction import workspace_lock
     from .run import run_workspace
 
-    sample = Path(args.sample)
+    demo, stages = from_flags(DemoConfig, args), from_flags(StagesConfig, args)
+    sample = demo.sample
     cfg = from_flags(PipelineConfig, args, _sample_config(sample))
-    ws = Workspace(args.workspace)
+    ws = Workspace(demo.workspace)
     gt_path = sample / "ground_truth.json"
     gt = json.loads(gt_path.read_text()) if gt_path.is_file() else None
     if ws.root.exists() and not ws.root.is_dir():
         raise WorkspaceError(f"workspace {ws.root} exists and is not a folder; choose another with -w")
     with workspace_lock(ws, "m2m demo"):  # the settings written and run under one lock
         cfg.save(ws.config_file)
-        run_workspace(ws, args.until, args.start, ground_truth=gt, command="m2m demo", summary_file=ws.demo_summary)
+        run_workspace(ws, stages.until, stages.start, ground_truth=gt, command="m2m demo", summary_file=ws.demo_summary)
     return 0

@@ -19,8 +19,9 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from ..configs import from_flags
+from ..configs import add_flags, from_flags
 from ..errors import M2MError
+from ..stages.base import PipelineSettings
 from ..workspace import Workspace, WorkspaceError
 from .args import CliError, Formatter, add_settings, int_at_least, show
 
@@ -31,7 +32,7 @@ SHORT = {
     "video": "capture.source", "images": "capture.source", "intrinsics": "sfm.intrinsics", "board": "align.board",
     "board_pose": "align.board_pose", "handeye_images": "handeye.images", "handeye_poses": "handeye.joints",
     "handeye_board": "handeye.board", "handeye_intrinsics": "handeye.intrinsics", "head_photo": "head_view.photo",
-    "robot": "align.robot", "objects": "objects.names", "task": "generate.task", "episodes": "generate.episodes",
+    "objects": "objects.names", "task": "generate.task", "episodes": "generate.episodes",
     "capture_joints": "align.capture_joints",
 }  # fmt: skip
 
@@ -78,17 +79,16 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     g.add_argument("--handeye-poses", type=Path, metavar="FILE", help="the robot's pose per hand-eye image (JSON: "
                    "joints or end-effector poses; see `m2m calibrate-handeye --help`)")  # fmt: skip
     g.add_argument("--handeye-board", type=Path, metavar="FILE", help="spec JSON of the board the robot holds "
-                   "(default: --board)")  # fmt: skip
+                   "(without it: --board)")  # fmt: skip
     g.add_argument("--handeye-intrinsics", type=Path, metavar="FILE", help="the head camera's calibration")
     g.add_argument("--head-photo", type=Path, metavar="FILE", help="a photo the head camera took of the table (the "
                    "head-view check compares the scene with it; without one the check is skipped)")  # fmt: skip
     g.add_argument("--objects", nargs="+", metavar="NAME", help="the objects on the table, nearest the base first "
-                   "(default: every object found, named object_0, object_1, ...)")  # fmt: skip
+                   "(without them: every object found, named object_0, object_1, ...)")  # fmt: skip
     g.add_argument("--task", nargs="+", action="extend", metavar="TEXT", help='task instructions, e.g. "grasp banana" '
-                   '"press button" (default: none, no demonstrations)')  # fmt: skip
+                   '"press button" (without them: no demonstrations)')  # fmt: skip
     g.add_argument("--episodes", type=int_at_least(1), metavar="N", help="successful episodes per task")
-    g.add_argument("--robot", metavar="NAME", help="the robot at the base, a registered robot name (else the default "
-                   "one): sets align.robot and world.robot, and the hand-eye's robot model")  # fmt: skip
+    add_flags(g, PipelineSettings)  # the whole pipeline's settings (the robot), written once at the top of m2m.yaml
     g.add_argument("--capture-joints", nargs="+", type=float, metavar="RAD", help="the robot's joint angles while "
                    "you filmed (radians, as it logged them; default: its home pose): how align-scene and train-scene "
                    "find the robot in the capture")  # fmt: skip
@@ -101,6 +101,8 @@ def _flag(field: str) -> str:
     """The flags that set the m2m.yaml field ``field`` (``align.board`` -> ``--board / --align.board``; a section:
     ``--scene.*``)."""
     field = field.split("[")[0]
+    if "." not in field and field in {f.name for f in dataclasses.fields(PipelineSettings)}:
+        return f"--{field.replace('_', '-')}"  # the pipeline's own setting
     section, _, rest = field.partition(".")
     short = [f"--{k.replace('_', '-')}" for k, v in SHORT.items() if v == field]
     return " / ".join([*short, f"--{section.replace('_', '-')}.{rest.replace('_', '-') or '*'}"])
@@ -120,14 +122,6 @@ def _settings(args: argparse.Namespace) -> Any:
         given["align.capture_joints"] = list(args.capture_joints)
     if args.handeye_images is not None and args.handeye_board is None and args.board is not None:
         given["handeye.board"] = args.board.resolve()  # one board for both, unless a second is named
-    if args.robot is not None:
-        from ..robots import get_robot
-
-        given["world.robot"] = args.robot
-        try:  # the hand-eye poses' kinematics: the same robot (one that does not load is a problem listed later)
-            given["handeye.robot"] = get_robot(args.robot).model
-        except M2MError:
-            pass
     sections: dict[str, dict[str, Any]] = {}
     for field, value in given.items():
         section, key = field.split(".")
@@ -202,8 +196,8 @@ def _reads(cfg: Any) -> list[tuple[str, Any]]:
     for field, folder in (("capture.source", cfg.capture.source), ("handeye.images", cfg.handeye.images)):
         if exists(folder) and folder.is_dir():
             checks.append((field, images(folder, "image")))
-    robots = {cfg.align.robot, cfg.world.robot} - {"none"}
-    checks += [("align.robot" if r == cfg.align.robot else "world.robot", lambda r=r: get_robot(r)) for r in robots]
+    if cfg.robot.lower() != "none":
+        checks.append(("robot", lambda: get_robot(cfg.robot)))
     checks += [(f"generate.task[{i}]", lambda t=t: parse_task(t)) for i, t in enumerate(cfg.generate.task)]
     checks += [(f"objects.names[{i}]", lambda n=n: check_name(n.partition("=")[0], f"object name {n!r}"))
                for i, n in enumerate(cfg.objects.names)]  # fmt: skip
@@ -240,9 +234,9 @@ def run(args: argparse.Namespace) -> int:
     lines = [f"m2m init: wrote {show(ws.config_file)} (every setting, each explained; edit it to change any)",
              f"  m2m run will run  {', '.join(runs)}"]  # fmt: skip
     lines += [f"  and skip {name:<9} {why}" for name, why in plan.items() if why is not None]
-    if not cfg.align.unaligned and cfg.align.robot.lower() != "none":
+    if not cfg.align.unaligned and cfg.robot.lower() != "none":
         joints = cfg.align.capture_joints
-        lines.append(f"  the robot ({cfg.align.robot}) while filming: " + (
+        lines.append(f"  the robot ({cfg.robot}) while filming: " + (
             f"{list(joints)} rad" if joints else "its home pose (give --capture-joints if it stood elsewhere)"))
     lines.append(f"next: m2m run -w {show(ws.root)}")
     print("\n".join(lines))

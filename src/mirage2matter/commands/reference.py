@@ -16,6 +16,7 @@ from typing import Any, Literal
 
 from ..configs import _flag, _hints, _is_config, _unwrap_optional, field_docs, to_dict
 from ..stages import STAGES
+from ..stages.base import PipelineSettings
 from ..stages.pipeline import PipelineConfig
 
 __all__ = ["REGENERATE", "configuration_reference"]
@@ -107,6 +108,8 @@ def _rows(cls: type, values: dict[str, Any], prefix: str = "") -> list[str]:
     """One table row per field of ``cls`` (nested Configs flattened as ``outer.field``)."""
     docs, hints, rows = field_docs(cls), _hints(cls), []
     for f in dataclasses.fields(cls):
+        if f.metadata.get("shared"):  # the pipeline's setting, in its own table
+            continue
         tp = hints[f.name]
         inner = _unwrap_optional(tp)[0]
         if _is_config(inner) and isinstance(values[f.name], dict):
@@ -124,6 +127,11 @@ def configuration_reference() -> str:
     defaults = to_dict(PipelineConfig())
     hints = _hints(PipelineConfig)
     out = [_INTRO]
+    header = ["| setting | flag | type | default | what it is |", "| --- | --- | --- | --- | --- |"]
+    own = {k: defaults[k] for k in to_dict(PipelineSettings())}
+    about = ("At the top of `m2m.yaml`, read by every stage that needs it (`m2m init`, `m2m run` and `m2m demo` take "
+             "the same flag; a stage command's flag of that name changes it for every stage).")  # fmt: skip
+    out += ["## The whole pipeline's", "", about, "", *header, *_rows(PipelineSettings, own), ""]
     for stage in STAGES:
         cls = _unwrap_optional(hints[stage.name])[0]
         line = _markdown(stage.help[0].upper() + stage.help[1:]) + "."

@@ -4,13 +4,30 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from .. import configure_threads
-from .args import CliError, backend, check_output, positive_float, rgb
+from ..configs import add_flags, from_flags, ranged
+from .args import CliError, backend, check_output, rgb
 
 CAMERA_FIELDS = '{"width", "height", "K" (3x3, pixels), "T_world_cam" (4x4 camera-to-world, OpenCV axes)}'
+
+
+@dataclass
+class RenderConfig:
+    """m2m render settings.
+
+    backend     renderer (default auto: cuda if available, else cpu)
+    background  background colour in 0..1 (R,G,B, or one value for grey)
+    scale       resize the camera by F (0.5 = half resolution)
+    """
+
+    backend: Literal["auto", "cpu", "cuda", "reference"] = "auto"
+    background: tuple[float, float, float] = ranged((0.0, 0.0, 0.0), ge=0, le=1, metadata={"parse": rgb,
+                                                                                          "metavar": "R,G,B"})
+    scale: float = ranged(1.0, gt=0, metadata={"metavar": "F"})
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,12 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--camera", required=True, metavar="JSON", help="camera JSON, or transforms.json with --frame")
     p.add_argument("--frame", metavar="NAME", help="frame of the transforms.json: file_path, basename or stem")
     p.add_argument("--out", required=True, metavar="PNG", help="output image (.png); its directory must exist")
-    p.add_argument("--backend", default="auto", choices=("auto", "cpu", "cuda", "reference"),
-                   help="renderer (default auto: cuda if available, else cpu)")  # fmt: skip
-    p.add_argument("--background", type=rgb, default=(0.0, 0.0, 0.0), metavar="R,G,B",
-                   help="background colour in 0..1 (default 0,0,0)")  # fmt: skip
-    p.add_argument("--scale", type=positive_float, default=1.0, metavar="F",
-                   help="resize the camera by F (0.5 = half resolution)")  # fmt: skip
+    add_flags(p, RenderConfig)
     p.add_argument("--depth-out", metavar="PNG|NPY",
                    help="also write expected depth: .npy float32 metres or .png uint16 millimetres (0 = nothing)")
     p.set_defaults(func=run)
@@ -112,6 +124,7 @@ def _write_depth(path: Path, depth) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    cfg = from_flags(RenderConfig, args)
     out = Path(args.out)
     check_output(out, "--out", (".png",))
     depth_out = Path(args.depth_out) if args.depth_out else None
@@ -126,22 +139,22 @@ def run(args: argparse.Namespace) -> int:
             f"PLY file {ply} {what}; pass a 3D Gaussian Splatting .ply (e.g. <workspace>/scene/gaussians.ply)"
         )
     cam = load_camera(Path(args.camera), args.frame)
-    if args.scale != 1.0:
-        cam = cam.scaled(args.scale)
+    if cfg.scale != 1.0:
+        cam = cam.scaled(cfg.scale)
 
     import torch
 
     from ..gaussians.ply import PlyFormatError, read_ply
     from ..gaussians.render import render
 
-    backend_name = backend(args.backend)
+    backend_name = backend(cfg.backend)
     configure_threads()
     g = read_ply(ply)
     if len(g.means) == 0:  # a black picture would look like a render of something
         raise PlyFormatError(f"{ply}: holds no Gaussians (0 vertices); nothing to render")
     with torch.no_grad():
         t0 = time.perf_counter()
-        bg = torch.tensor(args.background, dtype=torch.float32)
+        bg = torch.tensor(cfg.background, dtype=torch.float32)
         vm, K = torch.from_numpy(cam.viewmat), torch.from_numpy(cam.K)
         result = render(g, vm, K, cam.width, cam.height, bg, backend_name)
         if backend_name == "cuda":

@@ -13,15 +13,31 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from .. import __version__
+from ..configs import add_flags, from_flags
 from ..stages import PIPELINE
 from ..workspace import Workspace, WorkspaceError
 from .args import Formatter, info, show
 
-__all__ = ["print_summary", "register", "run_workspace"]
+__all__ = ["StagesConfig", "print_summary", "register", "run_workspace"]
+
+PipelineStage = Literal[tuple(s.name for s in PIPELINE)]  # type: ignore[valid-type]
+
+
+@dataclass
+class StagesConfig:
+    """The stages a run goes through (``m2m run``, ``m2m demo``).
+
+    until   last stage to run (default: all)
+    start   first stage to run (default: the first); the earlier stages' outputs must be in the workspace
+    """
+
+    until: PipelineStage | None = field(default=None, metadata={"metavar": "STAGE"})
+    start: PipelineStage | None = field(default=None, metadata={"metavar": "STAGE", "flags": ("--from",)})
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -41,15 +57,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         add_help=False,
     )
     p.add_argument("-w", "--workspace", required=True, metavar="DIR", help="the workspace folder (with its m2m.yaml)")
-    p.add_argument("--until", choices=names, metavar="STAGE", help="last stage to run (default: all)")
-    p.add_argument("--from", dest="start", choices=names, metavar="STAGE", help="first stage to run (default: the "
-                   "first); the earlier stages' outputs must be in the workspace")  # fmt: skip
+    add_flags(p, StagesConfig)
     p.add_argument("-h", "--help", action="help", help="show this help")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    run_workspace(Workspace(args.workspace), until=args.until, start=args.start)
+    cfg = from_flags(StagesConfig, args)
+    run_workspace(Workspace(args.workspace), until=cfg.until, start=cfg.start)
     return 0
 
 

@@ -3,9 +3,48 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass, field
+from typing import Literal
 
-from ..robots import DEFAULT_ROBOT, ROBOTS
-from .args import info, int_at_least
+from ..configs import add_flags, from_flags, ranged
+from ..robots import DEFAULT_ROBOT
+from ..sample.handeye_capture import HandEyeCaptureConfig
+from .args import info
+
+
+@dataclass
+class SampleMakeConfig:
+    """m2m sample make settings.
+
+    seed    scene and trajectory seed
+    marker  the target on the table: the ChArUco board (default), an 18 cm ArUco marker or AprilTag, or an ArUco grid
+    lens    the video camera: the renderer's pinhole (default; the head camera's), or a phone's main camera with barrel
+            distortion and an off-centre principal point (k1 -0.16; ground_truth.json holds it under "camera"; the
+            sample's m2m.yaml leaves it out, so SfM calibrates it)
+    layout  where the objects stand: the bundled sample's places (default; jittered by 1.5 cm for seeds other than 0),
+            or drawn anywhere in the workspace for the seed
+    robot   the robot holding the board in the hand-eye images: a registered robot (panda, ur5e) or a robot spec file
+    """
+
+    seed: int = ranged(0, ge=0)
+    marker: Literal["charuco", "aruco", "apriltag", "aruco_grid"] = "charuco"
+    lens: Literal["pinhole", "phone"] = "pinhole"
+    layout: Literal["nominal", "random"] = "nominal"
+    robot: str = field(default=DEFAULT_ROBOT, metadata={"metavar": "ROBOT"})
+
+
+@dataclass
+class SampleHandEyeConfig:
+    """m2m sample handeye settings (``sample.handeye_capture.HandEyeCaptureConfig``'s).
+
+    mount   wrist: camera on the hand, board on the table; head: camera fixed, board in the gripper
+    views   images to make
+    seed    poses, noise and robot error seed
+    """
+
+    mount: Literal["wrist", "head"] = "wrist"
+    views: int = ranged(HandEyeCaptureConfig.views, ge=3)
+    seed: int = ranged(0, ge=0)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,21 +61,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         ),
     )
     sm.add_argument("dir", help="output directory (must not exist, or be empty)")
-    sm.add_argument("--seed", type=int_at_least(0), default=0, help="scene and trajectory seed (default 0)")
+    add_flags(sm, SampleMakeConfig)
     sm.add_argument("--short", action="store_true", help="a quick version: 4 s of video at 5 fps, 6 hand-eye views")
-    sm.add_argument("--marker", choices=("charuco", "aruco", "apriltag", "aruco_grid"), default="charuco",
-                    help="the target on the table: the ChArUco board (default), an 18 cm ArUco marker or AprilTag, or "
-                    "an ArUco grid")
-    sm.add_argument("--lens", choices=("pinhole", "phone"), default="pinhole",
-                    help="the video camera: the renderer's pinhole (default; the head camera's), or a phone's main "
-                    "camera with barrel distortion and an off-centre principal point (k1 -0.16; ground_truth.json "
-                    "holds it under \"camera\"; the sample's m2m.yaml leaves it out, so SfM calibrates it)")
-    sm.add_argument("--layout", choices=("nominal", "random"), default="nominal",
-                    help="where the objects stand: the bundled sample's places (default; jittered by 1.5 cm for "
-                    "seeds other than 0), or drawn anywhere in the workspace for the seed")
-    sm.add_argument("--robot", default=DEFAULT_ROBOT, metavar="ROBOT",
-                    help="the robot holding the board in the hand-eye images: a registered robot "
-                    f"({', '.join(ROBOTS)}) or a robot spec file (default {DEFAULT_ROBOT})")
     sm.add_argument("--empty-table", action="store_true",
                     help="film the table without the robot (it appears only in the hand-eye images; the board lies "
                     "where its base would stand). By default the robot stands in the video at a logged joint state "
@@ -54,19 +80,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         ),
     )
     he.add_argument("dir", help="output directory (must not exist, or be empty)")
-    he.add_argument("--mount", choices=("wrist", "head"), default="wrist",
-                    help="wrist: camera on the hand, board on the table; head: camera fixed, board in the gripper")
-    he.add_argument("--views", type=int_at_least(3), default=12, help="images to make (default 12)")
-    he.add_argument("--seed", type=int_at_least(0), default=0, help="poses, noise and robot error seed (default 0)")
+    add_flags(he, SampleHandEyeConfig)
     he.set_defaults(func=run_handeye)
 
 
 def run(args: argparse.Namespace) -> int:
     from ..sample.make import SampleConfig, make_sample, with_layout, with_lens, with_marker, with_robot_in_view
 
-    config = SampleConfig.short(args.seed) if args.short else SampleConfig(seed=args.seed)
+    short, empty_table, out_dir, args = args.short, args.empty_table, args.dir, from_flags(SampleMakeConfig, args)
+    config = SampleConfig.short(args.seed) if short else SampleConfig(seed=args.seed)
     config = with_layout(with_lens(with_marker(config, args.marker), args.lens), args.layout)
-    if not args.empty_table:
+    if not empty_table:
         config = with_robot_in_view(config)
     if args.robot != config.robot:
         from dataclasses import replace
@@ -77,8 +101,8 @@ def run(args: argparse.Namespace) -> int:
         robot = str(Path(args.robot).resolve()) if is_spec_file(args.robot) else args.robot
         get_robot(robot)  # an unknown robot or a bad spec file fails before anything renders
         config = replace(config, robot=robot)
-    make_sample(args.dir, config, log=info)
-    print(f"wrote the sample to {args.dir} (ground_truth.json, scene.mp4, handeye/, gt/, contact_sheet.jpg)")
+    make_sample(out_dir, config, log=info)
+    print(f"wrote the sample to {out_dir} (ground_truth.json, scene.mp4, handeye/, gt/, contact_sheet.jpg)")
     return 0
 
 
@@ -87,8 +111,9 @@ def run_handeye(args: argparse.Namespace) -> int:
 
     from ..sample.handeye_capture import HandEyeCaptureConfig, make_handeye_capture
 
-    cfg = HandEyeCaptureConfig(mount=args.mount, views=args.views, seed=args.seed)
+    given = from_flags(SampleHandEyeConfig, args)
+    cfg = HandEyeCaptureConfig(mount=given.mount, views=given.views, seed=given.seed)
     gt = make_handeye_capture(args.dir, cfg, log=info)
-    print(f"wrote a {args.mount} hand-eye capture of {args.views} views to {args.dir}; reported hand poses off by "
+    print(f"wrote a {cfg.mount} hand-eye capture of {cfg.views} views to {args.dir}; reported hand poses off by "
           f"{np.median(gt['hand_pose_error_mm']):.2f} mm / {np.median(gt['hand_pose_error_deg']):.3f} deg (median)")
     return 0

@@ -32,6 +32,9 @@ from typing import Any
 
 from ..configs import ranged
 from ..errors import M2MError
+from ..policy.config import PolicyTrainConfig
+from ..render.options import MAX_SUPERSAMPLE
+from ..stages import eval_policy
 from ..workspace import Workspace
 
 __all__ = ["Sim2RealConfig", "markdown_tables", "run_sim2real"]
@@ -58,7 +61,9 @@ class Sim2RealConfig:
                     --supersample`; the hybrid evaluations follow the datasets). 1 (off) by default: the recipe
                     above was measured without it; with the earlier expert, 4 lifted single grasp policies from 56 to
                     68 % (README), for twice the generation time
-    workers         generation workers
+    workers         generation workers (Ray workers of generation and evaluation with ray_address)
+    ray_address     generate and evaluate on Ray workers: auto, host:port, or local (a private Ray instance); the
+                    evaluations then run one after another, each over the cluster (docs/guides/multi-machine.md)
     seeds           training seeds of each main policy (0, 1, ...), deployed as one ensemble; 1: a single policy
     parallel        a policy's seeds trained, and its evaluations run, this many at a time, side by side in child
                     processes with the cores shared out (on 2 cores two one-thread trainings of 4,000 steps took
@@ -78,16 +83,17 @@ class Sim2RealConfig:
     press_demos: int = ranged(150, ge=1, le=10**6)
     ablation_demos: int = ranged(150, ge=0, le=10**6)
     size: int = ranged(128, ge=16, le=4096)
-    supersample: int = ranged(1, ge=1, le=8)  # render.splat_world.MAX_SUPERSAMPLE (its module imports torch)
+    supersample: int = ranged(1, ge=1, le=MAX_SUPERSAMPLE)
     workers: int = ranged(2, ge=1, le=256)
     seeds: int = ranged(4, ge=1, le=100)
     parallel: int = ranged(2, ge=1, le=64)
     steps: int = ranged(4000, ge=0, le=10**9)
     minutes: float = ranged(12.0, gt=0, le=100_000)
-    image_size: int = ranged(96, ge=16, le=512)
-    episodes: int = ranged(50, ge=1, le=10**6)
+    image_size: int = ranged(PolicyTrainConfig.image_size, ge=16, le=512)
+    episodes: int = ranged(eval_policy.Config.episodes, ge=1, le=10**6)
     hybrid: bool = True
-    seed: int = ranged(1_000_000, ge=0, le=2**32 - 1)
+    seed: int = ranged(eval_policy.Config.seed, ge=0, le=2**32 - 1)
+    ray_address: str | None = None
 
     def validate(self) -> None:
         bad = []
@@ -99,7 +105,7 @@ class Sim2RealConfig:
             bad.append("episodes, workers, seeds and parallel must be >= 1, size >= 16, minutes > 0")
         if self.steps < 0:
             bad.append(f"steps must be >= 0 (0: a minutes budget), got {self.steps}")
-        from ..render.splat_world import supersample_problem  # generate's own check, before hours of work
+        from ..render.options import supersample_problem  # generate's own check, before hours of work
 
         if problem := supersample_problem(self.supersample):
             bad.append(problem)
@@ -187,8 +193,9 @@ def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[s
     mesh_slug = f"{slug}_mesh_objects"
 
     def gen(task: str, n: int, objects: str = "gaussians", out: str | None = None) -> dict:
-        c = generate.Config(task=(task,), episodes=n, workers=cfg.workers, size=cfg.size, objects=objects,
-                            supersample=cfg.supersample, out=ws.dataset_dir(out) if out else None)  # fmt: skip
+        c = generate.Config(task=(task,), episodes=n, workers=cfg.workers, ray_address=cfg.ray_address, size=cfg.size,
+                            objects=objects, supersample=cfg.supersample,
+                            out=ws.dataset_dir(out) if out else None)  # fmt: skip
         s, dt, _ = _run_stage("generate", ws, c, log)
         seconds["generation"] += dt
         return s["tasks"][task]
@@ -207,13 +214,16 @@ def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[s
             name = f"{label}-{renderer}" + ("-mesh_objects" if objects == "meshes" else "")
             cs.append(eval_policy.Config(policy=policy, task=task, renderer=renderer, episodes=cfg.episodes,
                                          seed=cfg.seed, size=cfg.size, ground_truth=sample, name=name,
-                                         objects=objects))  # fmt: skip
+                                         objects=objects, ray_address=cfg.ray_address,
+                                         workers=cfg.workers if cfg.ray_address else 1))  # fmt: skip
         keys = ("successes", "episodes", "success_rate", "wilson95", "mean_steps")
         return [{k: s[k] for k in keys} for s in side_by_side("eval_policy", cs, "evaluation")]
 
     def side_by_side(stage_name: str, cs: list[Any], part: str) -> list[dict]:
         t0 = time.perf_counter()
-        done = _side_by_side(ws, stage_name, cs, cfg.parallel, log)
+        # on Ray the cluster's workers run an evaluation's episodes side by side instead of child processes here
+        parallel = 1 if cfg.ray_address and stage_name == "eval_policy" else cfg.parallel
+        done = _side_by_side(ws, stage_name, cs, parallel, log)
         # wall-clock (runs side by side overlap), and the recorded time of a run done earlier
         seconds[part] += time.perf_counter() - t0 + sum(dt for _, dt, skipped in done if skipped)
         return [s for s, _, _ in done]

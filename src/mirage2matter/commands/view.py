@@ -11,25 +11,40 @@ import errno
 import json
 import socket
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
+from ..configs import add_flags, from_flags, ranged
+from ..viewer.config import ViewerConfig
 from ..workspace import Workspace
-from .args import CliError, check_output, int_at_least, show
+from .args import CliError, check_output, show
 
-__all__ = ["register", "view", "workspace_inputs"]
+__all__ = ["ViewConfig", "register", "view", "workspace_inputs"]
+
+
+@dataclass
+class ViewConfig:
+    """m2m view settings (the viewer's own defaults, :class:`~..viewer.ViewerConfig`).
+
+    port           the page's port
+    host           address to serve on; 127.0.0.1: this machine only
+    max_gaussians  most Gaussians per layer sent to the browser
+    """
+
+    port: int = ranged(ViewerConfig.port, ge=1, le=65535)
+    host: str = ViewerConfig.host
+    max_gaussians: int = ranged(ViewerConfig.max_gaussians, ge=1000, metadata={"metavar": "N"})
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     text = "look at the twin in a browser: world, robot, cameras, episodes (viser)"
     p = sub.add_parser("view", help=text, description=text[0].upper() + text[1:] + "; drag an object to move it.")
     p.add_argument("-w", "--workspace", required=True, metavar="DIR", help="the workspace folder")
-    p.add_argument("--port", type=int_at_least(1), default=8080, help="the page's port (default 8080)")
-    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1: this machine)")
-    p.add_argument("--joints", metavar="J1,J2,...", help="the robot's arm joint state, rad (default: home)")
-    p.add_argument("--episode", metavar="NAME[:N]", help="a dataset or evaluation's episode N to play (default 0)")
+    add_flags(p, ViewConfig)
+    p.add_argument("--joints", metavar="J1,J2,...", help="the robot's arm joint state, rad (without it: home)")
+    p.add_argument("--episode", metavar="NAME[:N]", help="a dataset or evaluation's episode N to play (N: 0 unless "
+                   "given)")  # fmt: skip
     p.add_argument("--export", metavar="HTML", help="write the scene as one HTML file (opens without a server)")
-    p.add_argument("--max-gaussians", type=int_at_least(1000), default=400_000, metavar="N",
-                   help="most Gaussians per layer sent to the browser (default 400000)")  # fmt: skip
     p.set_defaults(func=view)
 
 
@@ -115,9 +130,9 @@ def _episode(text: str, inputs) -> tuple[str, str, int]:
 
 
 def view(args: argparse.Namespace) -> int:
-    from ..viewer import ViewerConfig
     from ..viewer.app import TwinViewer
 
+    cfg_view = from_flags(ViewConfig, args)
     ws = Workspace(args.workspace)
     if not ws.root.is_dir():
         raise CliError(f"workspace {args.workspace} not found")
@@ -125,7 +140,7 @@ def view(args: argparse.Namespace) -> int:
     if export is not None:
         check_output(export, "--export", (".html",))
     else:
-        _port_free(args.host, args.port)
+        _port_free(cfg_view.host, cfg_view.port)
     joints = None
     if args.joints:
         try:
@@ -140,8 +155,8 @@ def view(args: argparse.Namespace) -> int:
     episode = _episode(args.episode, inputs) if args.episode else None
     for line in inputs.missing:
         print(f"view: not there yet: {line}")
-    cfg = ViewerConfig(host=args.host, port=0 if export else args.port, max_gaussians=args.max_gaussians,
-                       joints=joints)  # fmt: skip
+    cfg = ViewerConfig(host=cfg_view.host, port=0 if export else cfg_view.port,
+                       max_gaussians=cfg_view.max_gaussians, joints=joints)  # fmt: skip
     editable = export is None and inputs.world is not None
     viewer = TwinViewer(inputs, cfg, on_move=_mover(ws) if editable else None, log=print)
     try:

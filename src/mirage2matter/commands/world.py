@@ -6,10 +6,13 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import dataclass, fields
 from pathlib import Path
 
+from ..configs import add_flags, from_flags, ranged
+from ..stages import generate
 from ..workspace import Workspace
-from .args import CliError, check_output, int_at_least, positive_float, show, xyz
+from .args import CliError, check_output, positive_float, show, xyz
 
 _EDITS = (
     ("insert", "add an object from a Gaussian PLY + a mesh"),
@@ -20,6 +23,51 @@ _EDITS = (
     ("match-lighting", "shift an object's colours toward the scene's illumination"),
     ("check", "recompose world.ply from world.yaml (after editing it by hand) and check every part"),
 )
+
+
+@dataclass
+class PlaceConfig:
+    """m2m world insert / move / duplicate settings.
+
+    yaw   turn about z (deg)
+    """
+
+    yaw: float = 0.0
+
+
+@dataclass
+class LightingConfig:
+    """m2m world match-lighting settings.
+
+    strength  0..1 of the full correction
+    radius    scene neighbourhood (m)
+    """
+
+    strength: float = ranged(1.0, gt=0)
+    radius: float = ranged(0.3, gt=0)
+
+
+@dataclass
+class TaskConfig:
+    """m2m task settings.
+
+    episodes  per task
+    seed      first reset seed
+    """
+
+    episodes: int = ranged(generate.Config.episodes, ge=1, metadata={"metavar": "N"})
+    seed: int = ranged(0, ge=0)
+
+
+# the edits whose flags come from a Config
+_OP_CONFIGS = {"insert": (PlaceConfig,), "move": (PlaceConfig,), "duplicate": (PlaceConfig,),
+               "match-lighting": (LightingConfig,)}  # fmt: skip
+
+
+def _given(args: argparse.Namespace, *configs: type) -> argparse.Namespace:
+    """``args`` with the Configs' fields filled in: those given on the command line, the others at their default."""
+    values = {f.name: getattr(from_flags(c, args), f.name) for c in configs for f in fields(c)}
+    return argparse.Namespace(**{**vars(args), **values})
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,31 +84,29 @@ def register(sub: argparse._SubParsersAction) -> None:
         w.add_argument("--name", required=True)
         if op in ("insert", "move", "duplicate"):
             w.add_argument("--to", metavar="X,Y,Z", help="new origin in the base frame (m)")
-            w.add_argument("--yaw", type=float, default=0.0, help="turn about z (deg)")
-            w.add_argument("--scale", type=positive_float, help="placement scale (default: kept, or 1)")
+            add_flags(w, PlaceConfig)
+            w.add_argument("--scale", type=positive_float, help="placement scale (without it: kept, or 1)")
         if op == "move":
             w.add_argument("--by", metavar="DX,DY,DZ", help="shift by (m)")
         if op == "insert":
             w.add_argument("--gaussians", required=True, metavar="PLY")
             w.add_argument("--mesh", required=True, metavar="OBJ")
             w.add_argument("--collision", metavar="DIR", help="convex parts (*.obj); computed when absent")
-            w.add_argument("--mass", type=positive_float, help="kg (default: density 500 kg/m^3)")
+            w.add_argument("--mass", type=positive_float, help="kg (without it: density 500 kg/m^3)")
         if op == "duplicate":
             w.add_argument("--as", dest="as_name", required=True, metavar="NEW")
         if op == "import-placement":
             w.add_argument("--ply", required=True, help="the object's (or world.ply's) Gaussians, moved")
             w.add_argument("--allow-scale", action="store_true", help="accept a changed object size (> x1.5)")
         if op == "match-lighting":
-            w.add_argument("--strength", type=positive_float, default=1.0, help="0..1 of the full correction")
-            w.add_argument("--radius", type=positive_float, default=0.3, help="scene neighbourhood (m)")
+            add_flags(w, LightingConfig)
         w.set_defaults(func=edit_world)
 
     ta = sub.add_parser("task", help="run scripted tasks on randomised starts in the Genesis twin -> summary.json")
     ta.add_argument("-w", "--workspace", required=True, metavar="DIR", help="workspace with world/world.yaml")
     ta.add_argument("task", nargs="+", help='e.g. "grasp banana" "press button" "push croissant --direction 0,1"')
-    ta.add_argument("--episodes", type=int_at_least(1), default=50, metavar="N", help="per task (default 50)")
-    ta.add_argument("--seed", type=int_at_least(0), default=0, help="first reset seed (default 0)")
-    ta.add_argument("--out", metavar="JSON", help="default <workspace>/world/task_summary.json")
+    add_flags(ta, TaskConfig)
+    ta.add_argument("--out", metavar="JSON", help="the summary (without it: <workspace>/world/task_summary.json)")
     ta.set_defaults(func=run_tasks)
 
 
@@ -78,6 +124,7 @@ def edit_world(args: argparse.Namespace) -> int:
     from ..world import load_world, save_world
     from ..world.compose import write_world_ply
 
+    args = _given(args, *_OP_CONFIGS.get(args.op, ()))
     ws = Workspace(args.workspace)
     ws.require(ws.world_yaml, "compose")
     with workspace_lock(ws, f"m2m world {args.op}"):
@@ -157,6 +204,7 @@ def run_tasks(args: argparse.Namespace) -> int:
     from ..sim.tasks import parse_task
     from ..stages.transaction import workspace_lock
 
+    args = _given(args, TaskConfig)
     ws, cfg = _world(args.workspace)
     tasks = [parse_task(t, cfg) for t in args.task]  # unknown tasks / objects fail before Genesis starts
     out = Path(args.out) if args.out else ws.task_summary

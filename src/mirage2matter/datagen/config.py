@@ -4,11 +4,18 @@ the stages read them before anything is built)."""
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..env.config import Randomization  # the environment's: generation draws its episodes through it
+from ..env.config import (
+    EpisodeSpec,
+    HybridOptions,
+    Randomization,  # the environment's: generation draws its episodes through it
+)
+from ..errors import M2MError
+from .dataset import RunConfig
 
 __all__ = ["GenerateConfig", "Randomization", "Takeover"]
 
@@ -34,21 +41,23 @@ class Takeover:
     policies  the trained policies' folders (two or more: run as one ensemble, their chunks averaged)
     steps     (lo, hi): the policy acts for a number of control ticks drawn uniformly in [lo, hi] per episode (from
               the episode's seed, so a seed is one episode)
-    sha1      the policies' ``policy.pt`` contents: the dataset's fingerprint (a retrained policy is another dataset,
-              a moved one the same)
+    sha1      the policies' weight files' contents: the dataset's fingerprint (a retrained policy is another
+              dataset, a moved one the same)
+    opener    (policy folders, device) -> the policy (an ensemble for several): the policy package's, handed in
+              by the stage (generation runs policies, it does not know how they are stored)
     """
 
     policies: tuple[str, ...]
     steps: tuple[int, int] = (5, 35)
     sha1: tuple[str, ...] = ()
+    opener: Callable[[Sequence[str], str], Any] | None = field(default=None, compare=False, repr=False)
 
     @classmethod
-    def of(cls, policy_dirs: list[Path], steps: tuple[int, int]) -> Takeover:
-        """The takeover by the policies in ``policy_dirs`` (each holding a finished ``policy.pt``)."""
-        from ..policy.config import POLICY_FILE
-
-        sha = tuple(hashlib.sha1((Path(d) / POLICY_FILE).read_bytes()).hexdigest() for d in policy_dirs)
-        return cls(tuple(str(d) for d in policy_dirs), (int(steps[0]), int(steps[1])), sha)
+    def of(cls, policy_files: list[Path], steps: tuple[int, int], opener: Callable[[Sequence[str], str], Any]
+           ) -> Takeover:  # fmt: skip
+        """The takeover by the finished policies whose weight files are ``policy_files`` (one per policy folder)."""
+        sha = tuple(hashlib.sha1(Path(f).read_bytes()).hexdigest() for f in policy_files)
+        return cls(tuple(str(Path(f).parent) for f in policy_files), (int(steps[0]), int(steps[1])), sha, opener)
 
     def problems(self) -> list[str]:
         if not self.policies:
@@ -58,11 +67,9 @@ class Takeover:
 
     def open(self, device: str = "cpu") -> Any:
         """The policy (an ensemble for several), on ``device``."""
-        from ..policy import load_ensemble, load_policy
-
-        if len(self.policies) == 1:
-            return load_policy(self.policies[0], device=device)
-        return load_ensemble(self.policies, device=device)
+        if self.opener is None:
+            raise M2MError("takeover: no policy opener was given (Takeover.of(..., opener=...))")
+        return self.opener(self.policies, device)
 
     def to_json(self) -> dict[str, Any]:
         """What the dataset depends on: the policies' contents and the steps (not where the policies lie)."""
@@ -71,44 +78,24 @@ class Takeover:
 
 @dataclass(frozen=True)
 class GenerateConfig:
-    """How many demonstrations, how they are run and what their frames are (the world, the task and the output
-    folder are ``generate``'s arguments).
+    """Generation's settings, by section (the world, the task and the output folder are ``generate``'s arguments);
+    the generate stage's Config builds it, each section the library that uses it takes as it is.
 
-    episodes       successful episodes wanted
-    workers        parallel workers (processes, or Ray actors with ``ray_address``)
-    ray_address    None: local processes; "local": a private Ray instance; "auto" / "host:port": a cluster
-    format         dataset format: "lerobot-v3.0" or "lerobot-v2.1"
-    seed           run seed: same seed, same episodes
-    size           (width, height) of every camera's frames
-    fps            control and video rate
-    cameras        which world cameras become videos
-    max_attempts   give up after this many attempts (None: 3 * episodes + 5)
-    preview        episodes shown in preview.mp4 / contact_sheet.png (0: none)
+    run            how many episodes and how they are run and written (count, seed, workers, Ray, format, preview)
+    episode        what the frames are: size, rate, cameras (the environment's :class:`EpisodeSpec`)
     randomization  per-episode camera-mount and colour jitter, random object start poses
-    objects        how objects are drawn: "gaussians" (the method) or "meshes" (the mesh-only ablation)
+    hybrid         the hybrid renderer: how objects and the robot are drawn, the splat layer's supersampling
+                   (``env.config.hybrid_options``)
     splat_server   draw every worker's splat layer in one process, batched (``render.splat_server``): for a GPU,
                    where one batched gsplat call serves all the workers' episodes; the same episodes, every camera
                    drawn whole (not over a cached background); local worker processes only (not with Ray)
-    supersample    the splat layer drawn at s x the frame size and box-averaged down (``SplatRenderOptions``):
-                   objects far smaller than the frame's pixels keep their true area (~s^2 the splat time)
-    robot_look     how the robot is drawn (``env.config.HybridOptions.robot_look``): "auto", "gaussians", "mesh"
     takeover       None: the expert acts from each episode's start; a :class:`Takeover`: a trained policy acts
                    first and the expert takes over from where it left the world
     """
 
-    episodes: int
-    workers: int = 1
-    ray_address: str | None = None
-    format: str = "lerobot-v3.0"
-    seed: int = 0
-    size: tuple[int, int] = (224, 224)
-    fps: int = 10
-    cameras: tuple[str, ...] = ("head", "wrist")
-    max_attempts: int | None = None
-    preview: int = 4
+    run: RunConfig
+    episode: EpisodeSpec = field(default_factory=EpisodeSpec)
     randomization: Randomization = field(default_factory=Randomization)
-    objects: str = "gaussians"
+    hybrid: HybridOptions = field(default_factory=HybridOptions)
     splat_server: bool = False
-    supersample: int = 1
-    robot_look: str = "auto"
     takeover: Takeover | None = None

@@ -16,7 +16,6 @@ recorded from there (the policy's ticks are not recorded: their actions are not 
 from __future__ import annotations
 
 import json
-import os
 import time
 from dataclasses import asdict, dataclass, field, fields, is_dataclass
 from pathlib import Path
@@ -24,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from ..env.config import CAMERAS, EnvConfig, HybridOptions, Randomization
+from ..env.config import EnvConfig, EpisodeSpec, HybridOptions, Randomization
 from ..export.spec import DatasetSpec, EpisodeData
 from ..sim.tasks import Task
 from ..world.config import WorldConfig
@@ -43,9 +42,7 @@ class SimSourceConfig:
 
     world          the loaded world (the environment copies it before changing anything)
     task           the task object (``sim.tasks.parse_task``)
-    size           (width, height) of every camera's frames
-    fps            control and video rate
-    cameras        which world cameras become videos
+    episode        the frames (size, cameras) and their rate: generation's section (``GenerateConfig.episode``)
     randomization  per-episode jitter
     hybrid         the hybrid renderer's settings (splat quality, depth-aware compositing, render speed)
     takeover       None, or a trained policy that acts first in every episode (:class:`~.config.Takeover`)
@@ -53,37 +50,38 @@ class SimSourceConfig:
 
     world: WorldConfig
     task: Task
-    size: tuple[int, int] = (224, 224)
-    fps: int = 10
-    cameras: tuple[str, ...] = CAMERAS
+    episode: EpisodeSpec = field(default_factory=EpisodeSpec)
     randomization: Randomization = field(default_factory=Randomization)
     hybrid: HybridOptions = field(default_factory=HybridOptions)
     takeover: Takeover | None = None
 
     def spec(self) -> DatasetSpec:
         """The dataset's spec: the frames, and the state / action names and type of the world's robot."""
-        w, h = self.size
+        w, h = self.episode.size
         robot = self.world.robot.spec
         return DatasetSpec(
             state_names=robot.state_names,
             action_names=robot.action_names,
             robot_type=robot.robot_type,
-            fps=self.fps,
-            cameras={c: (h, w) for c in self.cameras},
+            fps=self.episode.fps,
+            cameras={c: (h, w) for c in self.episode.cameras},
         )
 
     def env_config(self) -> EnvConfig:
         """The environment the episodes run in (hybrid frames; no horizon: the script ends an episode)."""
-        return EnvConfig(world=self.world, task=self.task, renderer="hybrid", size=tuple(self.size), fps=self.fps,
-                         horizon=None, cameras=tuple(self.cameras), randomization=self.randomization,
-                         hybrid=self.hybrid)  # fmt: skip
+        return EnvConfig(world=self.world, task=self.task, renderer="hybrid", episode=self.episode, horizon=None,
+                         randomization=self.randomization, hybrid=self.hybrid)  # fmt: skip
 
     def to_json(self) -> dict[str, Any]:
-        """The task and every frame setting, not the world (fingerprinted by its content, see ``generate``)."""
-        out: dict[str, Any] = {"task": self.task.to_json()}
+        """The task and every frame setting, not the world (fingerprinted by its content, see ``generate``). The
+        episode's settings stand at the top level, as before they were a section: a dataset's fingerprint is
+        unchanged."""
+        e = self.episode
+        out: dict[str, Any] = {"task": self.task.to_json(), "size": list(e.size), "fps": e.fps,
+                               "cameras": list(e.cameras)}  # fmt: skip
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name not in ("world", "task", "takeover"):
+            if f.name not in ("world", "task", "takeover", "episode"):
                 out[f.name] = asdict(v) if is_dataclass(v) else v
         if self.takeover is not None:  # absent without one: datasets made before the option keep their fingerprint
             out["takeover"] = self.takeover.to_json()
@@ -96,7 +94,7 @@ class SimSourceConfig:
         for key in ("object_shrink", "table_texture", "start_regions"):  # likewise
             if not out["randomization"].get(key):
                 del out["randomization"][key]
-        return {**out, "size": list(self.size), "cameras": list(self.cameras)}
+        return out
 
 
 class SimEpisodeSource:
@@ -168,13 +166,13 @@ class SimEpisodeSource:
             if ended:
                 record = {"reset_seed": env.draw.reset_seed, "takeover": takeover, "steps": 0}
                 return Attempt(False, ended, None, record, {"takeover": policy_s})
-        frames: dict[str, list[np.ndarray]] = {c: [obs[image_key(c)]] for c in cfg.cameras}
+        frames: dict[str, list[np.ndarray]] = {c: [obs[image_key(c)]] for c in cfg.episode.cameras}
         observed = [obs[STATE_KEY]]
         states, actions = [], []
 
         def act(action: np.ndarray) -> None:  # the expert's tick is an env step
             obs, *_ = env.step(action)
-            for c in cfg.cameras:
+            for c in cfg.episode.cameras:
                 frames[c].append(obs[image_key(c)])
             observed.append(obs[STATE_KEY])
 
@@ -185,7 +183,7 @@ class SimEpisodeSource:
         rendered0 = sum(env.timings.get(k, 0.0) for k in parts)  # the first frame's, in the reset (and the policy's)
         t = time.perf_counter()
         result = run_task(self.twin, self.task, np.random.default_rng(env.draw.task_seed), on_step=on_step,
-                          control_hz=cfg.fps, act=act)  # fmt: skip
+                          control_hz=cfg.episode.fps, act=act)  # fmt: skip
         total = time.perf_counter() - t
         n = len(actions)
         if n and not np.array_equal(np.stack(states), np.stack(observed[:n])):
@@ -199,7 +197,9 @@ class SimEpisodeSource:
         record = {
             "reset_seed": env.draw.reset_seed,
             "start_poses": {k: np.round(v, 6).tolist() for k, v in env.start_poses.items()},
-            "camera_mounts": {c: np.round(self.twin.cfg.cameras[c].T_mount_cam, 6).tolist() for c in cfg.cameras},
+            "camera_mounts": {
+                c: np.round(self.twin.cfg.cameras[c].T_mount_cam, 6).tolist() for c in cfg.episode.cameras
+            },
             "color_jitter": env.draw.jitter.to_json(),
             **({"table_texture": env.draw.table_texture.to_json()} if env.draw.table_texture is not None else {}),
             "task": self.task.to_json(),
@@ -249,32 +249,16 @@ class SimSourceFactory:
         """What a Ray worker of this source asks for: a CPU for physics and encoding, and a share of a GPU when the
         splat renderer is told to use CUDA (its options, or ``M2M_RENDER_BACKEND=cuda`` on the driver, which the workers
         get too): Ray then places it on a GPU node; "auto" asks for none."""
-        from .ray_workers import RayResources
+        from ..ray_cluster import splat_resources
 
-        backend = self.cfg.hybrid.splat.backend
-        gpu = (os.environ.get("M2M_RENDER_BACKEND", "auto") if backend == "auto" else backend) == "cuda"
-        return RayResources(num_cpus=1.0, num_gpus=GPU_SHARE if gpu else 0.0)
-
-
-GPU_SHARE = 0.25  # of one GPU per Ray worker rendering splats on CUDA: a few workers' small frames share a card
+        return splat_resources(self.cfg.hybrid.splat.backend)
 
 
 def _files(cfg: SimSourceConfig) -> list[Path]:
-    """Every file or folder an environment built from ``cfg`` opens (a mesh with the materials and textures beside
-    it, as ``m2m world insert`` copies them)."""
-    from ..robots import is_spec_file
+    """Every file or folder an environment built from ``cfg`` opens, and a takeover's policies."""
+    from .shipping import world_files
 
-    world = cfg.world
-    out: list[Path] = [world.root]
-    parts = [o.part for o in world.objects] + [p for a in world.articulated for p in (a.base, a.cap)]
-    for part in parts:
-        out += [p for p in (part.gaussians, part.collision) if p is not None]
-        if part.mesh is not None:
-            out.append(part.mesh)
-            out += [x for x in part.mesh.parent.glob("*") if x.suffix.lower() in (".mtl", ".png", ".jpg", ".jpeg")]
-    robot = world.robot
-    out += [p for p in (world.scene_gaussians, robot.gaussians) if p is not None]
-    out += [Path(f) for f in (robot.name if is_spec_file(robot.name) else "", robot.file) if f and Path(f).exists()]
+    out = world_files(cfg.world)
     if cfg.takeover is not None:
         out += [Path(d) for d in cfg.takeover.policies]
     return out

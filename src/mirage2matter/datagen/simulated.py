@@ -18,18 +18,27 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ..errors import M2MError
 from .config import GenerateConfig
-from .dataset import GenerateError, RunConfig, generate_dataset, run_fingerprint
+from .dataset import GenerateError, generate_dataset, run_fingerprint
 from .runner import WorkerPool
 
 if TYPE_CHECKING:
     from ..sim.tasks import Task
     from ..world.config import WorldConfig
 
-__all__ = ["BENCH_KEYS", "bench_datagen", "dataset_fingerprint", "generate", "task_slug", "worker_pool",
-           "world_fingerprint"]
+__all__ = [
+    "BENCH_KEYS",
+    "bench_datagen",
+    "dataset_fingerprint",
+    "generate",
+    "task_slug",
+    "worker_pool",
+    "world_fingerprint",
+]
 
-BENCH_KEYS = ("demos_per_min", "success_rate", "episodes", "frames", "workers", "backend", "ms_per_frame")
+BENCH_KEYS = ("demos_per_min", "success_rate", "episodes", "frames", "workers", "backend", "ms_per_frame",
+              "round_trip_pct")  # fmt: skip
 
 
 def task_slug(task: str) -> str:
@@ -50,21 +59,11 @@ def world_fingerprint(world: WorldConfig) -> dict[str, Any]:
 
 
 def _source(world: WorldConfig, task: Task, cfg: GenerateConfig):
-    from ..env.config import hybrid_options
+    """What an episode of ``task`` is: generation's episode, randomisation, renderer and takeover sections."""
     from .sim_source import SimSourceConfig
 
-    return SimSourceConfig(
-        world=world, task=task, size=tuple(cfg.size), fps=cfg.fps, cameras=tuple(cfg.cameras),
-        randomization=cfg.randomization, hybrid=hybrid_options(cfg.objects, cfg.supersample, cfg.robot_look),
-        takeover=cfg.takeover,
-    )  # fmt: skip
-
-
-def _run_config(cfg: GenerateConfig) -> RunConfig:
-    return RunConfig(
-        episodes=cfg.episodes, seed=cfg.seed, max_attempts=cfg.max_attempts, workers=cfg.workers,
-        ray_address=cfg.ray_address, format=cfg.format, preview=cfg.preview,
-    )  # fmt: skip
+    return SimSourceConfig(world=world, task=task, episode=cfg.episode, randomization=cfg.randomization,
+                           hybrid=cfg.hybrid, takeover=cfg.takeover)  # fmt: skip
 
 
 def _source_fingerprint(world: WorldConfig, source) -> dict[str, Any]:
@@ -74,7 +73,7 @@ def _source_fingerprint(world: WorldConfig, source) -> dict[str, Any]:
 def dataset_fingerprint(world: WorldConfig, task: Task, cfg: GenerateConfig) -> dict[str, Any]:
     """The fingerprint summary.json records for this dataset (world content, task, frames, count, seed,
     format): a finished dataset holding it is the one ``generate`` would write."""
-    return run_fingerprint(_source_fingerprint(world, _source(world, task, cfg)), _run_config(cfg))
+    return run_fingerprint(_source_fingerprint(world, _source(world, task, cfg)), cfg.run)
 
 
 def _check(world: WorldConfig, task: Task, cfg: GenerateConfig) -> None:
@@ -82,10 +81,10 @@ def _check(world: WorldConfig, task: Task, cfg: GenerateConfig) -> None:
     from ..env.config import EnvError, check_config
     from ..sim.tasks import TaskError
 
-    if cfg.splat_server and cfg.ray_address:
+    if cfg.splat_server and cfg.run.ray_address:
         raise GenerateError("--splat-server serves local worker processes; it cannot serve Ray actors (drop "
                             "--ray-address, or --splat-server)")  # fmt: skip
-    missing = [c for c in cfg.cameras if c not in world.cameras]
+    missing = [c for c in cfg.episode.cameras if c not in world.cameras]
     if missing:
         raise GenerateError(
             f"the world has no calibrated camera {', '.join(missing)} (cameras: {sorted(world.cameras) or 'none'}); "
@@ -104,10 +103,8 @@ def _check(world: WorldConfig, task: Task, cfg: GenerateConfig) -> None:
 
 
 def _check_takeover(world: WorldConfig, cfg: GenerateConfig) -> None:
-    """The takeover's policies open and were trained for this robot, rate and these cameras (PolicyError names the
-    file), before any worker builds a twin."""
-    from ..policy import PolicyError
-
+    """The takeover's policies open and were trained for this robot, rate and these cameras (the policy's error
+    names the file), before any worker builds a twin."""
     problems = cfg.takeover.problems()
     if problems:
         raise GenerateError("generate: " + "; ".join(problems))
@@ -115,8 +112,8 @@ def _check_takeover(world: WorldConfig, cfg: GenerateConfig) -> None:
     try:
         policy = cfg.takeover.open("cpu")
         policy.check_matches(robot_type=spec.robot_type, state_names=spec.state_names, action_names=spec.action_names,
-                             fps=cfg.fps, cameras=cfg.cameras)  # fmt: skip
-    except PolicyError as e:
+                             fps=cfg.episode.fps, cameras=cfg.episode.cameras)  # fmt: skip
+    except M2MError as e:  # the policy package's errors (a damaged file, another robot's policy)
         raise GenerateError(f"generate --takeover: {e}") from None
 
 
@@ -129,7 +126,7 @@ def generate(
     progress: bool = True,
     pool: WorkerPool | None = None,
 ) -> dict[str, Any]:
-    """Generate ``cfg.episodes`` demonstrations of ``task`` in ``world`` into the dataset folder ``out``;
+    """Generate ``cfg.run.episodes`` demonstrations of ``task`` in ``world`` into the dataset folder ``out``;
     returns the summary (summary.json) with ``"dataset"`` the dataset folder. A rerun of a finished run is a
     no-op; a killed run resumes (the fingerprint: world content, task, frame settings, seed, count, format).
     ``pool``: workers kept across tasks (:func:`worker_pool`): each worker's twin is built once and serves every
@@ -140,7 +137,7 @@ def generate(
     _check(world, task, cfg)
     out = Path(out)
     source = _source(world, task, cfg)
-    run = _run_config(cfg)
+    run = cfg.run
     render_robot_file(world.robot.file, source.hybrid.robot_render_faces)  # built once, before workers race for it
     fingerprint, extra = _source_fingerprint(world, source), {"task": task.text, "dataset": str(out)}
     if not cfg.splat_server:
@@ -156,7 +153,7 @@ def generate(
 def worker_pool(cfg: GenerateConfig) -> WorkerPool:
     """Workers for several tasks' ``generate`` calls with ``cfg`` (a context manager; they start with the first
     attempt): the tasks then pay one twin build and warm-up instead of one each."""
-    return WorkerPool(cfg.workers, cfg.ray_address)
+    return WorkerPool(cfg.run.workers, cfg.run.ray_address)
 
 
 @contextmanager
@@ -165,12 +162,13 @@ def _splat_server(world: WorldConfig, source, cfg: GenerateConfig, log: Callable
     from ..env.hybrid import splat_parts
     from ..render.splat_server import SplatServer
 
-    server = SplatServer(splat_parts(world, objects=cfg.objects == "gaussians",
+    workers = max(cfg.run.workers, 1)
+    server = SplatServer(splat_parts(world, objects=source.hybrid.objects == "gaussians",
                                      robot=source.hybrid.robot_gaussians(world)), source.hybrid.splat,
-                         slots=max(cfg.workers, 1), cameras=len(source.cameras), size=tuple(source.size),
+                         slots=workers, cameras=len(source.episode.cameras), size=tuple(source.episode.size),
                          background=source.hybrid.background, table_z=world.table_z)  # fmt: skip
     handle = server.start()
-    log(f"splat server: {server.stats['gaussians']:,} Gaussians, {max(cfg.workers, 1)} slot(s), pid {handle.pid}")
+    log(f"splat server: {server.stats['gaussians']:,} Gaussians, {workers} slot(s), pid {handle.pid}")
     try:
         yield handle, server
     finally:
@@ -185,7 +183,7 @@ def bench_datagen(
     runs: int = 1,
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
-    """Generate ``cfg.episodes`` episodes ``runs`` times into throw-away folders under ``scratch``; the medians
+    """Generate ``cfg.run.episodes`` episodes ``runs`` times into throw-away folders under ``scratch``; the medians
     over runs.
 
     ``demos_per_min`` counts successful episodes per minute of wall time with the workers warm (their
@@ -197,7 +195,8 @@ def bench_datagen(
         out = Path(scratch) / f".bench-datagen-{r}"
         shutil.rmtree(out, ignore_errors=True)
         try:
-            s = generate(world, task, out, replace(cfg, seed=cfg.seed + r, preview=0), log=log)
+            s = generate(world, task, out, replace(cfg, run=replace(cfg.run, seed=cfg.run.seed + r, preview=0)),
+                         log=log)  # fmt: skip
         finally:
             shutil.rmtree(out, ignore_errors=True)
         per_run.append(s)
@@ -213,16 +212,17 @@ def bench_datagen(
         "success_rate": med("success_rate"),
         "episodes": med("episodes"),
         "frames": med("frames"),
-        "workers": cfg.workers,
+        "workers": cfg.run.workers,
         "backend": per_run[0]["backend"],
         "ms_per_frame": med("ms_per_frame"),
         "runs": runs,
-        "size": list(cfg.size),
-        "fps": cfg.fps,
+        "size": list(cfg.episode.size),
+        "fps": cfg.episode.fps,
         "task": task.text,
         "startup_s": med("startup_s"),
         "cpu_s_per_demo": med("cpu_s_per_demo"),
         "demos_per_cpu_min": med("demos_per_cpu_min"),
+        "round_trip_pct": med("round_trip_pct"),  # returning the episodes to the parent: dataset.py
         "stage_seconds_total": per_run[-1].get("stage_seconds_total"),
         **({"splat_server": per_run[-1]["splat_server"]} if cfg.splat_server else {}),
     }

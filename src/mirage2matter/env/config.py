@@ -19,9 +19,25 @@ if TYPE_CHECKING:
     from ..sim.tasks import Task
     from ..world.config import WorldConfig
 
-__all__ = ["CAMERAS", "EnvConfig", "EnvError", "HybridOptions", "Randomization", "check_config", "parse_start_region"]
+__all__ = ["CAMERAS", "EnvConfig", "EnvError", "EpisodeSpec", "HybridOptions", "Randomization", "check_config",
+           "parse_start_region"]  # fmt: skip
 
 CAMERAS = ("head", "wrist")
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """What an episode's frames are: the one owner of the frame size, the rate and the cameras. The environment,
+    generation (its datasets' spec), the evaluation and the benchmarks take it, or refer to its defaults.
+
+    size     (width, height) of every camera's frames, pixels
+    fps      control and video rate (Hz): one action and one frame per control tick
+    cameras  which world cameras are observed (``observation.images.<camera>``) and recorded
+    """
+
+    size: tuple[int, int] = (224, 224)
+    fps: int = 10
+    cameras: tuple[str, ...] = CAMERAS
 
 
 class EnvError(M2MError, ValueError):
@@ -143,8 +159,10 @@ class HybridOptions:
             raise ValueError(f"robot_look must be auto, gaussians or mesh, got {self.robot_look!r}")
         has = world.robot.gaussians is not None
         if self.robot_look == "gaussians" and not has:
-            raise ValueError("robot_look gaussians: the world has no robot Gaussians (robot.gaussians in world.yaml: "
-                             "train-scene writes them when the capture shows the robot); use robot_look mesh")
+            raise ValueError(
+                "robot_look gaussians: the world has no robot Gaussians (robot.gaussians in world.yaml: "
+                "train-scene writes them when the capture shows the robot); use robot_look mesh"
+            )
         return has and self.robot_look != "mesh"
 
 
@@ -155,10 +173,8 @@ class EnvConfig:
     world          the loaded world (the environment copies it before changing anything)
     task           the parsed task (``sim.tasks.parse_task``): its success test is ``terminated``
     renderer       observation renderer: "hybrid" (what generation records) or "ground_truth"
-    size           (width, height) of every camera's frames
-    fps            control and video rate (Hz); one step is one control tick
+    episode        the frames (size, cameras) and the rate (fps: one step is one control tick)
     horizon        steps after which an episode is truncated (None: never)
-    cameras        which world cameras are observed (``observation.images.<camera>``)
     randomization  per-episode jitter, drawn from the episode's seed exactly as generation draws it
     hybrid         the hybrid renderer's settings
     ground_truth   a sample folder holding ``ground_truth.json`` (the ``ground_truth`` renderer's world)
@@ -170,15 +186,18 @@ class EnvConfig:
     world: WorldConfig
     task: Task
     renderer: str = "hybrid"
-    size: tuple[int, int] = (224, 224)
-    fps: int = 10
+    episode: EpisodeSpec = field(default_factory=EpisodeSpec)
     horizon: int | None = 200
-    cameras: tuple[str, ...] = CAMERAS
     randomization: Randomization = field(default_factory=Randomization)
     hybrid: HybridOptions = field(default_factory=HybridOptions)
     ground_truth: Path | None = None
     backend: str = "cpu"
     splat_server: Any = None
+
+    # the episode's, read where the environment is used (one owner: ``episode``)
+    size = property(lambda self: self.episode.size, doc="(width, height) of every camera's frames")
+    fps = property(lambda self: self.episode.fps, doc="control and video rate (Hz)")
+    cameras = property(lambda self: self.episode.cameras, doc="the observed world cameras")
 
 
 def check_config(cfg: EnvConfig, dt: float = 0.01) -> None:

@@ -18,7 +18,7 @@ from .config import Randomization
 
 if TYPE_CHECKING:
     from ..render.composite import ColorJitter
-    from .table_texture import TableTexture
+    from ..render.table_texture import TableTexture
 
 __all__ = ["EpisodeDraw", "draw_episode"]
 
@@ -72,7 +72,7 @@ def draw_episode(seed: int, randomization: Randomization, cameras: tuple[str, ..
     scale = float(rng.uniform(1.0 - rnd.object_shrink, 1.0)) if rnd.object_shrink > 0 else 1.0
     texture = None
     if rnd.table_texture > 0:
-        from .table_texture import TableTexture
+        from ..render.table_texture import TableTexture
 
         texture = TableTexture.sample(rng, rnd.table_texture)
     return EpisodeDraw(int(seed), jitter, T_cam_camj, reset_seed, task_seed, scale, texture)

@@ -90,7 +90,7 @@ class HybridRenderer:
         """The table's Gaussians in this episode's look (``texture``: a TableTexture; None: as reconstructed)."""
         import torch
 
-        from .table_texture import TableGaussians
+        from ..render.table_texture import TableGaussians
 
         if texture is None and not self._table_changed:
             return

@@ -29,9 +29,11 @@ __all__ = ["export_splat_bench", "load_or_record_streams", "record_splat_streams
 Log = Callable[[str], None]
 
 
-def record_splat_streams(world: str | Path, task: str, seeds: Sequence[int], size: int = 224) -> list[dict[str, Any]]:
+def record_splat_streams(world: str | Path, task: str, seeds: Sequence[int],
+                         size: int | None = None) -> list[dict[str, Any]]:  # fmt: skip
     """The scripted expert of ``task`` in the twin of ``world`` for each episode seed, with the splat layer's
-    inputs at every recorded frame (the first observation and one per control tick, as generation records)."""
+    inputs at every recorded frame (the first observation and one per control tick, as generation records);
+    ``size`` x ``size`` frames (None: the episode spec's, ``env.config.EpisodeSpec``)."""
     from .twin_env import TwinEnv
 
     env = TwinEnv(world, task, size=size)

@@ -2,7 +2,7 @@
 writes, so a policy trained on one of them runs here with no adapter.
 
 - **Observation** (a dict, the datasets' feature keys): ``observation.images.<camera>`` uint8 [H,W,3] per camera
-  (``EnvConfig.cameras``, default head and wrist), ``observation.state`` float32 [n_dofs] (arm joints in rad,
+  (``EpisodeSpec.cameras``, default head and wrist), ``observation.state`` float32 [n_dofs] (arm joints in rad,
   fingers in m: the robot spec's ``state_names``).
 - **Action**: float32 [n_arm + 1] (arm joint targets in rad, gripper target in m per finger: the spec's
   ``action_names``), within the model's joint limits and the gripper's range (clipped there). One step is one
@@ -30,7 +30,7 @@ from gymnasium import spaces
 
 from ..sim.tasks import Task, parse_task, steps_per_tick
 from ..world.config import WorldConfig
-from .config import CAMERAS, EnvConfig, EnvError, HybridOptions, Randomization, check_config
+from .config import EnvConfig, EnvError, EpisodeSpec, HybridOptions, Randomization, check_config
 from .episode import EpisodeDraw, draw_episode
 from .renderers import build_renderer
 
@@ -69,30 +69,35 @@ def make_config(
     world: WorldConfig | str | os.PathLike,
     task: Task | str,
     renderer: str = "hybrid",
-    size: int | tuple[int, int] = 224,
-    fps: int = 10,
-    horizon: int | None = 200,
-    cameras: tuple[str, ...] | list[str] = CAMERAS,
+    size: int | tuple[int, int] | None = None,
+    fps: int | None = None,
+    horizon: int | None = EnvConfig.horizon,
+    cameras: tuple[str, ...] | list[str] | None = None,
     randomization: Randomization | None = None,
     hybrid: HybridOptions | None = None,
     ground_truth: str | os.PathLike | None = None,
     backend: str = "cpu",
+    episode: EpisodeSpec | None = None,
 ) -> EnvConfig:
-    """Parse the environment's arguments once, at the border (see :class:`TwinEnv`), and check them."""
+    """Parse the environment's arguments once, at the border (see :class:`TwinEnv`), and check them. The frames
+    are ``episode``'s (None: :class:`EpisodeSpec`'s defaults) with ``size``, ``fps``, ``cameras`` given here."""
     world = resolve_world(world)
     if isinstance(task, str):
         task = parse_task(task, world)
     elif not isinstance(task, Task):
         raise EnvError(f"task must be an instruction such as 'grasp banana' or a parsed Task, got {task!r}")
+    episode = episode if episode is not None else EpisodeSpec()
     if isinstance(size, int):
         size = (size, size)
     try:
-        w, h = size
+        w, h = size if size is not None else episode.size
     except (TypeError, ValueError):
         raise EnvError(f"size must be an integer or (width, height), got {size!r}") from None
+    episode = replace(episode, size=(w, h), fps=episode.fps if fps is None else fps,
+                      cameras=episode.cameras if cameras is None else tuple(cameras))  # fmt: skip
     cfg = EnvConfig(
-        world=world, task=task, renderer=renderer, size=(w, h), fps=fps, horizon=horizon,
-        cameras=tuple(cameras), randomization=randomization or Randomization(), hybrid=hybrid or HybridOptions(),
+        world=world, task=task, renderer=renderer, episode=episode, horizon=horizon,
+        randomization=randomization or Randomization(), hybrid=hybrid or HybridOptions(),
         ground_truth=Path(ground_truth) if ground_truth is not None else None, backend=backend,
     )  # fmt: skip
     check_config(cfg)
@@ -102,15 +107,17 @@ def make_config(
 class TwinEnv(gymnasium.Env):
     """The twin of a world running one task (module docstring: observations, actions, episodes).
 
-    ``TwinEnv(world, task, renderer="hybrid", size=224, fps=10, horizon=200, cameras=("head", "wrist"),
-    randomization=Randomization(), hybrid=HybridOptions(), ground_truth=None, backend="cpu", render_mode=None)``
-    or ``gymnasium.make("mirage2matter/Twin-v0", ...)`` with the same arguments; ``world`` is a loaded
-    ``WorldConfig`` or a path (world folder or workspace), ``task`` an instruction or a parsed ``Task``.
+    ``TwinEnv(world, task, renderer="hybrid", size=None, fps=None, horizon=200, cameras=None,
+    randomization=Randomization(), hybrid=HybridOptions(), ground_truth=None, backend="cpu", episode=None,
+    render_mode=None)`` or ``gymnasium.make("mirage2matter/Twin-v0", ...)`` with the same arguments; ``world`` is a
+    loaded ``WorldConfig`` or a path (world folder or workspace), ``task`` an instruction or a parsed ``Task``;
+    the frames are ``EpisodeSpec()``'s unless ``size`` (a side or (width, height)), ``fps``, ``cameras`` or a whole
+    ``episode`` say otherwise.
     ``TwinEnv.from_config(cfg)`` takes an :class:`EnvConfig`. Building takes the twin's build (~15 s warm).
     ``render_mode="rgb_array"``: :meth:`render` gives the cameras' last frames side by side.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": EpisodeSpec.fps}  # an instance's: its config's fps
 
     def __init__(self, world: WorldConfig | str | os.PathLike, task: Task | str, render_mode: str | None = None,
                  **options: Any) -> None:  # fmt: skip
@@ -174,8 +181,9 @@ class TwinEnv(gymnasium.Env):
         self.draw = draw = draw_episode(episode_seed, cfg.randomization, cfg.cameras)
         for c in cfg.cameras:
             twin.cfg.cameras[c].T_mount_cam = self._mounts[c] @ draw.T_cam_camj[c]
-        self.start_poses = twin.reset(draw.reset_seed, randomize=cfg.randomization.objects,
-                                       regions=cfg.randomization.regions())
+        self.start_poses = twin.reset(
+            draw.reset_seed, randomize=cfg.randomization.objects, regions=cfg.randomization.regions()
+        )
         self.renderer.start_episode(draw)
         self._monitor = self.task.monitor(twin, self.tick_s)
         self._t = 0

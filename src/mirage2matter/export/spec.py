@@ -49,8 +49,9 @@ class DatasetSpec:
     state_names: tuple[str, ...]
     action_names: tuple[str, ...]
     robot_type: str | None = None
-    fps: int = 10
-    cameras: dict[str, tuple[int, int]] = field(default_factory=lambda: {"head": (224, 224), "wrist": (224, 224)})
+    # given, never defaulted here: a dataset's rate and frames are its episodes' (``env.config.EpisodeSpec``)
+    fps: int = field(kw_only=True)
+    cameras: dict[str, tuple[int, int]] = field(kw_only=True)
     video: VideoOptions = VideoOptions()
 
     def __post_init__(self) -> None:

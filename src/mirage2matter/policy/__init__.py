@@ -33,7 +33,8 @@ from .data import (
 _LAZY = {
     "CallablePolicy": "infer", "ChunkedPolicy": "infer", "Policy": "infer", "PolicyEnsemble": "infer",
     "load_ensemble": "infer", "load_policy": "infer", "load_policy_callable": "infer",
-    "open_policy": "infer", "ModelSpec": "model", "VisuomotorPolicy": "model", "train_policy": "train",
+    "open_policies": "infer", "open_policy": "infer", "ModelSpec": "model", "VisuomotorPolicy": "model",
+    "PolicyTrainer": "train", "train_policy": "train",
 }  # fmt: skip
 
 
@@ -56,6 +57,7 @@ __all__ = [
     "PolicyEnsemble",
     "PolicyError",
     "PolicyTrainConfig",
+    "PolicyTrainer",
     "VisuomotorPolicy",
     "chunk_indices",
     "dataset_meta",
@@ -64,6 +66,7 @@ __all__ = [
     "load_policy",
     "load_policy_callable",
     "normalization_stats",
+    "open_policies",
     "open_policy",
     "train_policy",
 ]

@@ -35,6 +35,7 @@ __all__ = [
     "load_ensemble",
     "load_policy",
     "load_policy_callable",
+    "open_policies",
     "medoid",
     "open_policy",
 ]
@@ -372,6 +373,13 @@ def load_policy_callable(ref: str, action_dim: int | None = None) -> CallablePol
         raise PolicyError(f"policy {ref!r}: {attr} is not callable; it must take an observation dict and "
                           "return an action")  # fmt: skip
     return CallablePolicy(fn, ref, action_dim)
+
+
+def open_policies(checkpoint_dirs: Sequence[str | Path], device: str = "cpu") -> Policy | PolicyEnsemble:
+    """One trained policy, or several as one ensemble (a generation's takeover, ``datagen.config.Takeover``)."""
+    if len(checkpoint_dirs) == 1:
+        return load_policy(checkpoint_dirs[0], device=device)
+    return load_ensemble(checkpoint_dirs, device=device)
 
 
 def open_policy(ref: str | Path, **kwargs: Any) -> Policy | CallablePolicy:

@@ -7,7 +7,7 @@ the tool centre point (TCP) will be a few seconds later - where the demonstratio
 a function of the scene alone, linear in where the object lies. Predicting it from the cameras, as an auxiliary
 loss during training only, makes the encoders localise the target; the deployed policy never sees these numbers.
 
-The targets come from the datasets as they are: forward kinematics (MuJoCo, :mod:`..calib.kinematics`) of the
+The targets come from the datasets as they are: forward kinematics (MuJoCo, :mod:`..robots.kinematics`) of the
 recorded arm joint targets ``action[t + h]`` for each horizon h, clipped to the episode's last frame.
 """
 
@@ -33,7 +33,7 @@ def robot_for(robot_type: str | None):
 
 def tcp_of_actions(action: np.ndarray, spec) -> np.ndarray:
     """float32 [N, 3]: the TCP position (base frame, m) where each action's arm joint targets [N, >= n_arm] put it."""
-    from ..calib.kinematics import RobotKinematics
+    from ..robots.kinematics import RobotKinematics
 
     kin = RobotKinematics(spec.name)  # a shipped robot by name (composed models included)
     tcp = np.append(spec.T_ee_tcp[:3, 3], 1.0)

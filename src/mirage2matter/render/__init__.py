@@ -1,16 +1,23 @@
 """Hybrid rendering (paper section 3.3): the Gaussian world posed by physics, composited with the
-simulator's robot render, depth-aware. Takes arrays and Gaussians, never a simulator."""
+simulator's robot render, depth-aware. Takes arrays and Gaussians, never a simulator.
 
-from .composite import ColorJitter, composite, robot_visible, to_uint8
-from .splat_world import MovablePart, SplatRenderOptions, SplatWorld, SplatWorldBatch
+The torch-backed names load on first use, so that the settings' bounds (``render.options``) and the table's
+texture read without torch.
+"""
 
-__all__ = [
-    "ColorJitter",
-    "MovablePart",
-    "SplatRenderOptions",
-    "SplatWorld",
-    "SplatWorldBatch",
-    "composite",
-    "robot_visible",
-    "to_uint8",
-]
+import importlib
+
+_LAZY = {
+    "ColorJitter": "composite", "composite": "composite", "robot_visible": "composite", "to_uint8": "composite",
+    "MovablePart": "splat_world", "SplatRenderOptions": "splat_world", "SplatWorld": "splat_world",
+    "SplatWorldBatch": "splat_world",
+}  # fmt: skip
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = sorted(_LAZY)

@@ -192,7 +192,7 @@ def _serve(parts, options, slots, cameras, size, background, table_z, gather_s, 
                 batch.set_scale(slot, scale)
                 if texture is not None or slot in textured:
                     if table is None:
-                        from ..env.table_texture import TableGaussians
+                        from .table_texture import TableGaussians
 
                         table = TableGaussians.find(world.gaussians, world.static_rows, table_z)
                     with torch.no_grad():

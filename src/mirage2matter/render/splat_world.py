@@ -21,6 +21,7 @@ import torch
 from ..gaussians.model import Gaussians
 from ..gaussians.transform import apply_sim3
 from ..geometry.sim3 import Sim3
+from .options import MAX_SUPERSAMPLE
 
 
 @dataclass
@@ -31,17 +32,6 @@ class MovablePart:
     name: str
     local: Gaussians
     scale: float = 1.0
-
-
-MAX_SUPERSAMPLE = 8  # a bound on the splat layer's size: 8x a 224-px frame is already 1792 px a side
-
-
-def supersample_problem(value: int) -> str | None:
-    """What is wrong with a generation's ``supersample`` (1: off, up to :data:`MAX_SUPERSAMPLE`), worded for the user;
-    None when valid. One wording for every command that passes it to generation."""
-    if not 1 <= value <= MAX_SUPERSAMPLE:
-        return f"supersample must be from 1 (off) to {MAX_SUPERSAMPLE}, got {value}"
-    return None
 
 
 @dataclass(frozen=True)

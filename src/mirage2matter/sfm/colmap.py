@@ -35,8 +35,8 @@ from ..geometry.camera import Camera
 from ..geometry.rotation import rotation_angle
 from ..geometry.umeyama import umeyama
 
-__all__ = ["SfMConfig", "SfMError", "SfMResult", "compare_poses", "load_sfm_summary", "robust_bundle_adjustment",
-           "run_sfm"]
+__all__ = ["SfMConfig", "SfMError", "SfMResult", "compare_poses", "load_model_points", "load_sfm_summary",
+           "robust_bundle_adjustment", "run_sfm"]
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 MIN_IMAGES = 3
@@ -453,6 +453,17 @@ def load_sfm_summary(out_dir: str | os.PathLike[str]) -> tuple[dict[str, Any], l
         summary = json.load(f)
     cams = [Camera.from_json(c, source=f"{path}: camera {i}") for i, c in enumerate(summary["cameras"])]
     return summary, cams
+
+
+def load_model_points(model_dir: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
+    """The SfM model's 3D points in its own frame: ``(xyz [N,3] float64, rgb [N,3] uint8)``."""
+    import pycolmap
+
+    rec = pycolmap.Reconstruction(str(model_dir))
+    pts = list(rec.points3D.values())
+    xyz = np.array([p.xyz for p in pts], dtype=np.float64).reshape(-1, 3)
+    rgb = np.array([p.color for p in pts], dtype=np.uint8).reshape(-1, 3)
+    return xyz, rgb
 
 
 # ---- evaluation ---------------------------------------------------------------------------------

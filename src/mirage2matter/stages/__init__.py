@@ -1,8 +1,9 @@
 """The pipeline's stages, in order: the only code besides ``workspace.py`` that knows workspace paths.
 
-Each stage is a :class:`~.base.Stage` here and a module (``Config``, ``inputs``, ``outputs``, ``run``,
-optionally ``compare``) imported on first use; ``m2m <stage>``, ``m2m demo`` and ``m2m run`` all go through
-:func:`~.base.run_stage`. :class:`~.pipeline.PipelineConfig` composes the Configs (a workspace's ``m2m.yaml``).
+:data:`STAGES` is the one list of them: each is a :class:`~.base.Stage` here and the module ``stages/<name>.py``
+(``Config``, ``inputs``, ``outputs``, ``run``, optionally ``compare``) imported on first use; ``m2m <stage>``,
+``m2m demo`` and ``m2m run`` all go through :func:`~.base.run_stage`. :class:`~.pipeline.PipelineConfig` (a
+workspace's ``m2m.yaml``) is built from this list: one section per stage, holding its Config.
 """
 
 from __future__ import annotations
@@ -13,35 +14,20 @@ from .base import Input, Stage, run_stage
 __all__ = ["PIPELINE", "STAGES", "Input", "Stage", "get_stage", "run_stage"]
 
 STAGES: tuple[Stage, ...] = (
-    Stage("capture", "capture", "pick keyframes (sharpness + parallax) from a video or an image folder", "capture"),
-    Stage("sfm", "sfm", "camera poses and points of the keyframes (COLMAP SfM), or imported ones", "sfm"),
-    Stage("align", "align-scene", "the SfM scene in the robot-base frame, metric, via a calibration target", "align"),
-    Stage(
-        "handeye", "calibrate-handeye", "the camera's mount from board images + the robot's poses", "handeye"
-    ),  # fmt: skip
-    Stage("scene", "train-scene", "scene 3D Gaussian Splatting from the posed keyframes", "scene"),
-    Stage(
-        "head_view", "head-view", "the scene through the calibrated head camera, against a head photo", "head_view"
-    ),  # fmt: skip
-    Stage(
-        "objects", "objects", "per object: masks, object 3DGS, watertight mesh + collision parts, aligned", "objects"
-    ),  # fmt: skip
-    Stage(
-        "world", "compose", "the world (robot, cameras, scene, objects) and its one Gaussian world.ply", "world"
-    ),  # fmt: skip
-    Stage("generate", "generate", "demonstrations of tasks in the world -> LeRobot datasets", "generate"),
-    Stage(
-        "train_policy",
-        "train-policy",
-        "a visuomotor policy trained on the workspace's datasets",
-        "train_policy",
-        pipeline=False,
-    ),  # fmt: skip
+    Stage("capture", "capture", "pick keyframes (sharpness + parallax) from a video or an image folder"),
+    Stage("sfm", "sfm", "camera poses and points of the keyframes (COLMAP SfM), or imported ones"),
+    Stage("align", "align-scene", "the SfM scene in the robot-base frame, metric, via a calibration target"),
+    Stage("handeye", "calibrate-handeye", "the camera's mount from board images + the robot's poses"),
+    Stage("scene", "train-scene", "scene 3D Gaussian Splatting from the posed keyframes"),
+    Stage("head_view", "head-view", "the scene through the calibrated head camera, against a head photo"),
+    Stage("objects", "objects", "per object: masks, object 3DGS, watertight mesh + collision parts, aligned"),
+    Stage("world", "compose", "the world (robot, cameras, scene, objects) and its one Gaussian world.ply"),
+    Stage("generate", "generate", "demonstrations of tasks in the world -> LeRobot datasets"),
+    Stage("train_policy", "train-policy", "a visuomotor policy trained on the workspace's datasets", pipeline=False),
     Stage(
         "eval_policy",
         "eval-policy",
         "a policy run closed-loop in the twin: success rate, video, report",
-        "eval_policy",
         pipeline=False,
     ),  # fmt: skip
 )

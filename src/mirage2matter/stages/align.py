@@ -18,7 +18,7 @@ from ..calib.board import load_target
 from ..configs import ranged
 from ..robots import DEFAULT_ROBOT, is_spec_file
 from ..workspace import Workspace
-from .base import ADDED_LATER, Input, Log
+from .base import ADDED_LATER, SHARED, Input, Log
 
 
 @dataclass
@@ -33,7 +33,8 @@ class Config:
                  worse (ChArUco, 48 keyframes: 1.20 -> 1.51 mm, 0.035 -> 0.060 deg; 16: 0.94 -> 2.40 mm), and on
                  a real capture 2.5 -> 13.4 mm
     robot        the robot (a name from `mirage2matter.robots` or a robot spec file) whose base footprint bounds
-                 the ICP region and is drawn in the overlay; "none" for a 10 cm circle
+                 the ICP region and is drawn in the overlay; "none" for a 10 cm circle. The pipeline's robot (m2m.yaml's
+                 top-level robot): giving it here changes it for every stage
     unaligned    no target: keep the SfM frame (not metric, not the robot's) for scene-only use
     capture_joints  the robot's joint state while the capture was filmed: its arm joints in radians (and fingers, in
                  the model's units), as the robot logged them; default: the robot's home. Where the keyframes show
@@ -48,7 +49,7 @@ class Config:
     board: Path | None = None
     board_pose: Path | None = None
     icp: bool = False
-    robot: str = DEFAULT_ROBOT
+    robot: str = field(default=DEFAULT_ROBOT, metadata=SHARED)
     unaligned: bool = False
     # wide: degrees given for radians are the robot's check to name (check_capture_joints), not a bare range
     capture_joints: list[float] | None = ranged(None, ge=-1000, le=1000, metadata=ADDED_LATER)
@@ -87,7 +88,7 @@ def _board_pose(path: Path) -> np.ndarray:
 def _footprint(robot: str) -> np.ndarray | None:
     if robot.lower() == "none":
         return None
-    from ..calib.kinematics import RobotKinematics
+    from ..robots.kinematics import RobotKinematics
 
     return RobotKinematics(robot).base_footprint()
 

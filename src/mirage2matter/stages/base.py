@@ -26,9 +26,10 @@ from ..atomic import atomic_write
 from ..configs import check_ranges, fingerprinted, to_dict
 from ..errors import M2MError
 from ..fingerprint import fingerprint
+from ..robots import DEFAULT_ROBOT
 from ..workspace import Workspace, WorkspaceError
 
-__all__ = ["Input", "Stage", "StageRecord", "jsonable", "run_stage", "stage_fingerprint"]
+__all__ = ["SHARED", "Input", "PipelineSettings", "Stage", "StageRecord", "jsonable", "run_stage", "stage_fingerprint"]
 
 Log = Callable[[str], None]
 
@@ -56,18 +57,17 @@ class Input:
 
 @dataclass(frozen=True)
 class Stage:
-    """One pipeline stage: its names here, its code in ``stages/<module>.py`` (imported on first use, so
+    """One pipeline stage: its names here, its code in ``stages/<name>.py`` (imported on first use, so
     ``m2m --help`` loads no stage's libraries).
 
-    name      the key in pipeline.json and m2m.yaml ("capture", "sfm", "align", ...)
+    name      the key in pipeline.json and m2m.yaml ("capture", "sfm", "align", ...) and the module under
+              ``stages/`` that defines ``Config``, ``inputs(ws, cfg) -> [Input]`` (the files read: their content
+              enters the fingerprint), ``writes(ws, cfg) -> [Path]`` (the artifacts it replaces, swapped in
+              together), ``outputs(ws, cfg) -> [Path]`` (what a finished stage leaves), ``run(ws, cfg, log) ->
+              summary`` (JSON-ready, with a one-line "line") and optionally ``compare(ws, cfg, ground_truth) ->
+              summary fields`` (how close the stage came to a sample's ground truth, with a "line" suffix)
     command   its ``m2m`` subcommand ("capture", "align-scene", "train-scene", ...)
-    help      one line for ``m2m --help``
-    module    the module under ``stages/`` that defines ``Config``, ``inputs(ws, cfg) -> [Input]`` (the files
-              read: their content enters the fingerprint), ``writes(ws, cfg) -> [Path]`` (the artifacts it
-              replaces, swapped in together), ``outputs(ws, cfg) -> [Path]`` (what a finished stage leaves),
-              ``run(ws, cfg, log) -> summary`` (JSON-ready, with a one-line "line") and optionally
-              ``compare(ws, cfg, ground_truth) -> summary fields`` (how close the stage came to a sample's
-              ground truth, with a "line" suffix)
+    help      one line for ``m2m --help``; also the doc of its section in m2m.yaml
     pipeline  part of a pipeline run (``m2m demo``, ``m2m run``); False: run on its own only (the policy stages,
               the user's experiment after the twin is built)
     """
@@ -75,12 +75,11 @@ class Stage:
     name: str
     command: str
     help: str
-    module: str
     pipeline: bool = True
 
     @property
     def code(self) -> Any:
-        return importlib.import_module(f"{__package__}.{self.module}")
+        return importlib.import_module(f"{__package__}.{self.name}")
 
     @property
     def config(self) -> type:
@@ -122,6 +121,25 @@ def stage_fingerprint(stage: Stage, ws: Workspace, cfg: Any) -> str:
 
 
 START_WAIT_S = 60.0  # how long a policy stage's start waits for the workspace lock before it is refused
+
+SHARED = {"shared": True}
+"""Field metadata of a stage's setting that is the whole pipeline's (a field of the same name in
+:class:`PipelineSettings`, e.g. the robot): ``m2m.yaml`` holds it once, at the top, and
+:class:`~.pipeline.PipelineConfig` gives every stage that has it the same value; a stage command's flag for it
+changes it for every stage."""
+
+
+@dataclass
+class PipelineSettings:
+    """The settings of the whole pipeline (at the top of ``m2m.yaml``), read by the stages whose Config has a
+    field of the same name marked :data:`SHARED` (the robot: align-scene, calibrate-handeye and compose).
+
+    robot   the robot at the base: a registered name (panda, ur5e) or a robot spec file ("none": a scene-only
+            workspace)
+    """
+
+    robot: str = DEFAULT_ROBOT
+
 
 ADDED_LATER = {"fingerprint": "when_set"}
 """Field metadata of a setting added to a stage after workspaces were made: at its default it stays out of the

@@ -14,14 +14,15 @@ unseen. A killed evaluation resumes at the episode it was on.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 from ..configs import ranged
+from ..env.config import EpisodeSpec
 from ..policy.config import POLICY_FILE
 from ..policy.data import PolicyError
-from ..render.splat_world import MAX_SUPERSAMPLE
+from ..render.options import MAX_SUPERSAMPLE
 from ..workspace import Workspace
 from .base import Input, Log
 
@@ -65,6 +66,9 @@ class Config:
     start_region    boxes "object:x_min,x_max,y_min,y_max" (m, robot-base frame): every episode starts with that object
                     inside one of its boxes, as ``generate --start-region``: how a policy does where it used to fail
                     (the report's default name then ends in the boxes)
+    ray_address     run the episodes on Ray workers: auto, host:port, or local (a private Ray instance); the same
+                    records and success figures as here for the same seeds (docs/guides/multi-machine.md)
+    workers         Ray workers (with ray_address), each running one episode at a time
     """
 
     policy: str = "policy"
@@ -85,6 +89,9 @@ class Config:
     objects: Literal["gaussians", "meshes"] = "gaussians"
     supersample: int = ranged(0, ge=0, le=MAX_SUPERSAMPLE)
     start_region: tuple[str, ...] = ()
+    # how the episodes run, not what they are: a run resumes one made the other way
+    ray_address: str | None = field(default=None, metadata={"fingerprint": "never"})
+    workers: int = ranged(1, ge=1, le=256, metadata={"fingerprint": "never"})
 
     def randomization(self):
         """The episodes' randomisation: generation's defaults, with the start regions."""
@@ -117,7 +124,7 @@ class Config:
             bad.append(f"objects={self.objects} is how the hybrid renderer draws them; the {self.renderer} renderer "
                        "draws its own world: add --objects gaussians (a setting given once stays in the workspace's "
                        "m2m.yaml)")  # fmt: skip
-        from ..render.splat_world import MAX_SUPERSAMPLE
+        from ..render.options import MAX_SUPERSAMPLE
 
         if not 0 <= self.supersample <= MAX_SUPERSAMPLE:
             bad.append(f"supersample must be from 0 (the datasets') or 1 (off) to {MAX_SUPERSAMPLE}, got "
@@ -125,6 +132,9 @@ class Config:
         if self.supersample > 1 and self.renderer != "hybrid":
             bad.append(f"supersample={self.supersample} is how the hybrid renderer draws its splats; the "
                        f"{self.renderer} renderer draws its own world: add --supersample 0")  # fmt: skip
+        if self.workers > 1 and not self.ray_address:
+            bad.append(f"workers={self.workers} are Ray workers: add --ray-address (local: a private Ray instance "
+                       "here), or leave workers at 1")  # fmt: skip
         if self.video_episodes < 0:
             bad.append(f"video_episodes must be >= 0, got {self.video_episodes}")
         if self.name is not None and (not self.name or Path(self.name).name != self.name):
@@ -204,7 +214,7 @@ def _size_of(ws: Workspace, cfg: Config) -> int:
     for d in _trained_on(policy_paths(ws, cfg)):
         if (d / "meta" / "info.json").is_file():
             return dataset_meta(d)[1][1]
-    return 224
+    return EpisodeSpec().size[0]
 
 
 def supersample_of(ws: Workspace, cfg: Config) -> int:
@@ -277,26 +287,30 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
 def open_policy(ws: Workspace, cfg: Config, world: Any):
     """The policy, checked against the world's robot before anything is built (a policy of another robot, rate
     or cameras is an error naming its file)."""
-    from ..env.config import CAMERAS
-    from ..policy import load_ensemble, load_policy, load_policy_callable
+    return policy_recipe(ws, cfg, world).open()
+
+
+def policy_recipe(ws: Workspace, cfg: Config, world: Any):
+    """How to open the policy (here or on a Ray worker, ``eval_workers.PolicyRecipe``); the settings checked."""
+    from ..eval_workers import PolicyRecipe
 
     spec = world.robot.spec
+    episode = EpisodeSpec()  # the rate and cameras of the episodes it runs in (eval-policy sets the size alone)
     paths = policy_paths(ws, cfg)
     if not paths:
         if cfg.ensemble_decay is not None or cfg.replan_every is not None or cfg.ensemble_combine != "mean":
             raise PolicyError(f"eval-policy: ensemble_decay, ensemble_combine and replan_every set how policies "
                               f"trained by m2m train-policy run their chunks; {cfg.policy} is a callable: leave them "
                               "out")  # fmt: skip
-        return load_policy_callable(cfg.policy, action_dim=len(spec.action_names))
+        return PolicyRecipe.of_callable(cfg.policy, action_dim=len(spec.action_names))
     how = {"device": cfg.device, "replan_every": cfg.replan_every, "ensemble_decay": cfg.ensemble_decay}
     if len(paths) == 1 and cfg.ensemble_combine != "mean":
         raise PolicyError(f"eval-policy: ensemble_combine {cfg.ensemble_combine} combines several policies; "
                           f"{cfg.policy} is one: name several (A,B,C) or leave it out")  # fmt: skip
-    policy = (load_policy(paths[0], **how) if len(paths) == 1
-              else load_ensemble(paths, combine=cfg.ensemble_combine, **how))  # fmt: skip
-    policy.check_matches(robot_type=spec.robot_type, state_names=spec.state_names, action_names=spec.action_names,
-                         fps=10, cameras=[c for c in CAMERAS if c in world.cameras])  # fmt: skip
-    return policy
+    check = {"robot_type": spec.robot_type, "state_names": spec.state_names, "action_names": spec.action_names,
+             "fps": episode.fps, "cameras": [c for c in episode.cameras if c in world.cameras]}  # fmt: skip
+    return PolicyRecipe(paths=tuple(str(p.resolve()) for p in paths), how=how, combine=cfg.ensemble_combine,
+                        check=check)  # fmt: skip
 
 
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
@@ -320,7 +334,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     out = ws.eval_dir(report_name(ws, cfg))
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    env = TwinEnv.from_config(env_cfg)
+    env = None if cfg.ray_address else TwinEnv.from_config(env_cfg)  # on Ray: each worker builds its own
     build_s = time.perf_counter() - t0
     try:
         rows_file = out / EPISODES_FILE
@@ -336,17 +350,22 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         log(f"eval-policy: {cfg.episodes} episodes of {task!r}, {cfg.renderer} frames at {size} px, seeds "
             f"{cfg.seed}..{cfg.seed + cfg.episodes - 1}, horizon {cfg.horizon}")  # fmt: skip
         t1 = time.perf_counter()
-        summary, kept = evaluate_policy(env, policy, cfg.episodes, seed=cfg.seed, log=log,
-                                        keep_frames=cfg.video_episodes, done=done, on_episode=save,
-                                        max_episode_seconds=60.0 * cfg.max_episode_minutes or None)  # fmt: skip
+        limit = 60.0 * cfg.max_episode_minutes or None
+        if env is None:
+            summary, kept = _on_ray(ws, cfg, env_cfg, limit, done, save, log)
+        else:
+            summary, kept = evaluate_policy(env, policy, cfg.episodes, seed=cfg.seed, log=log,
+                                            keep_frames=cfg.video_episodes, done=done, on_episode=save,
+                                            max_episode_seconds=limit)  # fmt: skip
         eval_s = time.perf_counter() - t1
     finally:
-        env.close()
+        if env is not None:
+            env.close()
     with atomic_write(rows_file, "w", encoding="utf-8") as f:  # in seed order
         f.writelines(json.dumps(r) + "\n" for r in summary["runs"])
     if kept:
         pad = lambda f: f[: f.shape[0] // 2 * 2, : f.shape[1] // 2 * 2]  # H.264 wants even sides
-        write_video(out / "rollout.mp4", (pad(f) for ep in kept for f in [*ep, *[ep[-1]] * 5]), fps=env.config.fps)
+        write_video(out / "rollout.mp4", (pad(f) for ep in kept for f in [*ep, *[ep[-1]] * 5]), fps=env_cfg.fps)
         contact_sheet(kept, out / "contact_sheet.png")
     steps = sum(r["steps"] for r in summary["runs"])
     lo, hi = summary["wilson95"]
@@ -360,13 +379,26 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         "size": size,
         "seeds": [cfg.seed, cfg.seed + cfg.episodes - 1],
         **({"start_regions": list(cfg.start_region)} if cfg.start_region else {}),
-        **({"inference": {"ensemble_decay": policy.ensemble_decay, "replan_every": policy.replan_every,
-                          **({"combine": policy.combine} if hasattr(policy, "combine") else {})}}
-           if hasattr(policy, "ensemble_decay") else {}),  # fmt: skip
-        "seconds": {"build": round(build_s, 1), "episodes": round(eval_s, 1),
-                    "per_step": round(eval_s / max(steps, 1), 4)},  # fmt: skip
-        "files": {"episodes": EPISODES_FILE, **({"video": "rollout.mp4", "contact_sheet": "contact_sheet.png"}
-                                                 if kept else {})},  # fmt: skip
+        **(
+            {
+                "inference": {
+                    "ensemble_decay": policy.ensemble_decay,
+                    "replan_every": policy.replan_every,
+                    **({"combine": policy.combine} if hasattr(policy, "combine") else {}),
+                }
+            }
+            if hasattr(policy, "ensemble_decay")
+            else {}
+        ),  # fmt: skip
+        "seconds": {
+            "build": round(build_s, 1),
+            "episodes": round(eval_s, 1),
+            "per_step": round(eval_s / max(steps, 1), 4),
+        },  # fmt: skip
+        "files": {
+            "episodes": EPISODES_FILE,
+            **({"video": "rollout.mp4", "contact_sheet": "contact_sheet.png"} if kept else {}),
+        },  # fmt: skip
         "report": str(out),
     }
     result["line"] = (f"{task!r} ({cfg.renderer}): {summary['successes']}/{summary['episodes']} = "
@@ -376,6 +408,16 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         json.dump({**result, "runs": summary["runs"]}, f, indent=1)
 
     return result
+
+
+def _on_ray(ws: Workspace, cfg: Config, env_cfg: Any, limit: float | None, done: list[dict], save: Any,
+            log: Log) -> tuple[dict[str, Any], list]:  # fmt: skip
+    """The episodes on Ray workers (``eval_workers``): the same records, appended by ``save`` here as they come."""
+    from ..eval_workers import EvalJob, evaluate_on_ray
+
+    job = EvalJob(env_cfg, policy_recipe(ws, cfg, env_cfg.world), max_episode_seconds=limit)
+    return evaluate_on_ray(job, cfg.episodes, cfg.ray_address, cfg.workers, seed=cfg.seed, log=log,
+                           keep_frames=cfg.video_episodes, done=done, on_episode=save)  # fmt: skip
 
 
 def record_key(ws: Workspace, cfg: Config) -> str:

@@ -10,9 +10,11 @@ from pathlib import Path
 from typing import Any, Literal
 
 from ..configs import ranged
-from ..datagen import GenerateConfig, GenerateError, task_slug
+from ..datagen import GenerateConfig, GenerateError, RunConfig, task_slug
 from ..datagen.config import MAX_TAKEOVER_STEPS, Randomization, Takeover, takeover_steps_problem
-from ..render.splat_world import MAX_SUPERSAMPLE
+from ..env.config import EpisodeSpec, hybrid_options
+from ..policy.config import POLICY_FILE
+from ..render.options import MAX_SUPERSAMPLE
 from ..workspace import Workspace
 from .base import ADDED_LATER, Input, Log
 
@@ -59,12 +61,12 @@ class Config:
 
     task: tuple[str, ...] = ()
     episodes: int = ranged(50, ge=1, le=10**6)
-    workers: int = ranged(GenerateConfig.workers, ge=1, le=256)
+    workers: int = ranged(RunConfig.workers, ge=1, le=256)
     ray_address: str | None = None
-    format: Literal["lerobot-v3.0", "lerobot-v2.1"] = GenerateConfig.format
-    seed: int = ranged(GenerateConfig.seed, ge=0, le=2**32 - 1)
-    size: int = ranged(GenerateConfig.size[0], ge=8, le=4096)
-    fps: int = ranged(GenerateConfig.fps, ge=1, le=1000)
+    format: Literal["lerobot-v3.0", "lerobot-v2.1"] = RunConfig.format
+    seed: int = ranged(RunConfig.seed, ge=0, le=2**32 - 1)
+    size: int = ranged(EpisodeSpec.size[0], ge=8, le=4096)
+    fps: int = ranged(EpisodeSpec.fps, ge=1, le=1000)
     out: Path | None = field(default=None, metadata={"output": True})  # written, not read
     objects: Literal["gaussians", "meshes"] = "gaussians"
     object_shrink: float = ranged(0.0, ge=0, lt=1)
@@ -76,7 +78,7 @@ class Config:
     takeover: str | None = None
     # within the approach: the sample's grasps take ~42 ticks, and with 10,60 a trained policy finished the task on its
     # own before the takeover in 3 of the first 5 attempts (nothing for the expert to correct)
-    takeover_steps: tuple[int, int] = ranged((5, 35), ge=0, le=MAX_TAKEOVER_STEPS, ordered=True)
+    takeover_steps: tuple[int, int] = ranged(Takeover.steps, ge=0, le=MAX_TAKEOVER_STEPS, ordered=True)
 
     def validate(self) -> None:
         if not self.task:
@@ -89,7 +91,7 @@ class Config:
             raise GenerateError(f"generate: object_shrink must be in [0, 1), got {self.object_shrink}")
         if not 0.0 <= self.table_texture < 1.0:
             raise GenerateError(f"generate: table_texture must be in [0, 1), got {self.table_texture}")
-        from ..render.splat_world import supersample_problem
+        from ..render.options import supersample_problem
 
         bad_supersample = supersample_problem(self.supersample)
         if bad_supersample:
@@ -128,14 +130,18 @@ class Config:
         if self.takeover is not None:
             if ws is None:
                 raise GenerateError("generate: a takeover's policies are looked up in a workspace; none was given")
-            takeover = Takeover.of(self.takeover_dirs(ws), self.takeover_steps)
+            from ..policy import open_policies  # loads torch
+
+            files = [Path(d) / POLICY_FILE for d in self.takeover_dirs(ws)]
+            takeover = Takeover.of(files, self.takeover_steps, opener=open_policies)
         return GenerateConfig(
-            episodes=self.episodes, workers=self.workers, ray_address=self.ray_address, format=self.format,
-            seed=self.seed, size=(self.size, self.size), fps=self.fps, objects=self.objects,
-            splat_server=self.splat_server, supersample=self.supersample, robot_look=self.robot_look,
+            run=RunConfig(episodes=self.episodes, seed=self.seed, workers=self.workers, ray_address=self.ray_address,
+                          format=self.format),
+            episode=EpisodeSpec(size=(self.size, self.size), fps=self.fps),
             randomization=Randomization(object_shrink=self.object_shrink, table_texture=self.table_texture,
                                         start_regions=self.start_regions()),
-            takeover=takeover,
+            hybrid=hybrid_options(self.objects, self.supersample, self.robot_look),
+            splat_server=self.splat_server, takeover=takeover,
         )  # fmt: skip
 
 

@@ -5,7 +5,7 @@ view's robot pose error modelled, judged by its leave-one-out corner error -> ``
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -16,7 +16,7 @@ from ..calib.board import load_target
 from ..calib.handeye import HandEyeError, calibrate_from_files
 from ..geometry.camera import load_intrinsics
 from ..workspace import Workspace
-from .base import Input, Log
+from .base import SHARED, Input, Log
 
 
 @dataclass
@@ -34,7 +34,8 @@ class Config:
     mount       head: eye-to-hand, the camera fixed in the base (T_base_headcam); wrist: eye-in-hand
     method      OpenCV's closed-form hand-eye solver
     robot       the robot: a registered name (panda, ur5e), a robot spec file or a bare model file (MJCF/URDF)
-                (default: the joints file's, else the default robot)
+                (default: the joints file's, else the default robot). In a workspace: the pipeline's robot (m2m.yaml's
+                top-level robot); giving it here changes it for every stage
     link        the link holding the board (head) or the camera (wrist) (default: the joints file's, else the
                 robot's end-effector link)
     refine      auto: pose_error or none, whichever has the lower leave-one-out corner error; pose_error: refine on
@@ -50,7 +51,7 @@ class Config:
     intrinsics: Path | None = None
     mount: Literal["head", "wrist"] = "head"
     method: Literal["tsai", "park", "horaud", "andreff", "daniilidis"] = "tsai"
-    robot: str | None = None
+    robot: str | None = field(default=None, metadata=SHARED)
     link: str | None = None
     refine: Literal["auto", "pose_error", "exact", "none"] = "auto"
     poses: Literal["auto", "joints", "ee"] = "auto"

@@ -13,6 +13,7 @@ content are unchanged are skipped, and the stage that was killed resumes from it
 from __future__ import annotations
 
 import dataclasses
+import functools
 import re
 import time
 from dataclasses import dataclass, field
@@ -24,29 +25,16 @@ from ..configs import ConfigError, from_dict, to_dict, to_yaml
 from ..errors import M2MError
 from ..inputs import read_yaml_lines
 from ..workspace import Workspace
-from . import (
-    PIPELINE,
-    STAGES,
-    align,
-    capture,
-    eval_policy,
-    generate,
-    handeye,
-    head_view,
-    objects,
-    scene,
-    sfm,
-    train_policy,
-    world,
-)
-from .base import Log, run_stage
+from . import PIPELINE, STAGES
+from .base import Log, PipelineSettings, run_stage
 from .report import RunNotes, write_report
 from .transaction import workspace_lock
 
 __all__ = ["PipelineConfig", "PipelineError", "SettingsFile", "input_paths", "plan_run", "run_pipeline"]
 
 _HEADER = """\
-# Mirage2Matter workspace settings (m2m.yaml): every input and setting of the pipeline, one section per stage.
+# Mirage2Matter workspace settings (m2m.yaml): every input and setting of the pipeline, the robot (the whole
+# pipeline's), then one section per stage.
 #   m2m run -w WORKSPACE      runs the stages in order from this file (--until / --from STAGE: part of them)
 #   m2m <stage> --help        explains a stage's fields; `m2m <stage> -w WORKSPACE --field VALUE` runs one stage
 # Every field is written, at its stage's default unless set. Paths: relative to this file's folder, or absolute.
@@ -61,34 +49,37 @@ class PipelineError(M2MError):
     result: dict[str, Any] | None = None  # the stopped run's summary (where and why), for run_summary.json
 
 
-@dataclass
-class PipelineConfig:
-    """Every stage's settings (``m2m.yaml``).
+class _Pipeline(PipelineSettings):
+    """The methods of :class:`PipelineConfig`; its fields: the pipeline's own settings, then one per stage."""
 
-    capture    keyframes from the video or image folder
-    sfm        camera poses and points
-    align      metric alignment to the robot base (the board)
-    handeye    the head camera's mount (hand-eye calibration)
-    scene      scene 3D Gaussian Splatting
-    head_view  the scene through the calibrated head camera, against a head photo
-    objects    object splats, meshes and collision parts
-    world      the world and its twin
-    generate      demonstrations per task
-    train_policy  a policy trained on the datasets (run on its own: ``m2m train-policy``)
-    eval_policy   a policy run in the twin (run on its own: ``m2m eval-policy``)
-    """
+    def __post_init__(self) -> None:
+        # the pipeline's settings are the stages' (SHARED fields): every section holds the pipeline's value
+        for name, value in _shared(self).items():
+            for section in _sharing(name):
+                setattr(self, section, dataclasses.replace(getattr(self, section), **{name: value}))
 
-    capture: capture.Config = field(default_factory=capture.Config)
-    sfm: sfm.Config = field(default_factory=sfm.Config)
-    align: align.Config = field(default_factory=align.Config)
-    handeye: handeye.Config = field(default_factory=handeye.Config)
-    scene: scene.Config = field(default_factory=scene.Config)
-    head_view: head_view.Config = field(default_factory=head_view.Config)
-    objects: objects.Config = field(default_factory=objects.Config)
-    world: world.Config = field(default_factory=world.Config)
-    generate: generate.Config = field(default_factory=generate.Config)
-    train_policy: train_policy.Config = field(default_factory=train_policy.Config)
-    eval_policy: eval_policy.Config = field(default_factory=eval_policy.Config)
+    @staticmethod
+    def upgrade(data: dict[str, Any]) -> dict[str, Any]:
+        """An m2m.yaml of before the robot was the pipeline's (``robot`` under align, handeye and world, as ``m2m
+        init`` fanned it out): the sections' robot moved to the top when they name one robot (handeye's may be
+        that robot's model file); a ConfigError saying how to fix the file when they differ."""
+        for name in (f.name for f in dataclasses.fields(PipelineSettings)):
+            sections = {s: data[s] for s in _sharing(name) if isinstance(data.get(s), dict)}
+            # texts only: a value of another type stays where it is, for its section to refuse by name
+            given = {s: d[name] for s, d in sections.items() if isinstance(d.get(name), str)}
+            if not given:
+                continue
+            values = {*given.values(), *([data[name]] if isinstance(data.get(name), str) else [])}
+            if name == "robot":
+                values = _robots(values)
+            if len(values) > 1:
+                top = [f"{name}: {data[name]}"] if name in data else []
+                where = ", ".join([f"{s}.{name}: {v}" for s, v in given.items()] + top)
+                raise ConfigError(f"{where}: one {name} for the whole pipeline now, set once at the top of the file; "
+                                  f"write `{name}: ...` there and remove {name} from the sections", name)  # fmt: skip
+            data = {k: {n: x for n, x in v.items() if n != name} if k in given else v for k, v in data.items()}
+            data.setdefault(name, values.pop())
+        return data
 
     @classmethod
     def load(cls, path: str | Path) -> PipelineConfig:
@@ -105,7 +96,8 @@ class PipelineConfig:
             return from_dict(cls, data, base_dir=path.parent.resolve()), where
         except ConfigError as e:
             what = "fix or remove the key" if "unknown setting" in str(e) else "fix the value"
-            raise ConfigError(f"{where.at(e.field)}: {e}; {what}", e.field) from None
+            what = "" if "set once at the top" in str(e) else f"; {what}"
+            raise ConfigError(f"{where.at(e.field)}: {e}{what}", e.field) from None
 
     def save(self, path: str | Path) -> Path:
         """Write every setting (defaults filled in, each field's doc as a comment) atomically; paths relative to
@@ -121,6 +113,52 @@ class PipelineConfig:
 
     def stage_config(self, name: str) -> Any:
         return getattr(self, name)
+
+    def with_stage(self, name: str, cfg: Any) -> PipelineConfig:
+        """These settings with the stage ``name``'s section replaced by ``cfg``; the pipeline's settings it holds
+        (the robot a stage command was given) become every stage's."""
+        shared = {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.metadata.get("shared")}
+        return dataclasses.replace(self, **{name: cfg, **shared})
+
+
+def _robots(names: set[str]) -> set[str]:
+    """``names`` without a model file that is another name's robot model (old m2m.yaml's handeye.robot)."""
+    from ..robots import get_robot
+
+    models = set()
+    for n in names:
+        try:
+            models.add(str(get_robot(n).model))  # what `m2m init --robot NAME` wrote as handeye.robot
+        except (M2MError, OSError):
+            pass
+    return {n for n in names if n not in models} or names
+
+
+def _shared(cfg: PipelineSettings) -> dict[str, Any]:
+    return {f.name: getattr(cfg, f.name) for f in dataclasses.fields(PipelineSettings)}
+
+
+@functools.cache
+def _sharing(name: str) -> tuple[str, ...]:
+    """The stages whose Config holds the pipeline's setting ``name`` (a SHARED field)."""
+    return tuple(s.name for s in STAGES
+                 if any(f.name == name and f.metadata.get("shared") for f in dataclasses.fields(s.config)))  # fmt: skip
+
+
+# Every stage's settings, one section per stage of the registry (stages/__init__.py), after the pipeline's own.
+PipelineConfig = dataclasses.make_dataclass(
+    "PipelineConfig",
+    [(s.name, s.config, field(default_factory=s.config)) for s in STAGES],
+    bases=(_Pipeline,),
+    namespace={
+        "__module__": __name__,
+        "__doc__": "Every stage's settings (``m2m.yaml``): the pipeline's own (the robot), then one section per "
+        "stage.\n\n"
+        + "\n".join(
+            f"{s.name:<13} {s.help}" + ("" if s.pipeline else f" (run on its own: ``m2m {s.command}``)") for s in STAGES
+        ),  # fmt: skip
+    },
+)
 
 
 _KEY = re.compile(r"\[(\d+)\]|([^.\[\]]+)")
@@ -248,7 +286,7 @@ def plan_run(
             reason = 'no tasks (generate.task is empty); add some, e.g. "grasp banana", and run again'
         plan[name] = reason
     for name in names:
-        validate = getattr(getattr(cfg, name), "validate", None)
+        validate = getattr(cfg.stage_config(name), "validate", None)
         if plan[name] is None and validate is not None:
             try:
                 validate()
@@ -258,21 +296,18 @@ def plan_run(
 
 
 def _check_required(cfg: PipelineConfig, where: SettingsFile, names: list[str]) -> None:
-    """The inputs a stage cannot do without, and one robot throughout; ConfigError naming the line."""
+    """The inputs a stage cannot do without, and a robot that loads; ConfigError naming the line."""
     from ..robots import get_robot
 
     at = where.at
-    for name in ("align.robot", "world.robot"):
-        robot = getattr(cfg, name.split(".")[0]).robot
-        if not (name == "align.robot" and robot == "none"):
-            try:
-                get_robot(robot)
-            except M2MError as e:
-                raise ConfigError(f"{at(name)}: {name}: {e}", name) from None
-    if cfg.align.robot not in (cfg.world.robot, "none"):
-        raise ConfigError(f"{at('world.robot')}: world.robot is {cfg.world.robot!r} but align.robot "
-                          f"({at('align.robot')}) is {cfg.align.robot!r}; name the same robot in both (`m2m init "
-                          "--robot NAME` sets both)", "world.robot")  # fmt: skip
+    if cfg.robot.lower() != "none":
+        try:
+            get_robot(cfg.robot)
+        except M2MError as e:
+            raise ConfigError(f"{at('robot')}: robot: {e}", "robot") from None
+    elif "world" in names:
+        raise ConfigError(f"{at('robot')}: robot: none, but the world needs one; name the robot at the base (`m2m "
+                          "init --robot NAME`), or run --until an earlier stage", "robot")  # fmt: skip
     imports = cfg.sfm.from_transforms is not None or cfg.sfm.from_colmap is not None
     if "capture" in names and cfg.capture.source is None and not imports:
         raise ConfigError(f"{at('capture.source')}: capture.source: no video or image folder; give the capture (`m2m "

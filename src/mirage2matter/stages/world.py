@@ -17,7 +17,7 @@ from ..robots import DEFAULT_ROBOT, is_spec_file
 from ..workspace import Workspace
 from ..world.config import CameraConfig, RandomizeConfig, RobotConfig, WorldConfigError
 from ..world.reconstruction import ReconstructionOptions
-from .base import Input, Log
+from .base import SHARED, Input, Log
 
 
 @dataclass
@@ -25,7 +25,8 @@ class Config:
     """compose settings.
 
     robot             the robot at the base origin (a name from `mirage2matter.robots`: panda, ur5e; or the path of a
-                      robot spec file, see `mirage2matter.robots.specfile`)
+                      robot spec file, see `mirage2matter.robots.specfile`). The pipeline's robot (m2m.yaml's
+                      top-level robot): giving it here changes it for every stage
     buttons           reconstructed objects that are press buttons (names with "button" always are)
     crop_margin       scene Gaussians this close (m) to an object's mesh are removed
     means_margin      scene Gaussians this close (m) to an object's own opaque Gaussians are removed too
@@ -38,7 +39,7 @@ class Config:
     sample            build the world from this sample's ground truth instead of the reconstruction
     """
 
-    robot: str = DEFAULT_ROBOT
+    robot: str = field(default=DEFAULT_ROBOT, metadata=SHARED)
     buttons: tuple[str, ...] = ()
     crop_margin: float = ranged(ReconstructionOptions.crop_margin, ge=0, le=0.1)
     means_margin: float = ranged(ReconstructionOptions.means_margin, ge=0, le=0.1)

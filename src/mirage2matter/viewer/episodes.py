@@ -15,12 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..env.config import EpisodeSpec
 from ..robots import RobotSpec
 from .inputs import ViewerError
 
 __all__ = ["Episode", "dataset_episode", "eval_episode"]
 
-FRAME_PX = 224  # the side the recorded frames are shown at (the datasets' default frame size)
+FRAME_PX = EpisodeSpec.size[0]  # the side the recorded frames are shown at (the datasets' default frame size)
 EVAL_PAD_FRAMES = 5  # eval-policy's rollout.mp4 repeats each episode's last frame this many times
 
 

@@ -1,5 +1,5 @@
 """The robot's link poses at a joint state for the viewer: the calibration's forward kinematics
-(``calib.kinematics.RobotKinematics``, MuJoCo, model loaded once, ~0.1 ms a frame) with the viewer's joint vectors
+(``robots.kinematics.RobotKinematics``, MuJoCo, model loaded once, ~0.1 ms a frame) with the viewer's joint vectors
 (the arm alone means the fingers open)."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..calib.kinematics import RobotKinematics
 from ..robots import RobotSpec
+from ..robots.kinematics import RobotKinematics
 
 __all__ = ["LinkPoser"]
 

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import M2MError
-from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
-from ..robots.model import ModelError, load_model, resolve_model
+from . import DEFAULT_ROBOT, get_robot, is_spec_file
+from .model import ModelError, load_model, resolve_model
 
 __all__ = ["KinematicsError", "RobotKinematics", "resolve_robot_path"]
 
