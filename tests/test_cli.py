@@ -20,7 +20,7 @@ from PIL import Image
 
 import mirage2matter
 from fixtures.browser import chromium, open_page
-from mirage2matter.bench import RESULT_KEYS, bench_render
+from mirage2matter.bench.render import RESULT_KEYS, bench_render
 from mirage2matter.cli import main
 from mirage2matter.gaussians.ply import read_ply, write_ply
 from mirage2matter.gaussians.render import render

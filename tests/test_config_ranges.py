@@ -15,9 +15,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fixtures import SAMPLE
-from mirage2matter.bench import RenderBenchConfig
+from mirage2matter.bench.render import RenderBenchConfig
+from mirage2matter.bench.sim2real import Sim2RealConfig
 from mirage2matter.commands.bench import datagen_config
-from mirage2matter.commands.sim2real import Sim2RealConfig
 from mirage2matter.configs import (
     ConfigError,
     Range,

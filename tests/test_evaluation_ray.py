@@ -71,7 +71,7 @@ def test_bench_sim2real_passes_the_ray_address_on(tmp_path, sample_dir, monkeypa
     the evaluations one after another in this process (``--parallel`` child processes would each join the cluster)."""
     import json
 
-    from mirage2matter.commands import sim2real
+    from mirage2matter.bench import sim2real
     from mirage2matter.evaluation import wilson_interval
     from mirage2matter.workspace import Workspace
 

@@ -76,9 +76,10 @@ def test_no_import_circles():
 
 def test_layers_point_one_way():
     """geometry imports nothing of ours but errors and inputs (which import nothing but errors); libraries import
-    no stage, command or CLI module."""
+    no stage, benchmark, command or CLI module."""
     graph = _import_graph()
-    upper = ("mirage2matter.stages", "mirage2matter.commands", "mirage2matter.cli", "mirage2matter.__main__")
+    upper = ("mirage2matter.stages", "mirage2matter.bench", "mirage2matter.commands", "mirage2matter.cli",
+             "mirage2matter.__main__")  # the benchmarks time the stages' own code
     assert graph["mirage2matter.inputs"] <= {"mirage2matter.errors"} and not graph["mirage2matter.errors"]
     for m, deps in graph.items():
         if m.startswith("mirage2matter.geometry"):
@@ -184,3 +185,162 @@ def test_thin_command_line_and_short_stage_functions(limit):
             if isinstance(node, ast.FunctionDef) and node.end_lineno - node.lineno + 1 > 100:
                 long.append(f"{_rel(p)}:{node.lineno} {node.name}")
     assert not long, f"stage functions over 100 lines: {long}"
+
+
+# Packages from the bottom up (issue 66): each imports only packages on its own level or below. Top-level modules
+# count as packages. One level may hold several packages (they may import one another; the circle test keeps them
+# apart at module level).
+PACKAGE_LEVELS = [
+    {"errors", "inputs", "atomic", "progress", "processes", "fingerprint", "video", "configs", "ray_cluster"},
+    {"geometry"},
+    {"robots"},
+    {"gaussians", "sfm", "capture", "calib", "objects"},
+    {"world"},
+    {"sim"},
+    {"render", "export"},
+    {"env"},
+    {"datagen"},
+    {"policy", "evaluation", "eval_workers"},
+    {"workspace", "viewer"},
+    {"sample"},  # the sample maker: a tool; nothing of the runtime imports it
+    {"stages"},
+    {"bench"},  # every benchmark (they time the stages' own code)
+    {"commands"},
+    {"cli", "__main__"},
+]
+
+
+def _package(module: str) -> str:
+    return module.split(".")[1] if "." in module else module
+
+
+def test_packages_import_only_downwards():
+    level = {p: i for i, ps in enumerate(PACKAGE_LEVELS) for p in ps}
+    packages = {_package(m) for m in _modules() if m != "mirage2matter"}
+    assert packages <= set(level), f"packages with no place in PACKAGE_LEVELS: {sorted(packages - set(level))}"
+    wrong = sorted(
+        f"{_package(m)} -> {_package(d)} ({m} imports {d})"
+        for m, deps in _import_graph().items()
+        if m != "mirage2matter"
+        for d in deps
+        if level[_package(d)] > level[_package(m)]
+    )
+    assert not wrong, "imports against the package order:\n" + "\n".join(wrong)
+
+
+def test_the_runtime_does_not_import_the_sample_maker():
+    """``mirage2matter.sample`` makes test captures; only the commands that make or inspect them import it."""
+    users = sorted({_package(m) for m, deps in _import_graph().items() for d in deps if _package(d) == "sample"})
+    assert set(users) <= {"sample", "commands"}, users
+
+
+# Third-party modules slow to import (or needing a display, a GPU, a service) or optional (sam2, fast_simplification:
+# a clear message without them): the only ones loaded inside functions, so that `m2m --help` and the stages' configs
+# load none of them.
+HEAVY_THIRD_PARTY = {
+    "torch", "genesis", "pycolmap", "ray", "open3d", "viser", "mujoco", "cv2", "av", "numba", "ompl", "coacd",
+    "gsplat", "trimesh", "skimage", "scipy", "pyarrow", "matplotlib", "selenium", "PIL", "lerobot", "plyfile",
+    "fsspec", "pandas", "manifold3d", "mkdocs", "tqdm", "sam2", "fast_simplification",
+}  # fmt: skip
+
+
+def _resolve(module: str, path: Path, node: ast.ImportFrom) -> str:
+    base = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
+    if not node.level:
+        return node.module or ""
+    parts = base.split(".")
+    return ".".join(parts[: len(parts) - node.level + 1] + ([node.module] if node.module else []))
+
+
+def _top_level_imports(module: str, path: Path) -> tuple[set[str], set[str]]:
+    """(our modules, heavy third-party packages) a module imports when it is imported (TYPE_CHECKING aside)."""
+    ours, heavy = set(), set()
+
+    def walk(body):
+        for n in body:
+            if isinstance(n, ast.If) and "TYPE_CHECKING" in ast.unparse(n.test):
+                continue
+            if isinstance(n, ast.If | ast.Try):
+                walk(n.body + n.orelse + [s for h in getattr(n, "handlers", []) for s in h.body])
+            elif isinstance(n, ast.Import):
+                heavy.update({a.name.split(".")[0] for a in n.names} & HEAVY_THIRD_PARTY)
+                ours.update(a.name for a in n.names if a.name.startswith("mirage2matter"))
+            elif isinstance(n, ast.ImportFrom):
+                target = _resolve(module, path, n)
+                heavy.update({target.split(".")[0]} & HEAVY_THIRD_PARTY)
+                if target.startswith("mirage2matter"):
+                    ours.update({target} | {f"{target}.{a.name}" for a in n.names})
+
+    walk(ast.parse(path.read_text()).body)
+    return ours, heavy
+
+
+def _loads_heavy() -> dict[str, bool]:
+    """Our module -> whether importing it loads a heavy third-party package (through any of ours it imports)."""
+    mods = _modules()
+    table = {m: _top_level_imports(m, p) for m, p in mods.items()}
+    memo: dict[str, bool] = {}
+
+    def heavy(m: str, stack: frozenset = frozenset()) -> bool:
+        if m not in memo:
+            ours, third = table[m]
+            chain = {".".join(d.split(".")[:i]) for d in ours for i in range(2, d.count(".") + 2)}
+            memo[m] = bool(third) or any(heavy(d, stack | {m}) for d in chain if d in mods and d not in stack | {m})
+        return memo[m]
+
+    return {m: heavy(m) for m in mods}
+
+
+def _lazy_names(path: Path) -> set[str] | None:
+    """A package's module ``__getattr__`` hands out names on first use (loading torch): those names, else None."""
+    tree = ast.parse(path.read_text())
+    if not any(isinstance(n, ast.FunctionDef) and n.name == "__getattr__" for n in tree.body):
+        return None
+    bound = {a.asname or a.name for n in tree.body if isinstance(n, ast.Import | ast.ImportFrom) for a in n.names}
+    return {"*"} - bound  # any name not bound at import is lazy
+
+
+def test_imports_inside_functions_only_for_heavy_modules():
+    """An import inside a function defers a cost: it must name a heavy third-party package, or a module of ours
+    that loads one (or a name a package hands out lazily). Anything else belongs at the top of the file. Fails on
+    ``from ..errors import M2MError`` written inside a function."""
+    mods, heavy = _modules(), _loads_heavy()
+    light = []
+    for m, p in mods.items():
+        for fn in ast.walk(ast.parse(p.read_text())):
+            if not isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef):
+                continue
+            for n in ast.walk(fn):
+                if isinstance(n, ast.Import):
+                    names = [a.name for a in n.names]
+                    if any(x.split(".")[0] in HEAVY_THIRD_PARTY for x in names):
+                        continue
+                    targets = [x for x in names if x.startswith("mirage2matter")]
+                elif isinstance(n, ast.ImportFrom):
+                    target = _resolve(m, p, n)
+                    if target.split(".")[0] in HEAVY_THIRD_PARTY:
+                        continue
+                    if not target.startswith("mirage2matter"):
+                        light.append(f"{_rel(p)}:{n.lineno} {target}")
+                        continue
+                    lazy = _lazy_names(mods[target]) if target in mods else None
+                    subs = [f"{target}.{a.name}" for a in n.names if f"{target}.{a.name}" in mods]
+                    lazy_hit = lazy is not None and any(
+                        a.name not in {x.rsplit(".", 1)[1] for x in subs} and a.name not in _bound(mods[target])
+                        for a in n.names
+                    )
+                    if lazy_hit:
+                        continue
+                    targets = [target, *subs]
+                else:
+                    continue
+                chain = {".".join(t.split(".")[:i]) for t in targets for i in range(2, t.count(".") + 2)}
+                if not any(heavy.get(t, False) for t in chain):
+                    light.append(f"{_rel(p)}:{n.lineno} {', '.join(targets)}")
+    assert not light, f"{len(light)} imports inside functions of light modules (move them up):\n" + "\n".join(light)
+
+
+def _bound(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text())
+    out = {a.asname or a.name for n in tree.body if isinstance(n, ast.Import | ast.ImportFrom) for a in n.names}
+    return out | {n.name for n in tree.body if isinstance(n, ast.FunctionDef | ast.ClassDef)}

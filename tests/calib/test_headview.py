@@ -9,11 +9,11 @@ from PIL import Image
 
 from fixtures import SAMPLE
 from mirage2matter.calib.board import BoardSpec, board_image_to_board_frame
-from mirage2matter.calib.headview import check_head_view
 from mirage2matter.calib.robot_view import grow_mask, robot_silhouette
 from mirage2matter.gaussians.model import Gaussians
 from mirage2matter.gaussians.sh import rgb_to_sh_dc
 from mirage2matter.geometry.camera import Camera
+from mirage2matter.render.head_view import check_head_view
 
 
 def board_gaussians(board: BoardSpec, T_base_board: np.ndarray, pps: int = 60) -> Gaussians:

@@ -50,7 +50,7 @@ def test_the_gaussian_robot_is_where_the_mesh_robot_is_without_a_genesis_camera(
     from mirage2matter.env.config import hybrid_options
     from mirage2matter.env.twin_env import TwinEnv
 
-    env = TwinEnv(green_robot_ws, "grasp banana", size=SIZE, hybrid=hybrid_options(robot_look="gaussians"))
+    env = TwinEnv(green_robot_ws / "world", "grasp banana", size=SIZE, hybrid=hybrid_options(robot_look="gaussians"))
     try:
         obs, _ = env.reset(seed=0)
         assert env.twin.cameras == {}  # nothing for Genesis to draw: no camera in the per-frame loop
@@ -58,7 +58,7 @@ def test_the_gaussian_robot_is_where_the_mesh_robot_is_without_a_genesis_camera(
         assert env.renderer.timings["robot_render"] == 0.0
     finally:
         env.close()
-    env = TwinEnv(green_robot_ws, "grasp banana", size=SIZE, hybrid=hybrid_options(robot_look="mesh"))
+    env = TwinEnv(green_robot_ws / "world", "grasp banana", size=SIZE, hybrid=hybrid_options(robot_look="mesh"))
     try:
         obs, _ = env.reset(seed=0)
         mask = env.twin.render_robot("head", SIZE, SIZE)["robot_mask"]

@@ -31,7 +31,7 @@ def world(ws):
 
 @pytest.fixture(scope="module")
 def env(ws):
-    e = gymnasium.make(ENV_ID, world=ws, task="grasp banana", size=SIZE, horizon=4)  # a workspace path
+    e = gymnasium.make(ENV_ID, world=ws / "world", task="grasp banana", size=SIZE, horizon=4)  # a world folder
     yield e
     e.close()
 
@@ -116,7 +116,7 @@ def test_bad_input_is_refused_before_genesis_starts(world, ws, tmp_path):
         TwinEnv(world, "grasp banana", sise=64)
     with pytest.raises(EnvError, match="fps must be a positive integer dividing the physics rate"):
         TwinEnv(world, "grasp banana", fps=30)
-    with pytest.raises(EnvError, match="neither a world folder"):
+    with pytest.raises(EnvError, match="no world.yaml there"):
         TwinEnv(tmp_path, "grasp banana")
     with pytest.raises(EnvError, match="render_mode"):
         TwinEnv(world, "grasp banana", render_mode="human")
@@ -128,8 +128,10 @@ def test_object_shrink_draws_smaller_objects_with_the_same_episode(ws):
     from mirage2matter.env import TwinEnv
     from mirage2matter.env.config import Randomization
 
-    plain = TwinEnv(ws, "grasp banana", size=(96, 72), horizon=2)
-    shrunk = TwinEnv(ws, "grasp banana", size=(96, 72), horizon=2, randomization=Randomization(object_shrink=0.5))
+    plain = TwinEnv(ws / "world", "grasp banana", size=(96, 72), horizon=2)
+    shrunk = TwinEnv(
+        ws / "world", "grasp banana", size=(96, 72), horizon=2, randomization=Randomization(object_shrink=0.5)
+    )
     try:
         o1, _ = plain.reset(seed=7)
         o2, _ = shrunk.reset(seed=7)
@@ -158,8 +160,10 @@ def test_table_texture_recolours_only_the_table_with_the_same_episode(ws):
     from mirage2matter.env.config import Randomization
     from mirage2matter.env.episode import EpisodeDraw
 
-    plain = TwinEnv(ws, "grasp banana", size=(96, 72), horizon=2)
-    textured = TwinEnv(ws, "grasp banana", size=(96, 72), horizon=2, randomization=Randomization(table_texture=0.3))
+    plain = TwinEnv(ws / "world", "grasp banana", size=(96, 72), horizon=2)
+    textured = TwinEnv(
+        ws / "world", "grasp banana", size=(96, 72), horizon=2, randomization=Randomization(table_texture=0.3)
+    )
     try:
         o1, _ = plain.reset(seed=7)
         g0 = textured.renderer.splat.gaussians.sh[:, 0].clone()

@@ -135,7 +135,7 @@ def test_generate_with_a_takeover_records_from_where_the_policy_left_the_world(w
     state = np.asarray(pq.read_table(next((out / "data").rglob("*.parquet"))).to_pydict()["observation.state"])
     assert state.shape[0] == row["length"]
 
-    env = TwinEnv(ws, TASK, size=48, horizon=None)
+    env = TwinEnv(ws / "world", TASK, size=48, horizon=None)
     try:
         obs, _ = env.reset(seed=row["seed"])
         start = obs["observation.state"].copy()
@@ -188,7 +188,7 @@ def test_bench_policy_gap_records_the_expert_once_and_scores_both_renderers(
     h, g = pair["hybrid.head"][0].astype(float), pair["ground_truth.head"][0].astype(float)
     assert 12.0 < 10 * np.log10(255**2 / np.mean((h - g) ** 2)) < 40.0
 
-    import mirage2matter.env.expert_pairs as expert_pairs
+    import mirage2matter.bench.policy_gap as expert_pairs
 
     def no_recording(*a, **k):
         raise AssertionError("recorded again")

@@ -9,19 +9,19 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
-import numpy as np
-
 from .. import configure_threads
-from ..bench import RenderBenchConfig
+from ..bench.policy_gap import PolicyGapConfig
+from ..bench.render import RenderBenchConfig
+from ..bench.sim2real import Sim2RealConfig
+from ..bench.splats import SplatsBenchConfig
 from ..configs import add_flags, from_flags, ranged
-from ..env.config import EpisodeSpec
+from ..workspace import Workspace
 from .args import backend, info
-from .sim2real import Sim2RealConfig
 
 
 @dataclass
 class TrainBenchConfig:
-    """bench train settings (``gaussians.bench_train``'s).
+    """bench train settings (``bench.train``'s).
 
     minutes        training time
     downscale      1/F resolution
@@ -38,56 +38,6 @@ class TrainBenchConfig:
     max_gaussians: int | None = ranged(None, ge=1000, metadata={"metavar": "N"})
     filter_3d: float | None = field(default=None, metadata={"parse": lambda text: _filter_variance(text),
                                                            "metavar": "V"})  # fmt: skip
-
-
-@dataclass
-class SplatsBenchConfig:
-    """bench splats settings.
-
-    task      the expert's task
-    episodes  recorded episodes
-    demos     episodes replayed per run, the recorded ones in turn
-    seed      episode seed of the first
-    size      frame side
-    batch     episodes per render call; 1 = generation's path
-    server    also through a splat server (generate --splat-server) fed by W worker processes, for each W given
-    backend   render backend: auto, cpu, cuda
-    runs      repetitions
-    export    instead of timing: write DIR, a workspace holding only the recorded episodes and the world's Gaussians
-              as generation draws them (SH 1, faint ones dropped; the sample's: 35 MB), for a GPU machine without the
-              simulator: there, bench splats -w DIR
-    """
-
-    task: str = "grasp banana"
-    episodes: int = ranged(8, ge=1, metadata={"metavar": "N"})
-    demos: int = ranged(64, ge=1, metadata={"metavar": "D"})
-    seed: int = 3_000_000
-    size: int = ranged(EpisodeSpec.size[0], ge=16, metadata={"metavar": "PX"})
-    batch: tuple[int, ...] = ranged((1, 16), ge=1, metadata={"metavar": "B"})
-    server: tuple[int, ...] = ranged((), ge=1, metadata={"metavar": "W"})
-    backend: str = "auto"
-    runs: int = ranged(3, ge=1, metadata={"metavar": "R"})
-    export: Path | None = field(default=None, metadata={"metavar": "DIR"})
-
-
-@dataclass
-class PolicyGapConfig:
-    """bench policy-gap settings.
-
-    task          the expert's task
-    episodes      expert episodes
-    seed          episode seed of the first
-    size          frame side
-    stride        compare every K-th step
-    ground_truth  the sample folder (default: the workspace's capture's, e.g. samples/tabletop)
-    """
-
-    task: str = "grasp banana"
-    episodes: int = ranged(10, ge=1, metadata={"metavar": "N"})
-    seed: int = 2_000_000
-    size: int = ranged(Sim2RealConfig.size, ge=16, metadata={"metavar": "PX"})  # sim2real's frames
-    stride: int = ranged(2, ge=1, metadata={"metavar": "K"})
-    ground_truth: Path | None = field(default=None, metadata={"metavar": "DIR"})
 
 
 def datagen_config() -> type:
@@ -155,7 +105,6 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     add_flags(p, SplatsBenchConfig)
     p.set_defaults(func=_splats)
 
-    from .sim2real import Sim2RealConfig
 
     s = bench_sub.add_parser(
         "sim2real", help="the paper's sim-to-real experiment on the sample: train on the reconstruction, test on "
@@ -189,7 +138,7 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
 
 
 def _render(args: argparse.Namespace) -> int:
-    from ..bench import bench_render
+    from ..bench.render import bench_render
 
     cfg = from_flags(RenderBenchConfig, args)
     cfg = replace(cfg, backend=backend(cfg.backend))
@@ -214,7 +163,7 @@ def _filter_variance(text: str) -> float:
 
 
 def _train(args: argparse.Namespace) -> int:
-    from ..gaussians.bench_train import bench_train
+    from ..bench.train import bench_train
 
     cfg = from_flags(TrainBenchConfig, args)
     configure_threads()
@@ -230,7 +179,7 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _datagen(args: argparse.Namespace) -> int:
-    from ..datagen import BENCH_KEYS, bench_datagen
+    from ..bench.datagen import BENCH_KEYS, bench_datagen
     from ..sim.tasks import parse_task
     from ..stages.transaction import workspace_lock
     from ..workspace import Workspace
@@ -250,8 +199,8 @@ def _datagen(args: argparse.Namespace) -> int:
 
 def _sim2real(args: argparse.Namespace) -> int:
     from ..atomic import atomic_write
+    from ..bench.sim2real import run_sim2real
     from ..workspace import Workspace
-    from .sim2real import Sim2RealConfig, run_sim2real
 
     cfg = from_flags(Sim2RealConfig, args)
     configure_threads()
@@ -269,112 +218,20 @@ def _sim2real(args: argparse.Namespace) -> int:
 
 
 def _policy_gap(args: argparse.Namespace) -> int:
-    import hashlib
-
-    from ..datagen import task_slug
-    from ..env.expert_pairs import load_or_record_pairs, open_loop_error
-    from ..env.twin_env import make_config
-    from ..stages import eval_policy
-    from ..workspace import Workspace
+    from ..bench.policy_gap import run_policy_gap
 
     gap = from_flags(PolicyGapConfig, args)
     configure_threads()
-    ws = Workspace(args.workspace)
-    cfg = eval_policy.Config(task=gap.task, renderer="ground_truth", ground_truth=gap.ground_truth)
-    gt = eval_policy.ground_truth_dir(ws, cfg)
-    world = make_config(ws.committed.world_dir, gap.task, size=gap.size).world  # the task and world, checked
-    policies = {}
-    for ref in args.policy:  # every policy opened and checked against the robot before the long recording
-        if not eval_policy.policy_paths(ws, replace(cfg, policy=ref)):
-            raise eval_policy.PolicyError(f"bench policy-gap: {ref!r} is a callable; it needs a trained policy (the "
-                                          "error is in its action-std units)")  # fmt: skip
-        policies[ref] = eval_policy.open_policy(ws, replace(cfg, policy=ref), world)
-    seeds = list(range(gap.seed, gap.seed + gap.episodes))
-    # keyed on the world's description too: a world composed again (other objects, other placements) records anew
-    world_id = hashlib.sha256(ws.committed.world_yaml.read_bytes()).hexdigest()[:8]
-    folder = ws.evals_dir / "expert_pairs" / f"{task_slug(gap.task)}-{gap.size}px-{world_id}"
-    episodes = load_or_record_pairs(folder, ws.committed.world_dir, gap.task, gt, seeds, gap.size, log=info)
-    ok = sum(bool(e["success"]) for e in episodes)
-    info(f"expert: {ok}/{len(episodes)} episodes succeeded (only those are compared)")
-    if not ok:
-        raise eval_policy.PolicyError(f"bench policy-gap: the scripted expert failed all {len(episodes)} episodes of "
-                                      f"{gap.task!r} in this world ({folder}); check it with `m2m task -w "
-                                      f"{ws.root} {gap.task!r}`")  # fmt: skip
-    rows = {}
-    for ref, policy in policies.items():
-        err = open_loop_error(policy, episodes, stride=gap.stride)
-        rows[ref] = {**{k: round(v, 5) for k, v in err.items()}, "gap": round(err["ground_truth"] - err["hybrid"], 5)}
-        info(f"{ref}: open-loop error hybrid {err['hybrid']:.4f}, ground truth {err['ground_truth']:.4f}")
-    result = {"task": gap.task, "episodes": len(episodes), "expert_successes": ok, "size": gap.size,
-              "stride": gap.stride, "seeds": [seeds[0], seeds[-1]], "policies": rows}  # fmt: skip
+    result = run_policy_gap(Workspace(args.workspace), gap, args.policy, log=info)
     print(json.dumps(result), flush=True)
     return 0
 
 
 def _splats(args: argparse.Namespace) -> int:
-    import hashlib
-    import statistics
-
-    import torch
-
-    from ..datagen import task_slug
-    from ..env.config import HybridOptions
-    from ..env.splat_replay import load_or_record_streams, replay_batched, replay_generation, replay_served
-    from ..render import SplatWorld, SplatWorldBatch
-    from ..workspace import Workspace
+    from ..bench.splats import run_splats
 
     cfg = from_flags(SplatsBenchConfig, args)
     threads = configure_threads()
-    ws = Workspace(args.workspace)
-    world_yaml = ws.committed.world_yaml
-    seeds = list(range(cfg.seed, cfg.seed + cfg.episodes))
-    world_id = hashlib.sha256(world_yaml.read_bytes()).hexdigest()[:8]  # a world composed again records anew
-    folder = ws.evals_dir / "splat_streams" / f"{task_slug(cfg.task)}-{cfg.size}px-{world_id}"
-    streams, parts = load_or_record_streams(folder, ws.committed.world_dir, cfg.task, seeds, cfg.size, log=info)
-    options = replace(HybridOptions().splat, backend=backend(cfg.backend))  # generation's splat settings
-    if cfg.export is not None:
-        from ..env.splat_replay import export_splat_bench
-
-        rows = export_splat_bench(ws.committed, folder, parts, options, cfg.export)
-        info(f"bench splats: {len(streams)} recorded episodes and {rows:,} Gaussians -> {cfg.export}")
-        print(json.dumps({"export": str(cfg.export), "episodes": len(streams), "gaussians": rows}), flush=True)
-        return 0
-    world = SplatWorld.from_files(parts, options)  # the Gaussians alone: no simulator, no robot model
-    dev = world.device
-    name = torch.cuda.get_device_name(dev) if dev.type == "cuda" else f"cpu ({threads} threads)"
-    frames_per_demo = float(np.mean([len(s["poses"]) for s in streams]))
-    info(f"bench splats: {len(world):,} Gaussians on {name}, {len(streams)} recorded episodes of {frames_per_demo:.1f}"
-         f" frames, {cfg.demos} replayed per run, {cfg.size} px")  # fmt: skip
-    replay_generation(world, streams[:1], 1, cfg.size)  # warm-up: kernels compiled / loaded, caches allocated
-    results = []
-
-    def timed(label: dict, what: str, replay) -> None:
-        """``cfg.runs`` runs of ``replay()`` -> one row of results: demos/min and ms per frame of the median run."""
-        runs = []
-        for _ in range(cfg.runs):
-            r = replay()
-            runs.append(r)
-            batch = f", mean batch {r['server']['mean_batch']:.1f}" if "server" in r else ""
-            info(f"{what}: {r['demos'] / r['seconds'] * 60:.1f} demos/min ({r['seconds']:.1f} s{batch})")
-        secs = statistics.median(r["seconds"] for r in runs)
-        row = {**label, "demos_per_min": round(cfg.demos / secs * 60, 1),
-               "ms_per_frame": round(1000 * secs / runs[0]["frames"], 3)}  # fmt: skip
-        if "server" in runs[0]:
-            row["mean_batch"] = round(statistics.median(r["server"]["mean_batch"] for r in runs), 2)
-        results.append({**row, "seconds": [round(r["seconds"], 2) for r in runs]})
-
-    for b in cfg.batch:
-        batch = None if b == 1 else SplatWorldBatch(world, b)
-        if batch is not None:
-            replay_batched(batch, streams[:1], 1, cfg.size)
-        timed({"batch": b}, f"batch {b}", lambda batch=batch: replay_generation(world, streams, cfg.demos, cfg.size)
-              if batch is None else replay_batched(batch, streams, cfg.demos, cfg.size))  # fmt: skip
-        del batch
-    for w in cfg.server:
-        timed({"server_workers": w}, f"server, {w} workers",
-              lambda w=w: replay_served(parts, options, streams, cfg.demos, cfg.size, w))  # fmt: skip
-    cams = sorted(k[len("view.") :] for k in streams[0] if k.startswith("view."))
-    print(json.dumps({"backend": dev.type, "device": name, "gaussians": len(world), "size": cfg.size,
-                      "cameras": cams, "frames_per_demo": round(frames_per_demo, 1), "demos": cfg.demos,
-                      "runs": cfg.runs, "results": results}), flush=True)  # fmt: skip
+    result = run_splats(Workspace(args.workspace), replace(cfg, backend=backend(cfg.backend)), threads, log=info)
+    print(json.dumps(result), flush=True)
     return 0

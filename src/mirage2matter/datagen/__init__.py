@@ -9,10 +9,9 @@ from .config import GenerateConfig, Randomization
 from .dataset import GenerateError, RunConfig, check_output, generate_dataset
 from .ray_workers import connect_ray
 from .runner import Attempt, EpisodeSource, RunnerError, WorkerPool, attempt_seed, run_attempts
-from .simulated import BENCH_KEYS, bench_datagen, dataset_fingerprint, generate, task_slug, worker_pool
+from .simulated import dataset_fingerprint, generate, task_slug, worker_pool
 
 __all__ = [
-    "BENCH_KEYS",
     "Attempt",
     "EpisodeSource",
     "GenerateConfig",
@@ -22,7 +21,6 @@ __all__ = [
     "RunnerError",
     "WorkerPool",
     "attempt_seed",
-    "bench_datagen",
     "check_output",
     "connect_ray",
     "dataset_fingerprint",

@@ -5,7 +5,7 @@ environment with the scripted expert acting: an episode's recorded actions repla
 ``reset(seed=its seed)`` reproduce it.
 
     import gymnasium, mirage2matter.env
-    env = gymnasium.make("mirage2matter/Twin-v0", world="path/to/workspace", task="grasp banana", size=224)
+    env = gymnasium.make("mirage2matter/Twin-v0", world="path/to/workspace/world", task="grasp banana", size=224)
 """
 
 import gymnasium

@@ -45,24 +45,20 @@ def image_key(camera: str) -> str:
 
 
 def resolve_world(world: WorldConfig | str | os.PathLike) -> WorldConfig:
-    """A loaded world as it is; a path to a world folder / world.yaml, or to a workspace (its composed world),
-    loaded once here."""
-    from ..workspace import Workspace
+    """A loaded world as it is, or a world folder / its world.yaml (a workspace's is ``<workspace>/world``), loaded
+    once here."""
     from ..world import load_world
     from ..world.config import world_yaml_path
 
     if isinstance(world, WorldConfig):
         return world
     if not isinstance(world, str | os.PathLike):
-        raise EnvError(f"world must be a loaded WorldConfig or a path (a world folder or a workspace), got {world!r}")
+        raise EnvError(f"world must be a loaded WorldConfig or a world folder, got {world!r}")
     p = Path(world)
     if world_yaml_path(p).is_file():
         return load_world(p)
-    ws = Workspace(p)
-    if ws.world_yaml.is_file():
-        return load_world(ws.world_dir)
-    raise EnvError(f"{p}: neither a world folder (world.yaml) nor a workspace with a composed world; "
-                   "run `m2m compose` (or `m2m run`) in the workspace first")  # fmt: skip
+    raise EnvError(f"{p}: no world.yaml there; pass a world folder (a workspace's: <workspace>/world, written by "
+                   "`m2m compose` or `m2m run`)")  # fmt: skip
 
 
 def make_config(
@@ -110,7 +106,8 @@ class TwinEnv(gymnasium.Env):
     ``TwinEnv(world, task, renderer="hybrid", size=None, fps=None, horizon=200, cameras=None,
     randomization=Randomization(), hybrid=HybridOptions(), ground_truth=None, backend="cpu", episode=None,
     render_mode=None)`` or ``gymnasium.make("mirage2matter/Twin-v0", ...)`` with the same arguments; ``world`` is a
-    loaded ``WorldConfig`` or a path (world folder or workspace), ``task`` an instruction or a parsed ``Task``;
+    loaded ``WorldConfig`` or a world folder (a workspace's: ``<workspace>/world``), ``task`` an instruction or a
+    parsed ``Task``;
     the frames are ``EpisodeSpec()``'s unless ``size`` (a side or (width, height)), ``fps``, ``cameras`` or a whole
     ``episode`` say otherwise.
     ``TwinEnv.from_config(cfg)`` takes an :class:`EnvConfig`. Building takes the twin's build (~15 s warm).

@@ -45,9 +45,9 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
 
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     from ..calib.board import target_from_json
-    from ..calib.headview import check_head_view, save_head_view
     from ..gaussians.ply import read_ply
     from ..inputs import read_image_rgb
+    from ..render.head_view import check_head_view, save_head_view
 
     board = ws.board_on_table()
     if board is None:

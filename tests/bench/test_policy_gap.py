@@ -1,4 +1,4 @@
-"""A policy's open-loop action error on expert episodes (``env.expert_pairs``): chunk i is scored against the
+"""A policy's open-loop action error on expert episodes (``bench.policy_gap``): chunk i is scored against the
 expert's actions t..t+K-1 in action-std units, per renderer, on successful episodes only."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from mirage2matter.env.expert_pairs import open_loop_error
+from mirage2matter.bench.policy_gap import open_loop_error
 
 K, A, T = 4, 3, 9
 

@@ -17,13 +17,22 @@ uint8 [T+1, S, S, 3] (the observation before each step, and the last), ``state``
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["load_or_record_pairs", "open_loop_error", "record_expert_pairs"]
+from ..configs import ranged
+from ..datagen import task_slug
+from ..env.twin_env import make_config
+from ..stages import eval_policy
+from ..workspace import Workspace
+from .sim2real import Sim2RealConfig
+
+__all__ = ["PolicyGapConfig", "load_or_record_pairs", "open_loop_error", "record_expert_pairs", "run_policy_gap"]
 
 Log = Callable[[str], None]
 RENDERERS = ("hybrid", "ground_truth")
@@ -34,8 +43,8 @@ def record_expert_pairs(
 ) -> list[dict[str, Any]]:
     """The scripted expert of ``task`` in the twin of ``world`` for each seed (the env's episode seed), every
     observation rendered by the hybrid renderer (what generation writes) and by the sample's ground truth."""
-    from .ground_truth import GroundTruthFrames
-    from .twin_env import TwinEnv
+    from ..env.ground_truth import GroundTruthFrames
+    from ..env.twin_env import TwinEnv
 
     env = TwinEnv(world, task, size=size)
     gt = GroundTruthFrames(env.twin, Path(sample_dir), env.config.cameras, env.config.size)
@@ -47,8 +56,8 @@ def record_expert_pairs(
 
 
 def _record_one(env: Any, gt: Any, seed: int) -> dict[str, Any]:
+    from ..env.twin_env import STATE_KEY, image_key
     from ..sim.tasks import run_task
-    from .twin_env import STATE_KEY, image_key
 
     cams = env.config.cameras
     frames: dict[str, list[np.ndarray]] = {f"{r}.{c}": [] for r in RENDERERS for c in cams}
@@ -80,7 +89,7 @@ def load_or_record_pairs(
 ) -> list[dict[str, Any]]:
     """:func:`record_expert_pairs`, each episode cached as ``folder/pair_<seed>.npz`` (written atomically): a
     second call, or one with more seeds, records only what is missing."""
-    from .episode_cache import load_or_record_episodes
+    from ..env.episode_cache import load_or_record_episodes
 
     record = lambda missing: record_expert_pairs(world, task, sample_dir, missing, size)
     return load_or_record_episodes(folder, "pair", seeds, record, log, "expert episode(s) through both renderers")
@@ -107,3 +116,57 @@ def open_loop_error(policy: Any, episodes: Sequence[dict[str, Any]], stride: int
                 k = min(len(chunk), len(actions) - t)
                 errs[r].append(float(np.abs((chunk[:k] - actions[t : t + k]) / std).mean()))
     return {r: float(np.mean(v)) for r, v in errs.items()}
+
+
+@dataclass
+class PolicyGapConfig:
+    """bench policy-gap settings.
+
+    task          the expert's task
+    episodes      expert episodes
+    seed          episode seed of the first
+    size          frame side
+    stride        compare every K-th step
+    ground_truth  the sample folder (default: the workspace's capture's, e.g. samples/tabletop)
+    """
+
+    task: str = "grasp banana"
+    episodes: int = ranged(10, ge=1, metadata={"metavar": "N"})
+    seed: int = 2_000_000
+    size: int = ranged(Sim2RealConfig.size, ge=16, metadata={"metavar": "PX"})  # sim2real's frames
+    stride: int = ranged(2, ge=1, metadata={"metavar": "K"})
+    ground_truth: Path | None = field(default=None, metadata={"metavar": "DIR"})
+
+
+def run_policy_gap(ws: Workspace, gap: PolicyGapConfig, policy_refs: list[str], log: Callable[[str], None] = print
+                   ) -> dict[str, Any]:  # fmt: skip
+    """Record (or load) the expert's episodes through both renderers and score each policy (``policy_refs``: names
+    under the workspace's policies or folders) on them -> the JSON-ready result."""
+    cfg = eval_policy.Config(task=gap.task, renderer="ground_truth", ground_truth=gap.ground_truth)
+    gt = eval_policy.ground_truth_dir(ws, cfg)
+    world = make_config(ws.committed.world_dir, gap.task, size=gap.size).world  # the task and world, checked
+    policies = {}
+    for ref in policy_refs:  # every policy opened and checked against the robot before the long recording
+        if not eval_policy.policy_paths(ws, replace(cfg, policy=ref)):
+            raise eval_policy.PolicyError(f"bench policy-gap: {ref!r} is a callable; it needs a trained policy (the "
+                                          "error is in its action-std units)")  # fmt: skip
+        policies[ref] = eval_policy.open_policy(ws, replace(cfg, policy=ref), world)
+    seeds = list(range(gap.seed, gap.seed + gap.episodes))
+    # keyed on the world's description too: a world composed again (other objects, other placements) records anew
+    world_id = hashlib.sha256(ws.committed.world_yaml.read_bytes()).hexdigest()[:8]
+    folder = ws.evals_dir / "expert_pairs" / f"{task_slug(gap.task)}-{gap.size}px-{world_id}"
+    episodes = load_or_record_pairs(folder, ws.committed.world_dir, gap.task, gt, seeds, gap.size, log=log)
+    ok = sum(bool(e["success"]) for e in episodes)
+    log(f"expert: {ok}/{len(episodes)} episodes succeeded (only those are compared)")
+    if not ok:
+        raise eval_policy.PolicyError(f"bench policy-gap: the scripted expert failed all {len(episodes)} episodes of "
+                                      f"{gap.task!r} in this world ({folder}); check it with `m2m task -w "
+                                      f"{ws.root} {gap.task!r}`")  # fmt: skip
+    rows = {}
+    for ref, policy in policies.items():
+        err = open_loop_error(policy, episodes, stride=gap.stride)
+        rows[ref] = {**{k: round(v, 5) for k, v in err.items()}, "gap": round(err["ground_truth"] - err["hybrid"], 5)}
+        log(f"{ref}: open-loop error hybrid {err['hybrid']:.4f}, ground truth {err['ground_truth']:.4f}")
+    result = {"task": gap.task, "episodes": len(episodes), "expert_successes": ok, "size": gap.size,
+              "stride": gap.stride, "seeds": [seeds[0], seeds[-1]], "policies": rows}  # fmt: skip
+    return result

@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from ..calib.board import BoardSpec
 from ..geometry.camera import Camera
-from .board import BoardSpec
 
 __all__ = ["HeadViewCheck", "check_head_view", "detect_corners"]
 
@@ -91,7 +91,7 @@ def _render_with_robot(gaussians, robot: dict, T_base_link: dict[str, np.ndarray
     """(rgb float32 [H,W,3], the robot's pixels bool [H,W]): the scene and the robot's links ({link: Gaussians in
     its frame}) posed at ``T_base_link`` in one splat pass, as the hybrid renderer composes them; the robot's pixels
     from the robot drawn alone (alpha >= 0.5)."""
-    from ..render.splat_world import MovablePart, SplatRenderOptions, SplatWorld
+    from .splat_world import MovablePart, SplatRenderOptions, SplatWorld
 
     missing = sorted(set(robot) - set(T_base_link))
     if missing:

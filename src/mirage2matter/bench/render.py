@@ -14,8 +14,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
-from .configs import ranged
-from .env.config import EpisodeSpec
+from ..configs import ranged
+from ..env.config import EpisodeSpec
 
 __all__ = ["RenderBenchConfig", "bench_render"]
 
@@ -52,7 +52,7 @@ class RenderBenchConfig:
 
     def validate(self) -> None:
         """Raise ConfigError naming the field, before any expensive work starts."""
-        from .configs import ConfigError
+        from ..configs import ConfigError
 
         minimum = {"gaussians": 1, "size": 1, "views": 1, "repeats": 1, "warmup": 0, "seed": 0, "cameras_per_call": 1}
         for name, lo in minimum.items():
@@ -92,8 +92,8 @@ def bench_render(
 
     import torch
 
-    from .gaussians.render import render, render_cameras, resolve_backend
-    from .gaussians.synthetic import orbit_cameras, tabletop_scene
+    from ..gaussians.render import render, render_cameras, resolve_backend
+    from ..gaussians.synthetic import orbit_cameras, tabletop_scene
 
     backend = resolve_backend(cfg.backend)
     t0 = time.perf_counter()

@@ -14,11 +14,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..gaussians.budget import DENSIFY_FRACTION, budget_config
+from ..gaussians.dataset import build_views
+from ..gaussians.filter3d import FILTER_3D_VARIANCE
+from ..gaussians.train import TrainConfig, Trainer, init_gaussians_from_points, train
 from ..geometry.camera import load_transforms_json
-from .budget import DENSIFY_FRACTION, budget_config
-from .dataset import build_views
-from .filter3d import FILTER_3D_VARIANCE
-from .train import TrainConfig, Trainer, init_gaussians_from_points, train
 
 __all__ = ["bench_train", "profile_step"]
 

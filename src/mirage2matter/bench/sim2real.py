@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -168,10 +169,10 @@ def _done(ws: Workspace, stage_name: str, cfg: Any) -> bool:
 
 def _child(root: str, stage_name: str, cfg: Any, threads: int) -> tuple[dict[str, Any], float, bool]:
     from .. import configure_threads
-    from .args import info
 
     configure_threads(threads)
-    return _run_stage(stage_name, Workspace(root), cfg, lambda m: info(f"[{cfg.name}] {m}"))
+    log = lambda m: print(f"[{cfg.name}] {m}", file=sys.stderr, flush=True)  # the child's lines on stderr
+    return _run_stage(stage_name, Workspace(root), cfg, log)
 
 
 def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[str, Any]:

@@ -1,4 +1,4 @@
-"""Replaying recorded splat streams (env/splat_replay.py) on tiny synthetic streams: every recorded frame of every
+"""Replaying recorded splat streams (bench/splats.py) on tiny synthetic streams: every recorded frame of every
 episode is drawn once, from its own cameras, by both paths (generation's frame-by-frame one and the batched one)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mirage2matter.env.splat_replay import replay_batched, replay_generation
+from mirage2matter.bench.splats import replay_batched, replay_generation
 from mirage2matter.render import SplatWorldBatch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "hybrid"))
@@ -82,7 +82,7 @@ def test_served_replay_draws_every_frame_through_the_server(tmp_path) -> None:
     --splat-server), every recorded frame drawn there once."""
     from test_composite import _blob
 
-    from mirage2matter.env.splat_replay import replay_served
+    from mirage2matter.bench.splats import replay_served
     from mirage2matter.gaussians.ply import write_ply
     from mirage2matter.render import SplatRenderOptions
 
@@ -102,7 +102,7 @@ def test_bench_splats_records_once_then_replays_without_the_simulator(sample_wor
     import json
     import shutil
 
-    import mirage2matter.env.splat_replay as splat_replay
+    import mirage2matter.bench.splats as splat_replay
     import mirage2matter.env.twin_env as twin_env
     from mirage2matter.cli import main
 
@@ -144,7 +144,7 @@ def test_bench_splats_records_once_then_replays_without_the_simulator(sample_wor
 
 
 def test_export_keeps_what_generation_draws_and_nothing_half_written(tmp_path) -> None:
-    """bench splats --export (env/splat_replay.export_splat_bench): a workspace with the recorded streams and the
+    """bench splats --export (bench/splats.export_splat_bench): a workspace with the recorded streams and the
     world's Gaussians cut to what generation draws (SH 1, faint ones dropped), at the same paths relative to world/,
     whose splat world renders the frames of the original one."""
     import json
@@ -152,8 +152,8 @@ def test_export_keeps_what_generation_draws_and_nothing_half_written(tmp_path) -
     import torch
     from test_composite import H, K, W, _blob, _camera
 
+    from mirage2matter.bench.splats import export_splat_bench
     from mirage2matter.configs import ConfigError
-    from mirage2matter.env.splat_replay import export_splat_bench
     from mirage2matter.gaussians.ply import read_ply, write_ply
     from mirage2matter.render import SplatRenderOptions, SplatWorld
     from mirage2matter.workspace import Workspace

@@ -16,12 +16,20 @@ each part at each frame), ``view.<camera>`` [T,4,4] base-to-camera, ``K.<camera>
 
 from __future__ import annotations
 
+import hashlib
+import statistics
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ..configs import ranged
+from ..datagen import task_slug
+from ..env.config import EpisodeSpec, HybridOptions
+from ..workspace import Workspace
 
 __all__ = ["export_splat_bench", "load_or_record_streams", "record_splat_streams", "replay_batched",
            "replay_generation", "replay_served"]  # fmt: skip
@@ -34,7 +42,7 @@ def record_splat_streams(world: str | Path, task: str, seeds: Sequence[int],
     """The scripted expert of ``task`` in the twin of ``world`` for each episode seed, with the splat layer's
     inputs at every recorded frame (the first observation and one per control tick, as generation records);
     ``size`` x ``size`` frames (None: the episode spec's, ``env.config.EpisodeSpec``)."""
-    from .twin_env import TwinEnv
+    from ..env.twin_env import TwinEnv
 
     env = TwinEnv(world, task, size=size)
     try:
@@ -85,7 +93,7 @@ def load_or_record_streams(
     import os
 
     from ..atomic import atomic_write
-    from .episode_cache import load_or_record_episodes
+    from ..env.episode_cache import load_or_record_episodes
 
     world_dir = Path(world_dir).resolve()
     record = lambda missing: record_splat_streams(world_dir, task, missing, size)
@@ -93,8 +101,8 @@ def load_or_record_streams(
                                       f"expert episode(s) of {task!r} (poses and camera views)")  # fmt: skip
     parts_file = folder / "splat_parts.json"
     if not parts_file.is_file():
-        from .hybrid import splat_parts
-        from .twin_env import resolve_world
+        from ..env.hybrid import splat_parts
+        from ..env.twin_env import resolve_world
 
         desc = splat_parts(resolve_world(world_dir))
         rel = lambda p: None if p is None else os.path.relpath(p, world_dir)
@@ -271,3 +279,90 @@ def replay_served(parts: dict[str, Any], options: Any, streams: Sequence[dict[st
                     p.kill()
         stats = server.close()
     return {"seconds": seconds, "frames": frames, "demos": demos, "server": stats}
+
+
+@dataclass
+class SplatsBenchConfig:
+    """bench splats settings.
+
+    task      the expert's task
+    episodes  recorded episodes
+    demos     episodes replayed per run, the recorded ones in turn
+    seed      episode seed of the first
+    size      frame side
+    batch     episodes per render call; 1 = generation's path
+    server    also through a splat server (generate --splat-server) fed by W worker processes, for each W given
+    backend   render backend: auto, cpu, cuda
+    runs      repetitions
+    export    instead of timing: write DIR, a workspace holding only the recorded episodes and the world's Gaussians
+              as generation draws them (SH 1, faint ones dropped; the sample's: 35 MB), for a GPU machine without the
+              simulator: there, bench splats -w DIR
+    """
+
+    task: str = "grasp banana"
+    episodes: int = ranged(8, ge=1, metadata={"metavar": "N"})
+    demos: int = ranged(64, ge=1, metadata={"metavar": "D"})
+    seed: int = 3_000_000
+    size: int = ranged(EpisodeSpec.size[0], ge=16, metadata={"metavar": "PX"})
+    batch: tuple[int, ...] = ranged((1, 16), ge=1, metadata={"metavar": "B"})
+    server: tuple[int, ...] = ranged((), ge=1, metadata={"metavar": "W"})
+    backend: str = "auto"
+    runs: int = ranged(3, ge=1, metadata={"metavar": "R"})
+    export: Path | None = field(default=None, metadata={"metavar": "DIR"})
+
+
+def run_splats(ws: Workspace, cfg: SplatsBenchConfig, threads: int, log: Callable[[str], None] = print
+               ) -> dict[str, Any]:  # fmt: skip
+    """Record (or load) the expert's splat streams and time their replay (or export them: ``cfg.export``) -> the
+    JSON-ready result."""
+    import torch
+
+    from ..render import SplatWorld, SplatWorldBatch
+
+    world_yaml = ws.committed.world_yaml
+    seeds = list(range(cfg.seed, cfg.seed + cfg.episodes))
+    world_id = hashlib.sha256(world_yaml.read_bytes()).hexdigest()[:8]  # a world composed again records anew
+    folder = ws.evals_dir / "splat_streams" / f"{task_slug(cfg.task)}-{cfg.size}px-{world_id}"
+    streams, parts = load_or_record_streams(folder, ws.committed.world_dir, cfg.task, seeds, cfg.size, log=log)
+    options = replace(HybridOptions().splat, backend=cfg.backend)  # generation's splat settings
+    if cfg.export is not None:
+        rows = export_splat_bench(ws.committed, folder, parts, options, cfg.export)
+        log(f"bench splats: {len(streams)} recorded episodes and {rows:,} Gaussians -> {cfg.export}")
+        return {"export": str(cfg.export), "episodes": len(streams), "gaussians": rows}
+    world = SplatWorld.from_files(parts, options)  # the Gaussians alone: no simulator, no robot model
+    dev = world.device
+    name = torch.cuda.get_device_name(dev) if dev.type == "cuda" else f"cpu ({threads} threads)"
+    frames_per_demo = float(np.mean([len(s["poses"]) for s in streams]))
+    log(f"bench splats: {len(world):,} Gaussians on {name}, {len(streams)} recorded episodes of {frames_per_demo:.1f}"
+         f" frames, {cfg.demos} replayed per run, {cfg.size} px")  # fmt: skip
+    replay_generation(world, streams[:1], 1, cfg.size)  # warm-up: kernels compiled / loaded, caches allocated
+    results = []
+
+    def timed(label: dict, what: str, replay) -> None:
+        """``cfg.runs`` runs of ``replay()`` -> one row of results: demos/min and ms per frame of the median run."""
+        runs = []
+        for _ in range(cfg.runs):
+            r = replay()
+            runs.append(r)
+            batch = f", mean batch {r['server']['mean_batch']:.1f}" if "server" in r else ""
+            log(f"{what}: {r['demos'] / r['seconds'] * 60:.1f} demos/min ({r['seconds']:.1f} s{batch})")
+        secs = statistics.median(r["seconds"] for r in runs)
+        row = {**label, "demos_per_min": round(cfg.demos / secs * 60, 1),
+               "ms_per_frame": round(1000 * secs / runs[0]["frames"], 3)}  # fmt: skip
+        if "server" in runs[0]:
+            row["mean_batch"] = round(statistics.median(r["server"]["mean_batch"] for r in runs), 2)
+        results.append({**row, "seconds": [round(r["seconds"], 2) for r in runs]})
+
+    for b in cfg.batch:
+        batch = None if b == 1 else SplatWorldBatch(world, b)
+        if batch is not None:
+            replay_batched(batch, streams[:1], 1, cfg.size)
+        timed({"batch": b}, f"batch {b}", lambda batch=batch: replay_generation(world, streams, cfg.demos, cfg.size)
+              if batch is None else replay_batched(batch, streams, cfg.demos, cfg.size))  # fmt: skip
+        del batch
+    for w in cfg.server:
+        timed({"server_workers": w}, f"server, {w} workers",
+              lambda w=w: replay_served(parts, options, streams, cfg.demos, cfg.size, w))  # fmt: skip
+    cams = sorted(k[len("view.") :] for k in streams[0] if k.startswith("view."))
+    return {"backend": dev.type, "device": name, "gaussians": len(world), "size": cfg.size, "cameras": cams,
+            "frames_per_demo": round(frames_per_demo, 1), "demos": cfg.demos, "runs": cfg.runs, "results": results}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from mirage2matter.commands.sim2real import Sim2RealConfig, markdown_tables
+from mirage2matter.bench.sim2real import Sim2RealConfig, markdown_tables
 from mirage2matter.errors import M2MError
 
 
@@ -56,7 +56,7 @@ def _bench_ws(tmp_path, monkeypatch, evals=lambda cfg: _e(8, 10)):
     (stage name, config)) instead of run: the first training seed counts as done earlier (60 s recorded)."""
     import json
 
-    from mirage2matter.commands import sim2real
+    from mirage2matter.bench import sim2real
     from mirage2matter.workspace import Workspace
 
     ws = Workspace(tmp_path / "ws")
@@ -80,7 +80,7 @@ def _bench_ws(tmp_path, monkeypatch, evals=lambda cfg: _e(8, 10)):
 
 def test_the_bench_draws_its_demos_supersampled_and_records_the_scene(tmp_path, sample_dir, monkeypatch):
     """Every generation (main, press, ablation) gets the bench's supersample; the result says what scene it used."""
-    from mirage2matter.commands import sim2real
+    from mirage2matter.bench import sim2real
 
     ws, calls = _bench_ws(tmp_path, monkeypatch)
     cfg = Sim2RealConfig(sample=sample_dir, demos=(50, 150), ablation_demos=150, episodes=10, supersample=3,
@@ -101,7 +101,7 @@ def test_the_main_policies_are_their_training_seeds_as_one(tmp_path, sample_dir,
     """By default the bench runs the recipe the README measured: 300 demos of the expert with `--tie 2 --look 0.5`,
     drawn at frame size, four training seeds of 4,000 steps each deployed as one, the first seed alone beside them;
     the data-scale curve and the ablation train one seed."""
-    from mirage2matter.commands import sim2real
+    from mirage2matter.bench import sim2real
 
     scores = {"grasp_banana_tie_2_look_0_5_300_x4": 43, "grasp_banana_tie_2_look_0_5_300": 40}
     ws, calls = _bench_ws(tmp_path, monkeypatch, lambda cfg: _e(scores.get(cfg.name.split("-")[0], 30)))
@@ -140,7 +140,7 @@ def test_the_seeds_train_side_by_side_in_one_workspace(tmp_path, capfd):
     import json
 
     from fixtures.policy_datasets import build_dataset, spec_for, tiny_config
-    from mirage2matter.commands import sim2real
+    from mirage2matter.bench import sim2real
     from mirage2matter.stages import train_policy
     from mirage2matter.workspace import Workspace
 

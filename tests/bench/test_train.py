@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-import mirage2matter.gaussians.bench_train as bench_module
-from mirage2matter.gaussians.bench_train import bench_train, profile_step
+import mirage2matter.bench.train as bench_module
+from mirage2matter.bench.train import bench_train, profile_step
 from mirage2matter.gaussians.render import render
 from mirage2matter.gaussians.synthetic import orbit_cameras, tabletop_scene
 from mirage2matter.gaussians.train import TrainConfig, Trainer, View, init_gaussians_from_points
