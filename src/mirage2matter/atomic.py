@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import secrets
+import shutil
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -160,8 +161,6 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
 def replace_dir(tmp: str | os.PathLike[str], out_dir: str | os.PathLike[str]) -> None:
     """Move the finished folder ``tmp`` onto ``out_dir``; an existing ``out_dir`` is swapped out
     first and deleted after, so readers see either the old or the new folder, never a mix."""
-    import secrets
-    import shutil
 
     tmp, out_dir = Path(tmp), Path(out_dir)
     old = None
@@ -178,8 +177,6 @@ def atomic_dir(out_dir: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary sibling folder to build ``out_dir`` in. On success it replaces ``out_dir``
     (see :func:`replace_dir`); on any exception it is deleted, so a stage never leaves a half-built
     output folder behind."""
-    import secrets
-    import shutil
 
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)

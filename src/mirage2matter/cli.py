@@ -22,12 +22,15 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from . import __version__
+from . import __version__, configure_threads
 from .commands import bench, board, demo, init, intrinsics, render, report, robot, run, sample, validate, view, world
 from .commands.args import info, show
 from .configs import add_flags, from_flags
 from .errors import M2MError
 from .stages import STAGES, Stage
+from .stages.base import run_stage
+from .stages.transaction import workspace_lock
+from .workspace import Workspace
 
 EXIT_ERROR = 2  # bad input, like argparse's own usage errors
 EXIT_INTERRUPTED = 130
@@ -45,11 +48,7 @@ def _stage_parser(sub: argparse._SubParsersAction, stage: Stage, full: bool) -> 
 def run_stage_command(stage: Stage, args: argparse.Namespace) -> int:
     """The stage with the workspace's settings (m2m.yaml) changed by the flags given; the settings it ran
     with are saved back into m2m.yaml."""
-    from . import configure_threads
-    from .stages.base import run_stage
     from .stages.pipeline import PipelineConfig
-    from .stages.transaction import workspace_lock
-    from .workspace import Workspace
 
     ws = Workspace(args.workspace)
     load = lambda: PipelineConfig.load(ws.config_file) if ws.config_file.is_file() else PipelineConfig()

@@ -39,11 +39,14 @@ import functools
 import inspect
 import math
 import re
+import textwrap
 import types
 import typing
 from collections.abc import Collection
 from pathlib import Path
 from typing import Any, Literal, Union
+
+import yaml
 
 from .errors import M2MError
 
@@ -360,8 +363,6 @@ def to_yaml(cfg: Any, base_dir: Path | None = None, header: str = "", notes: dic
     """``cfg`` as YAML text that :func:`from_dict` reads back to ``cfg``: every field, each under its doc (from
     the class docstrings) as a comment; nested Configs as indented sections. ``header``: comment lines on top;
     ``notes``: {top-level field: a comment line above its section}. Paths as :func:`to_dict` writes them."""
-    import textwrap
-
     out = [line.rstrip() for line in header.splitlines()]
 
     def comment(text: str, pad: str) -> list[str]:
@@ -393,8 +394,6 @@ def to_yaml(cfg: Any, base_dir: Path | None = None, header: str = "", notes: dic
 def _yaml_value(name: str, value: Any) -> str:
     """``name: value`` as YAML: a list of texts one item per line, other lists and mappings of numbers in flow
     style (``[0.0, 1.0]``), no line folded."""
-    import yaml
-
     texts = isinstance(value, list) and value and all(isinstance(v, str) for v in value)
     flow = None if isinstance(value, list | dict) and not texts else False  # None: innermost collections in flow
     return yaml.dump({name: value}, Dumper=_dumper(), sort_keys=False, default_flow_style=flow, width=1 << 16,
@@ -404,8 +403,6 @@ def _yaml_value(name: str, value: Any) -> str:
 @functools.cache
 def _dumper() -> type:
     """PyYAML's safe dumper, with a list's items indented under its key."""
-    import yaml
-
     class Dumper(yaml.SafeDumper):
         def increase_indent(self, flow: bool = False, indentless: bool = False) -> Any:
             return super().increase_indent(flow, False)

@@ -24,9 +24,13 @@ from typing import Any
 
 import numpy as np
 
+from mirage2matter.datagen.worker import local_factory
+
+from .datagen.shipping import ShippedFactory, pack_under, world_files
 from .env.config import EnvConfig
 from .errors import M2MError
 from .evaluation import run_episode, summarize
+from .policy.config import POLICY_FILE
 from .progress import progress_bar
 from .ray_cluster import (
     ActorCalls,
@@ -87,8 +91,6 @@ class PolicyRecipe:
     def files(self) -> tuple[list[Path], list[Path]]:
         """(what opening it reads: each policy's deployable checkpoint (else its folder), a callable's file; the
         folders they lie under)."""
-        from .policy.config import POLICY_FILE
-
         files = [Path(p) / POLICY_FILE if (Path(p) / POLICY_FILE).is_file() else Path(p) for p in self.paths]
         files += [Path(self.function_file)] if self.function_file else []
         return files, [f.parent for f in files]
@@ -112,8 +114,6 @@ class EvalJob:
     def files(self) -> tuple[list[Path], list[Path]]:
         """(the files the episodes read, the folders they lie under): the world's (under its workspace), the policy's,
         and the ground_truth renderer's sample (its ground_truth.json: the sample's world is built from it)."""
-        from .datagen.shipping import world_files
-
         policy_files, policy_homes = self.policy.files()
         files = world_files(self.env.world) + policy_files
         origins = [self.env.world.root.parent, *policy_homes]
@@ -125,8 +125,6 @@ class EvalJob:
     def portable(self) -> Any:
         """This job with its files as content (``datagen.shipping``), for workers on machines that do not see this
         one's disk; a file that cannot be read is a ShipError here, before any worker starts."""
-        from .datagen.shipping import ShippedFactory, pack_under
-
         job = self
         if self.env.ground_truth is not None:  # absolute: shipping renames absolute paths only
             job = replace(self, env=replace(self.env, ground_truth=Path(self.env.ground_truth).resolve()))
@@ -144,8 +142,6 @@ def _actor_class(ray):
         reference unresolved there, so the job's content is fetched here), then runs one episode per call."""
 
         def __init__(self, job_ref: list, num_cpus: float):
-            from mirage2matter.datagen.worker import local_factory
-
             actor_threads(num_cpus)
             self.job = local_factory(ray.get(job_ref[0]))
             self.env, self.policy = self.job.build()

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from .atomic import atomic_write
 from .progress import progress_bar
 
 __all__ = ["contact_sheet", "evaluate_policy", "frame_of", "run_episode", "summarize", "wilson_interval"]
@@ -161,8 +162,6 @@ def summarize(rows: list[dict], log: Callable[[str], None] = print) -> dict[str,
 def contact_sheet(episodes: list[list[np.ndarray]], path: Path, columns: int = 8) -> None:
     """A grid image (PNG, written atomically): one row per episode, ``columns`` frames spread over it."""
     from PIL import Image
-
-    from .atomic import atomic_write
 
     rows = []
     for frames in episodes:

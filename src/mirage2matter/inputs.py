@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from .errors import M2MError
 
@@ -132,8 +133,6 @@ def _checked(data: Any, path: Path, what: str, expect: type | None) -> Any:
 
 def _parse_yaml(path: Path, what: str, lines: bool) -> tuple[Any, dict[tuple[str | int, ...], int]]:
     """The data of the YAML file (one parse with the alias-refusing safe loader) and, with ``lines``, its lines."""
-    import yaml
-
     text = _read_text(path, what)
     try:
         loader = _no_alias_loader(path, what)(text)  # its reader refuses characters YAML does not allow (a NUL)
@@ -151,8 +150,6 @@ def _parse_yaml(path: Path, what: str, lines: bool) -> tuple[Any, dict[tuple[str
 
 def _no_alias_loader(path: Path, what: str) -> type:
     """A SafeLoader that refuses aliases, naming their line."""
-    import yaml
-
     class _NoAliases(yaml.SafeLoader):
         def compose_node(self, parent, index):  # noqa: ANN001 - yaml's signature
             if self.check_event(yaml.AliasEvent):
@@ -165,8 +162,6 @@ def _no_alias_loader(path: Path, what: str) -> type:
 
 
 def _node_lines(root: Any, path: Path, what: str) -> dict[tuple[str | int, ...], int]:
-    import yaml
-
     lines: dict[tuple[str | int, ...], int] = {(): 1}
     stack = [((), root)]
     while stack:

@@ -3,7 +3,11 @@
 
 from __future__ import annotations
 
+import ctypes
+import multiprocessing as mp
 import os
+import pickle
+import signal
 import traceback
 from typing import Any
 
@@ -18,8 +22,6 @@ def die_with_parent(parent_pid: int | None = None) -> None:
     ``parent_pid`` (the parent's ``os.getpid()``, passed down): exit at once if that parent is already gone (it
     died before the request took effect)."""
     try:
-        import ctypes
-        import signal
 
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):
@@ -37,8 +39,6 @@ class WorkerTimeout(M2MError, TimeoutError):
 
 
 def _picklable(exc: BaseException) -> BaseException:
-    import pickle
-
     try:
         pickle.loads(pickle.dumps(exc))
         return exc
@@ -95,7 +95,6 @@ class TimedWorker:
         """Start the child (if none runs) and wait until it has built the object; its error is raised here."""
         if self.proc is not None:
             return
-        import multiprocessing as mp
 
         ctx = mp.get_context("spawn")  # Genesis, numba and CUDA do not survive fork
         parent, child = ctx.Pipe()

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from . import __version__, configure_threads
 from .errors import M2MError
 
 __all__ = ["ClusterError", "RayResources", "actor_info", "connect_ray", "m2m_env", "package_runtime_env",
@@ -60,9 +61,7 @@ def splat_resources(backend: str, cuda: bool = False) -> RayResources:
 
 def package_runtime_env() -> dict[str, Any]:
     """The ``runtime_env`` that ships this package to Ray workers by content (never the driver's path)."""
-    import mirage2matter
-
-    return {"py_modules": [str(Path(mirage2matter.__file__).parent)]}
+    return {"py_modules": [str(Path(__file__).resolve().parent)]}
 
 
 def m2m_env() -> dict[str, str]:
@@ -113,11 +112,9 @@ def start_actors(ray, actors: list, timeout_s: float, resources: RayResources,
 
 
 def _same_version(infos: list[dict[str, Any]], error: type[Exception]) -> None:
-    import mirage2matter
-
-    other = sorted({i["version"] for i in infos} - {mirage2matter.__version__})
+    other = sorted({i["version"] for i in infos} - {__version__})
     if other:
-        raise error(f"Ray workers run mirage2matter {', '.join(other)}, this driver {mirage2matter.__version__}; "
+        raise error(f"Ray workers run mirage2matter {', '.join(other)}, this driver {__version__}; "
                     "install the same version on every node")  # fmt: skip
 
 
@@ -206,8 +203,6 @@ def actor_threads(num_cpus: float) -> None:
     """In an actor, before it builds anything: as many threads as the CPUs it asked for (torch, numba, and Mesa's
     llvmpipe, which otherwise starts one GL thread per core of the node), idle threads sleeping - as a local worker
     process is given its share of the cores."""
-    from mirage2matter import configure_threads
-
     n = max(1, int(num_cpus))
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     os.environ.setdefault("LP_NUM_THREADS", str(n))
@@ -216,10 +211,8 @@ def actor_threads(num_cpus: float) -> None:
 
 def actor_info(ray) -> dict[str, Any]:
     """What an actor's ``ready()`` reports: its process, mirage2matter version and node."""
-    import mirage2matter
-
     node = ray.get_runtime_context().get_node_id()
-    return {"pid": os.getpid(), "version": mirage2matter.__version__, "node": node}
+    return {"pid": os.getpid(), "version": __version__, "node": node}
 
 
 def _answers(address: str, timeout: float = 5.0) -> bool:

@@ -178,7 +178,6 @@ def test_train_scene_trains_on_the_head_photo_from_the_head_camera_without_its_m
     """--head-photo adds the photo to the training views (repeated), seen from the calibrated head camera at the
     training resolution, with the pixels its mask marks as not scene (a robot arm, here a painted patch) left out
     of the loss; at the defaults the stage's fingerprint is what it was before the option existed."""
-    import mirage2matter.stages.scene as scene_stage
 
     ws, head = with_head_camera
     photo = np.asarray(Image.open(SAMPLE / head["image"]).convert("RGB"))
@@ -190,13 +189,15 @@ def test_train_scene_trains_on_the_head_photo_from_the_head_camera_without_its_m
     Image.fromarray(keep.astype(np.uint8) * 255).save(tmp_path / "mask.png")
 
     seen = {}
-    real_train = scene_stage.train
+    import mirage2matter.gaussians.train as gaussians_train
+
+    real_train = gaussians_train.train
 
     def spy(views_train, views_eval, *args, **kwargs):
         seen["views"] = list(views_train)
         return real_train(views_train, views_eval, *args, **kwargs)
 
-    monkeypatch.setattr(scene_stage, "train", spy)
+    monkeypatch.setattr(gaussians_train, "train", spy)  # the stage imports it when it runs
     base = SceneConfig(iterations=20, downscale=2, max_gaussians=30_000, checkpoint_every=0)
     plain, _ = train_scene(ws, base)
     assert plain["views"] == {"train": 14, "heldout": 2, "head_photo": 0} and len(seen["views"]) == 14

@@ -27,7 +27,8 @@ import numpy as np
 
 from ..configs import ranged
 from ..datagen import task_slug
-from ..env.twin_env import make_config
+from ..env.episode_cache import load_or_record_episodes
+from ..policy.data import IMAGE_PREFIX, STATE_KEY
 from ..stages import eval_policy
 from ..workspace import Workspace
 from .sim2real import Sim2RealConfig
@@ -89,8 +90,6 @@ def load_or_record_pairs(
 ) -> list[dict[str, Any]]:
     """:func:`record_expert_pairs`, each episode cached as ``folder/pair_<seed>.npz`` (written atomically): a
     second call, or one with more seeds, records only what is missing."""
-    from ..env.episode_cache import load_or_record_episodes
-
     record = lambda missing: record_expert_pairs(world, task, sample_dir, missing, size)
     return load_or_record_episodes(folder, "pair", seeds, record, log, "expert episode(s) through both renderers")
 
@@ -99,8 +98,6 @@ def open_loop_error(policy: Any, episodes: Sequence[dict[str, Any]], stride: int
     """{renderer: mean |chunk - expert's actions| in the policy's action-std units} over every ``stride``-th step of
     the expert's successful ``episodes``: at each such step the policy predicts its chunk from that renderer's
     frames and the recorded state, compared with the expert's next actions (as many as the episode still has)."""
-    from ..policy.data import IMAGE_PREFIX, STATE_KEY
-
     errs: dict[str, list[float]] = {r: [] for r in RENDERERS}
     used = [ep for ep in episodes if ep["success"]]
     if not used:
@@ -142,6 +139,8 @@ def run_policy_gap(ws: Workspace, gap: PolicyGapConfig, policy_refs: list[str], 
                    ) -> dict[str, Any]:  # fmt: skip
     """Record (or load) the expert's episodes through both renderers and score each policy (``policy_refs``: names
     under the workspace's policies or folders) on them -> the JSON-ready result."""
+    from ..env.twin_env import make_config
+
     cfg = eval_policy.Config(task=gap.task, renderer="ground_truth", ground_truth=gap.ground_truth)
     gt = eval_policy.ground_truth_dir(ws, cfg)
     world = make_config(ws.committed.world_dir, gap.task, size=gap.size).world  # the task and world, checked

@@ -14,7 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
-from ..configs import ranged
+from ..configs import ConfigError, ranged
 from ..env.config import EpisodeSpec
 
 __all__ = ["RenderBenchConfig", "bench_render"]
@@ -52,8 +52,6 @@ class RenderBenchConfig:
 
     def validate(self) -> None:
         """Raise ConfigError naming the field, before any expensive work starts."""
-        from ..configs import ConfigError
-
         minimum = {"gaussians": 1, "size": 1, "views": 1, "repeats": 1, "warmup": 0, "seed": 0, "cameras_per_call": 1}
         for name, lo in minimum.items():
             v = getattr(self, name)

@@ -23,19 +23,24 @@ resumes where it was and a finished step is not redone. Where the time went is r
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import sys
 import time
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from .. import configure_threads
 from ..configs import ranged
+from ..datagen import task_slug
 from ..errors import M2MError
 from ..policy.config import PolicyTrainConfig
-from ..render.options import MAX_SUPERSAMPLE
-from ..stages import eval_policy
+from ..render.options import MAX_SUPERSAMPLE, supersample_problem
+from ..stages import eval_policy, generate, get_stage, train_policy
+from ..stages.base import StageRecord, finished_record, run_stage
 from ..workspace import Workspace
 
 __all__ = ["Sim2RealConfig", "markdown_tables", "run_sim2real"]
@@ -106,7 +111,6 @@ class Sim2RealConfig:
             bad.append("episodes, workers, seeds and parallel must be >= 1, size >= 16, minutes > 0")
         if self.steps < 0:
             bad.append(f"steps must be >= 0 (0: a minutes budget), got {self.steps}")
-        from ..render.options import supersample_problem  # generate's own check, before hours of work
 
         if problem := supersample_problem(self.supersample):
             bad.append(problem)
@@ -119,8 +123,6 @@ class Sim2RealConfig:
 
 def _run_stage(stage_name: str, ws: Workspace, cfg: Any, log: Log) -> tuple[dict[str, Any], float, bool]:
     """(summary, seconds: this run's, or the recorded run's when it was done earlier, done earlier)."""
-    from ..stages import get_stage
-    from ..stages.base import StageRecord, run_stage
 
     stage = get_stage(stage_name)
     t0 = time.perf_counter()
@@ -143,8 +145,6 @@ def _side_by_side(ws: Workspace, stage_name: str, cfgs: list[Any], parallel: int
     todo = [c for c in cfgs if not _done(ws, stage_name, c)]  # a resumed bench starts no process for those
     if parallel <= 1 or len(todo) <= 1:
         return [_run_stage(stage_name, ws, c, log) for c in cfgs]
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
 
     n = min(parallel, len(todo))
     threads = max(1, (os.cpu_count() or 1) // n)
@@ -158,8 +158,6 @@ def _side_by_side(ws: Workspace, stage_name: str, cfgs: list[Any], parallel: int
 
 def _done(ws: Workspace, stage_name: str, cfg: Any) -> bool:
     """Whether an identical run finished (run_stage would skip it)."""
-    from ..stages import get_stage
-    from ..stages.base import finished_record
 
     try:
         return finished_record(get_stage(stage_name), ws, cfg) is not None
@@ -168,8 +166,6 @@ def _done(ws: Workspace, stage_name: str, cfg: Any) -> bool:
 
 
 def _child(root: str, stage_name: str, cfg: Any, threads: int) -> tuple[dict[str, Any], float, bool]:
-    from .. import configure_threads
-
     configure_threads(threads)
     log = lambda m: print(f"[{cfg.name}] {m}", file=sys.stderr, flush=True)  # the child's lines on stderr
     return _run_stage(stage_name, Workspace(root), cfg, log)
@@ -177,8 +173,6 @@ def _child(root: str, stage_name: str, cfg: Any, threads: int) -> tuple[dict[str
 
 def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[str, Any]:
     """Run (or resume) the experiment in ``ws``; returns the JSON-ready result (tables in ``result["tables"]``)."""
-    from ..datagen import task_slug
-    from ..stages import eval_policy, generate, train_policy
 
     cfg.validate()
     if not ws.world_yaml.is_file():

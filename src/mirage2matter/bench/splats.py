@@ -17,6 +17,10 @@ each part at each frame), ``view.<camera>`` [T,4,4] base-to-camera, ``K.<camera>
 from __future__ import annotations
 
 import hashlib
+import json
+import multiprocessing as mp
+import os
+import shutil
 import statistics
 import time
 from collections.abc import Callable, Sequence
@@ -26,9 +30,13 @@ from typing import Any
 
 import numpy as np
 
-from ..configs import ranged
+from ..atomic import atomic_dir, atomic_write
+from ..configs import ConfigError, ranged
 from ..datagen import task_slug
 from ..env.config import EpisodeSpec, HybridOptions
+from ..env.episode_cache import load_or_record_episodes
+from ..env.hybrid import splat_parts
+from ..render.splat_server import RemoteSplatLayer, SplatServer
 from ..workspace import Workspace
 
 __all__ = ["export_splat_bench", "load_or_record_streams", "record_splat_streams", "replay_batched",
@@ -89,11 +97,7 @@ def load_or_record_streams(
     the world's splat layer (``hybrid.splat_parts``) as ``folder/splat_parts.json``, its Gaussian files relative to
     ``world_dir``: a second call, or one on a machine with neither the simulator nor the robot's model (a GPU box
     given the world's Gaussians and this folder), reads them back. -> (streams, splat parts with absolute paths)."""
-    import json
-    import os
 
-    from ..atomic import atomic_write
-    from ..env.episode_cache import load_or_record_episodes
 
     world_dir = Path(world_dir).resolve()
     record = lambda missing: record_splat_streams(world_dir, task, missing, size)
@@ -101,7 +105,6 @@ def load_or_record_streams(
                                       f"expert episode(s) of {task!r} (poses and camera views)")  # fmt: skip
     parts_file = folder / "splat_parts.json"
     if not parts_file.is_file():
-        from ..env.hybrid import splat_parts
         from ..env.twin_env import resolve_world
 
         desc = splat_parts(resolve_world(world_dir))
@@ -121,11 +124,7 @@ def export_splat_bench(ws: Any, streams_folder: Path, parts: dict[str, Any], opt
     the splat layer's PLYs, each at its own path relative to the workspace and cut to the rows generation draws
     (``render.splat_world.rendered_rows`` with ``options``), so a GPU machine without the simulator, given little
     room to copy to, renders the same frames. Built in a temporary folder and renamed. -> the Gaussians written."""
-    import os
-    import shutil
 
-    from ..atomic import atomic_dir
-    from ..configs import ConfigError
     from ..gaussians.ply import read_ply, write_ply
     from ..render.splat_world import rendered_rows
 
@@ -227,8 +226,6 @@ def replay_batched(batch: Any, streams: Sequence[dict[str, Any]], demos: int, si
 
 def _served_client(handle: Any, episodes: list[dict[str, Any]], ready: Any, go: Any, done: Any) -> None:
     """A worker process of :func:`replay_served`: its episodes' frames asked of the server, one after the other."""
-    from ..render.splat_server import RemoteSplatLayer
-
     layer = RemoteSplatLayer(handle)
     ready.put(layer.slot)
     go.wait()
@@ -251,10 +248,6 @@ def replay_served(parts: dict[str, Any], options: Any, streams: Sequence[dict[st
     ``workers`` processes, each replaying its share of the episodes frame by frame as a generation worker asks for
     them (without the physics between frames: the server at its busiest). -> {"seconds" (from every worker ready to
     the last frame), "frames", "demos", "server": the server's statistics (mean batch...)}."""
-    import multiprocessing as mp
-
-    from ..render.splat_server import SplatServer
-
     queue = _episodes(streams, demos)
     server = SplatServer(parts, options, slots=workers, cameras=len(_cameras(queue[0])), size=(size, size),
                          background=background, gather_ms=gather_ms)  # fmt: skip

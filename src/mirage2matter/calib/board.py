@@ -31,6 +31,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+from mirage2matter.atomic import atomic_path
+
 from ..atomic import atomic_write
 from ..errors import M2MError
 from ..inputs import InputError, read_json
@@ -581,8 +583,6 @@ def write_printable(spec, pdf_path: str | os.PathLike, dpi: int = PRINT_DPI, mar
     """Write the board as a PDF and a PNG at true scale (``dpi``; print at 100%, no "fit to page"),
     and its spec as JSON beside them (same stem). Returns {"pdf", "png", "json", "size_mm", "px_per_square"}."""
     from PIL import Image
-
-    from mirage2matter.atomic import atomic_path
 
     pdf_path = Path(pdf_path)
     if pdf_path.suffix.lower() != ".pdf":

@@ -21,6 +21,9 @@ from ..errors import M2MError
 from ..geometry.camera import opencv_K
 from ..geometry.rotation import rotation_angle
 from ..geometry.sim3 import invert_rigid
+from ..inputs import InputError, check_joints, read_image_rgb, read_json
+from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
+from ..robots.kinematics import RobotKinematics
 
 METHODS = ("tsai", "park", "horaud", "andreff", "daniilidis")
 
@@ -555,8 +558,6 @@ def _checked_position(T: np.ndarray, units: dict[str, str], where: str) -> np.nd
 
 def _read_poses_file(joints_file: str | Path) -> tuple[dict, list[dict], dict]:
     """(the robot poses file, its views, its units), its shape checked (see :data:`POSES_HELP`)."""
-    from ..inputs import InputError, read_json
-
     try:
         spec = read_json(joints_file, "robot poses file")
     except InputError as e:
@@ -603,8 +604,6 @@ def calibrate_from_files(
     ``images_dir``), take each view's hand pose from its joints (forward kinematics) or its end-effector pose
     (``poses``: "joints", "ee", or "auto": joints when every view has them), solve.
     ``camera``: a Camera (K + lens) or a bare K [3,3]. Returns the result and its JSON."""
-    from ..inputs import InputError, check_joints, read_image_rgb
-    from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
 
     if refine is True or refine is False:  # the former boolean option
         refine = "exact" if refine else "none"
@@ -631,8 +630,6 @@ def calibrate_from_files(
                            "end-effector poses (poses: ee)")  # fmt: skip
     kin = None
     if use_joints:
-        from ..robots.kinematics import RobotKinematics
-
         kin = RobotKinematics(robot)
         n_chain, limits = kin.chain(link)
     w, h = _image_size(camera)

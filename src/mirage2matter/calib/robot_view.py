@@ -22,6 +22,7 @@ align stage uses the robot only when it was seen.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,7 +33,8 @@ from ..geometry.camera import Camera
 from ..geometry.icp import scaled_icp
 from ..geometry.rotation import rotation_angle
 from ..geometry.sim3 import Sim3
-from ..robots.surface import LinkSurface, sample_surface
+from ..robots import get_robot
+from ..robots.surface import LinkSurface, robot_surface, sample_surface
 
 __all__ = ["RobotFit", "RobotPoints", "fit_to_robot", "grow_mask", "robot_depth", "robot_depths", "robot_points",
            "robot_silhouette", "robot_silhouettes", "seen_robot", "views_behind_robot", "visual_hull"]  # fmt: skip
@@ -110,10 +112,6 @@ def visual_hull(points: np.ndarray, cameras: Sequence[Camera], silhouettes: Sequ
 def seen_robot(record_file: Path) -> tuple[dict, list[LinkSurface]] | None:
     """(align-scene's calib/robot.json, the robot's links at its capture joint state) when the keyframes show the
     robot; None when they do not (or no alignment recorded it)."""
-    import json
-
-    from ..robots import get_robot
-    from ..robots.surface import robot_surface
 
     if not record_file.is_file():
         return None

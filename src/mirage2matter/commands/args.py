@@ -12,6 +12,8 @@ from typing import Any
 
 from ..configs import add_flags
 from ..errors import M2MError
+from ..stages import STAGES
+from ..stages.base import PipelineSettings
 
 __all__ = [
     "CliError", "Formatter", "add_settings", "backend", "check_output", "info", "int_at_least", "positive_float",
@@ -149,8 +151,6 @@ class _Help(argparse.Action):
 def _section(parser: argparse.ArgumentParser, sections: dict[str, Any], word: str) -> str:
     """The section ``--help WORD`` names: a stage's name (``head_view``), its flag prefix (``head-view``) or its
     command (``train-scene``); a usage error otherwise."""
-    from ..stages import STAGES
-
     commands = {s.command: s.name for s in STAGES}
     name = commands.get(word, word.replace("-", "_"))
     if name not in sections:
@@ -159,8 +159,6 @@ def _section(parser: argparse.ArgumentParser, sections: dict[str, Any], word: st
 
 
 def _prefixes(sections: dict[str, Any]) -> list[str]:
-    from ..stages import STAGES
-
     return [name.replace("_", "-") for name in (sections or [s.name for s in STAGES])]
 
 
@@ -216,8 +214,6 @@ def add_settings(parser: argparse.ArgumentParser, full: bool, base: Any = None) 
 
     The stages' flags parse the same whichever help lists them.
     """
-    from ..stages.base import PipelineSettings
-
     pipeline = {f.name for f in dataclasses.fields(PipelineSettings)}  # the whole pipeline's settings (the robot)
     add_flags(parser, PipelineSettings, base=base, skip={a.dest for a in parser._actions})  # unless listed already
     short = "show this help; --help STAGE: that stage's settings instead (e.g. --help scene)"

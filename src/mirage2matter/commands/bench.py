@@ -10,11 +10,15 @@ from pathlib import Path
 from typing import Literal
 
 from .. import configure_threads
-from ..bench.policy_gap import PolicyGapConfig
-from ..bench.render import RenderBenchConfig
-from ..bench.sim2real import Sim2RealConfig
-from ..bench.splats import SplatsBenchConfig
+from ..atomic import atomic_write
+from ..bench.datagen import BENCH_KEYS, bench_datagen
+from ..bench.policy_gap import PolicyGapConfig, run_policy_gap
+from ..bench.render import RenderBenchConfig, bench_render
+from ..bench.sim2real import Sim2RealConfig, run_sim2real
+from ..bench.splats import SplatsBenchConfig, run_splats
 from ..configs import add_flags, from_flags, ranged
+from ..stages import generate
+from ..stages.transaction import workspace_lock
 from ..workspace import Workspace
 from .args import backend, info
 
@@ -43,8 +47,6 @@ class TrainBenchConfig:
 def datagen_config() -> type:
     """bench datagen's Config: the generate stage's with one task, defaults for a benchmark, and ``runs``
     (a function: the generate stage's Config imports the generation libraries)."""
-    from ..stages import generate
-
     @dataclass
     class DatagenBenchConfig(generate.Config):
         """bench datagen settings (the generate stage's, one task, and these).
@@ -138,8 +140,6 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
 
 
 def _render(args: argparse.Namespace) -> int:
-    from ..bench.render import bench_render
-
     cfg = from_flags(RenderBenchConfig, args)
     cfg = replace(cfg, backend=backend(cfg.backend))
     cfg.validate()
@@ -179,10 +179,7 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _datagen(args: argparse.Namespace) -> int:
-    from ..bench.datagen import BENCH_KEYS, bench_datagen
     from ..sim.tasks import parse_task
-    from ..stages.transaction import workspace_lock
-    from ..workspace import Workspace
     from ..world import load_world
 
     cfg = from_flags(datagen_config(), args)
@@ -198,9 +195,6 @@ def _datagen(args: argparse.Namespace) -> int:
 
 
 def _sim2real(args: argparse.Namespace) -> int:
-    from ..atomic import atomic_write
-    from ..bench.sim2real import run_sim2real
-    from ..workspace import Workspace
 
     cfg = from_flags(Sim2RealConfig, args)
     configure_threads()
@@ -218,8 +212,6 @@ def _sim2real(args: argparse.Namespace) -> int:
 
 
 def _policy_gap(args: argparse.Namespace) -> int:
-    from ..bench.policy_gap import run_policy_gap
-
     gap = from_flags(PolicyGapConfig, args)
     configure_threads()
     result = run_policy_gap(Workspace(args.workspace), gap, args.policy, log=info)
@@ -228,8 +220,6 @@ def _policy_gap(args: argparse.Namespace) -> int:
 
 
 def _splats(args: argparse.Namespace) -> int:
-    from ..bench.splats import run_splats
-
     cfg = from_flags(SplatsBenchConfig, args)
     threads = configure_threads()
     result = run_splats(Workspace(args.workspace), replace(cfg, backend=backend(cfg.backend)), threads, log=info)

@@ -15,9 +15,10 @@ from pathlib import Path
 
 from ..configs import add_flags, from_flags
 from ..sample.inspect import BUNDLED_SAMPLE
+from ..stages.transaction import workspace_lock
 from ..workspace import Workspace, WorkspaceError
 from .args import Formatter, add_settings
-from .run import StagesConfig
+from .run import StagesConfig, run_workspace
 
 
 @dataclass
@@ -70,8 +71,6 @@ def _sample_config(sample: Path):
 
 def run(args: argparse.Namespace) -> int:
     from ..stages.pipeline import PipelineConfig
-    from ..stages.transaction import workspace_lock
-    from .run import run_workspace
 
     demo, stages = from_flags(DemoConfig, args), from_flags(StagesConfig, args)
     sample = demo.sample

@@ -19,9 +19,12 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from ..configs import add_flags, from_flags
+from ..configs import ConfigError, add_flags, from_flags, range_errors
 from ..errors import M2MError
+from ..inputs import check_image_file, check_name
+from ..robots import get_robot
 from ..stages.base import PipelineSettings
+from ..stages.transaction import workspace_lock
 from ..workspace import Workspace, WorkspaceError
 from .args import CliError, Formatter, add_settings, int_at_least, show
 
@@ -135,7 +138,6 @@ def _problems(cfg: Any, args: argparse.Namespace) -> list[tuple[str, str]]:
     """Every problem init can find before anything runs, as (field, message naming the flag): all of them, so that one
     run of init lists what to fix (the files, the settings' ranges, the boards, calibrations, poses, robot, tasks,
     object names and images), not the first only."""
-    from ..configs import range_errors
     from ..stages.pipeline import input_paths
 
     out = [(e.field or "", f"{_flag(e.field or '')}: {str(e).partition(': ')[2]}") for e in range_errors(cfg)]
@@ -174,8 +176,6 @@ def _reads(cfg: Any) -> list[tuple[str, Any]]:
     from ..calib.board import load_target
     from ..calib.handeye import check_poses_file
     from ..geometry.camera import load_intrinsics
-    from ..inputs import check_image_file, check_name
-    from ..robots import get_robot
     from ..sim.tasks import parse_task
 
     def exists(path: Path | None) -> bool:
@@ -205,9 +205,7 @@ def _reads(cfg: Any) -> list[tuple[str, Any]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..configs import ConfigError
     from ..stages.pipeline import SettingsFile, plan_run
-    from ..stages.transaction import workspace_lock
 
     ws = Workspace(args.workspace)
     if ws.root.exists() and not ws.root.is_dir():

@@ -9,6 +9,8 @@ import math
 
 import numpy as np
 
+from .args import CliError
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -32,7 +34,6 @@ def _fov_deg(cam, a: tuple[float, float], b: tuple[float, float]) -> float:
 
 def run(args: argparse.Namespace) -> int:
     from ..geometry.camera import load_intrinsics
-    from .args import CliError
 
     size = None
     if args.size:

@@ -14,6 +14,8 @@ import sys
 import typing
 from typing import Any, Literal
 
+import yaml
+
 from ..configs import _flag, _hints, _is_config, _unwrap_optional, field_docs, to_dict
 from ..stages import STAGES
 from ..stages.base import PipelineSettings
@@ -84,8 +86,6 @@ def _type_text(tp: Any) -> str:
 
 def _yaml_text(value: Any) -> str:
     """A default as YAML writes it, in flow style (``[0.35, 0.62]``, ``null``)."""
-    import yaml
-
     if isinstance(value, list | tuple):
         return "[" + ", ".join(_yaml_text(v) for v in value) + "]"
     if isinstance(value, dict):

@@ -8,8 +8,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
+
 from .. import configure_threads
+from ..atomic import atomic_path, atomic_write
 from ..configs import add_flags, from_flags, ranged
+from ..inputs import InputError, read_json
 from .args import CliError, backend, check_output, rgb
 
 CAMERA_FIELDS = '{"width", "height", "K" (3x3, pixels), "T_world_cam" (4x4 camera-to-world, OpenCV axes)}'
@@ -53,8 +57,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _peek_json(path: Path) -> Any:
     """The parsed JSON, or None when unreadable (used only to improve error messages)."""
-    from ..inputs import InputError, read_json
-
     try:
         return read_json(path, expect=None)
     except (InputError, OSError):
@@ -91,8 +93,6 @@ def load_camera(path: Path, frame: str | None):
 
 def to_uint8(rgb_hw3) -> Any:
     """[H,W,3] float tensor -> uint8 array; values clamped to [0,1], rounded to nearest."""
-    import numpy as np
-
     a = rgb_hw3.detach().to("cpu").float().numpy()
     a = np.nan_to_num(a, nan=0.0, posinf=1.0, neginf=0.0)
     return (np.clip(a, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
@@ -102,18 +102,12 @@ def write_png(path: Path, image) -> None:
     """Write a uint8 [H,W,3] (RGB) or uint16 [H,W] (16-bit grey) array as PNG, atomically."""
     from PIL import Image
 
-    from ..atomic import atomic_path
-
     with atomic_path(path) as tmp:
         Image.fromarray(image).save(tmp, format="PNG")
 
 
 def _write_depth(path: Path, depth) -> str:
     """``.npy``: float32 metres; ``.png``: uint16 millimetres (0 = nothing seen, clipped at 65.535 m)."""
-    import numpy as np
-
-    from ..atomic import atomic_write
-
     d = np.nan_to_num(depth.detach().to("cpu").float().numpy(), nan=0.0, posinf=0.0, neginf=0.0)
     if path.suffix.lower() == ".npy":
         with atomic_write(path, "wb") as f:

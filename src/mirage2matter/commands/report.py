@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..stages.report import write_report
 from ..workspace import Workspace, WorkspaceError
 from .args import show
 
@@ -24,8 +25,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..stages.report import write_report
-
     ws = Workspace(args.workspace)
     if not ws.root.is_dir():
         raise WorkspaceError(f"workspace {ws.root} not found (or not a folder); give the folder of `m2m run -w`")

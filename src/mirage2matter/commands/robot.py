@@ -8,6 +8,8 @@ import dataclasses
 import json
 from pathlib import Path
 
+from ..robots import ROBOTS, get_robot
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -38,8 +40,6 @@ def _jsonable(spec) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..robots import ROBOTS, get_robot
-
     if args.robot is None:
         rows = {name: get_robot(name) for name in ROBOTS}
         if args.json:

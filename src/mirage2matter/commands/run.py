@@ -17,9 +17,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from .. import __version__
+from .. import __version__, configure_threads
+from ..atomic import atomic_write
 from ..configs import add_flags, from_flags
 from ..stages import PIPELINE
+from ..stages.transaction import workspace_lock
 from ..workspace import Workspace, WorkspaceError
 from .args import Formatter, info, show
 
@@ -78,9 +80,7 @@ def run_workspace(
 ) -> dict[str, Any]:
     """The stages of ``ws``'s m2m.yaml from ``start`` through ``until``; prints the progress (stderr) and the
     summary (stdout), writes it to ``summary_file`` (default ``run_summary.json``) and returns it."""
-    from .. import configure_threads
     from ..stages.pipeline import PipelineConfig, PipelineError, run_pipeline
-    from ..stages.transaction import workspace_lock
 
     if ws.root.exists() and not ws.root.is_dir():
         raise WorkspaceError(f"workspace {ws.root} exists and is not a folder; choose another with -w")
@@ -104,8 +104,6 @@ def run_workspace(
 
 
 def _write_summary(path: Path, result: dict[str, Any]) -> None:
-    from ..atomic import atomic_write
-
     result["mirage2matter_version"] = __version__
     with atomic_write(path, "w", encoding="utf-8") as f:
         json.dump(result, f, indent=1, default=str)

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Literal
 
+import numpy as np
+
 from ..configs import add_flags, from_flags, ranged
-from ..robots import DEFAULT_ROBOT
+from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
 from ..sample.handeye_capture import HandEyeCaptureConfig
 from .args import info
 
@@ -93,10 +96,6 @@ def run(args: argparse.Namespace) -> int:
     if not empty_table:
         config = with_robot_in_view(config)
     if args.robot != config.robot:
-        from dataclasses import replace
-        from pathlib import Path
-
-        from ..robots import get_robot, is_spec_file
 
         robot = str(Path(args.robot).resolve()) if is_spec_file(args.robot) else args.robot
         get_robot(robot)  # an unknown robot or a bad spec file fails before anything renders
@@ -107,8 +106,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_handeye(args: argparse.Namespace) -> int:
-    import numpy as np
-
     from ..sample.handeye_capture import HandEyeCaptureConfig, make_handeye_capture
 
     given = from_flags(SampleHandEyeConfig, args)

@@ -6,6 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
+from ..export import validate
 from .args import CliError, info
 
 
@@ -16,8 +17,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..export import validate
-
     problems = validate(args.dataset)
     if problems:
         raise CliError(f"{args.dataset}: {len(problems)} problem(s) found:\n" + "\n".join(f"  - {p}" for p in problems))

@@ -15,9 +15,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..configs import add_flags, from_flags, ranged
+from ..robots import DEFAULT_ROBOT, get_robot
+from ..robots.surface import check_capture_joints
 from ..viewer.config import ViewerConfig
+from ..viewer.inputs import Board, ViewerInputs
 from ..workspace import Workspace
 from .args import CliError, check_output, show
+from .world import edit_world
 
 __all__ = ["ViewConfig", "register", "view", "workspace_inputs"]
 
@@ -62,8 +66,6 @@ def _port_free(host: str, port: int) -> None:
 def workspace_inputs(ws: Workspace):
     """What ``ws`` holds for the viewer (:class:`~mirage2matter.viewer.ViewerInputs`), with what is missing."""
     from ..geometry.camera import Camera
-    from ..robots import DEFAULT_ROBOT, get_robot
-    from ..viewer.inputs import Board, ViewerInputs
     from ..world import load_world
 
     world = load_world(ws.world_yaml) if ws.world_yaml.is_file() else None
@@ -103,7 +105,6 @@ def _mover(ws: Workspace):
     """A released drag -> ``m2m world move --to x,y,z --yaw deg``, the same function, lock and transaction."""
     from ..world import load_world
     from ..world.edit import placement_of
-    from .world import edit_world
 
     def move(name: str, xyz, yaw_deg: float):
         to = ",".join(repr(float(v)) for v in xyz)
@@ -149,8 +150,6 @@ def view(args: argparse.Namespace) -> int:
             raise CliError(f"--joints {args.joints}: expected numbers J1,J2,... (rad)") from None
     inputs = workspace_inputs(ws)
     if joints is not None:
-        from ..robots.surface import check_capture_joints
-
         joints = tuple(check_capture_joints(inputs.robot, joints, "--joints").tolist())
     episode = _episode(args.episode, inputs) if args.episode else None
     for line in inputs.missing:

@@ -9,8 +9,10 @@ import time
 from dataclasses import dataclass, fields
 from pathlib import Path
 
+from ..atomic import atomic_write
 from ..configs import add_flags, from_flags, ranged
 from ..stages import generate
+from ..stages.transaction import Transaction, workspace_lock
 from ..workspace import Workspace
 from .args import CliError, check_output, positive_float, show, xyz
 
@@ -120,7 +122,6 @@ def _world(workspace: str):
 def edit_world(args: argparse.Namespace) -> int:
     """One edit as a transaction: the new world.yaml, world.ply (+ world.json) and any new assets are written
     into staging and swapped in together, under the workspace lock."""
-    from ..stages.transaction import Transaction, workspace_lock
     from ..world import load_world, save_world
     from ..world.compose import write_world_ply
 
@@ -176,7 +177,6 @@ def _edit(args: argparse.Namespace, cfg, asset_dir: Path):
 def check_world(args: argparse.Namespace) -> int:
     """world.ply + world.json recomposed from world.yaml and checked; swapped in together only when they pass."""
     from ..stages import world as compose
-    from ..stages.transaction import Transaction, workspace_lock
     from ..world import load_world
     from ..world.compose import consistency, write_world_ply
 
@@ -202,7 +202,6 @@ def check_world(args: argparse.Namespace) -> int:
 
 def run_tasks(args: argparse.Namespace) -> int:
     from ..sim.tasks import parse_task
-    from ..stages.transaction import workspace_lock
 
     args = _given(args, TaskConfig)
     ws, cfg = _world(args.workspace)
@@ -214,7 +213,6 @@ def run_tasks(args: argparse.Namespace) -> int:
 
 
 def _run_tasks(ws: Workspace, cfg, tasks, out: Path, args: argparse.Namespace) -> int:
-    from ..atomic import atomic_write
     from ..sim.tasks import evaluate
     from ..sim.twin import Twin, TwinOptions
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_path
 from ..export.spec import DatasetSpec
 from ..export.staging import StagedEpisode
 from ..export.video import encode_video
@@ -30,8 +31,6 @@ def _side_by_side(ep: StagedEpisode, spec: DatasetSpec) -> np.ndarray:
 def write_preview(out_dir: Path, episodes: list[StagedEpisode], spec: DatasetSpec, n: int = 4) -> list[Path]:
     """Write ``preview.mp4`` and ``contact_sheet.png`` of the first ``n`` episodes into ``out_dir``."""
     from PIL import Image
-
-    from ..atomic import atomic_path
 
     clips = [_side_by_side(ep, spec) for ep in episodes[:n]]
     if not clips:

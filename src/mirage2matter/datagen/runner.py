@@ -21,6 +21,7 @@ next run's attempts by retargeting its source (``retarget``), so the start-up is
 
 from __future__ import annotations
 
+import multiprocessing as mp
 import os
 import queue
 import time
@@ -28,11 +29,14 @@ import traceback
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
+from multiprocessing.reduction import ForkingPickler
 from pathlib import Path
 from typing import Any
 
+from .. import configure_threads
 from ..export.staging import write_attempt
 from ..processes import die_with_parent
+from .ray_workers import RayWorkers
 from .worker import Attempt, EpisodeSource, Job, RunnerError, Server, SourceFactory, attempt_seed
 
 __all__ = ["Attempt", "EpisodeSource", "Job", "RunStats", "RunnerError", "SourceFactory", "WorkerPool",
@@ -78,8 +82,6 @@ def _worker_main(job, threads, tasks, results, parent) -> None:  # runs in a wor
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     os.environ.setdefault("LP_NUM_THREADS", str(threads))  # Mesa llvmpipe: one GL thread per core we own
     try:
-        from .. import configure_threads
-
         configure_threads(threads)
         server = Server(job)
         results.put(("ready", os.getpid(), None))
@@ -105,8 +107,6 @@ class _Processes:
     name = "process"
 
     def __init__(self, workers: int):
-        import multiprocessing as mp
-
         self.ctx = mp.get_context("spawn")
         self.n = workers
         self.tasks = self.ctx.Queue()
@@ -149,8 +149,6 @@ class _Processes:
             self.tasks.put((job.key, attempt, seed))
             return
         if job.key not in self._sendable:
-            from multiprocessing.reduction import ForkingPickler
-
             try:
                 ForkingPickler.dumps(job)
             except Exception as e:
@@ -200,8 +198,6 @@ class WorkerPool:
         if self.running:
             return
         if self.ray_address:
-            from .ray_workers import RayWorkers
-
             backend: Any = RayWorkers(self.workers, self.ray_address)
         elif self.workers > 1:
             backend = _Processes(self.workers)

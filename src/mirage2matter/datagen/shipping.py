@@ -13,6 +13,7 @@ import copy
 import dataclasses
 import hashlib
 import os
+import shutil
 import tempfile
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -20,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import M2MError
+from ..robots import is_spec_file
 
 __all__ = ["ShipError", "Shipment", "ShippedFactory", "pack", "pack_under", "relocate", "unpack", "world_files"]
 
@@ -90,8 +92,6 @@ def pack_under(paths: Iterable[Path], origins: Iterable[Path]) -> tuple[Shipment
 def world_files(world: Any) -> list[Path]:
     """Every file or folder an environment built on the world (``world.config.WorldConfig``) opens (a mesh with the
     materials and textures beside it, as ``m2m world insert`` copies them)."""
-    from ..robots import is_spec_file
-
     out: list[Path] = [world.root]
     parts = [o.part for o in world.objects] + [p for a in world.articulated for p in (a.base, a.cap)]
     for part in parts:
@@ -121,7 +121,6 @@ def unpack(shipment: Shipment, cache: Path | None = None) -> Path:
     try:
         os.rename(tmp, dest)
     except OSError:  # another worker of this node renamed its copy first: the same content
-        import shutil
 
         shutil.rmtree(tmp, ignore_errors=True)
     return dest

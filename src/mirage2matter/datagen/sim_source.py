@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, field, fields, is_dataclass
+from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -25,9 +25,11 @@ import numpy as np
 
 from ..env.config import EnvConfig, EpisodeSpec, HybridOptions, Randomization
 from ..export.spec import DatasetSpec, EpisodeData
+from ..ray_cluster import splat_resources
 from ..sim.tasks import Task
 from ..world.config import WorldConfig
 from .config import Takeover
+from .shipping import ShippedFactory, pack, world_files
 from .worker import Attempt
 
 __all__ = ["SimEpisodeSource", "SimSourceConfig", "SimSourceFactory"]
@@ -102,8 +104,6 @@ class SimEpisodeSource:
     running splat server's handle, which then draws the splat layer (``env.hybrid.HybridRenderer``)."""
 
     def __init__(self, cfg: SimSourceConfig, splat_server: Any = None):
-        from dataclasses import replace
-
         from ..env.twin_env import TwinEnv
 
         self.cfg = cfg
@@ -239,8 +239,6 @@ class SimSourceFactory:
         """This factory with the files its episodes read (the world's splats, meshes, collision parts, robot
         Gaussians and spec, a takeover's policies: those inside the world's workspace) as content, for workers on
         machines that do not see this one's disk (datagen/shipping.py)."""
-        from .shipping import ShippedFactory, pack
-
         if self.splat_server is not None:
             raise RuntimeError("a splat server's handle serves local worker processes only")  # refused in _check
         return ShippedFactory(self, pack(_files(self.cfg), self.cfg.world.root.parent))
@@ -249,15 +247,11 @@ class SimSourceFactory:
         """What a Ray worker of this source asks for: a CPU for physics and encoding, and a share of a GPU when the
         splat renderer is told to use CUDA (its options, or ``M2M_RENDER_BACKEND=cuda`` on the driver, which the workers
         get too): Ray then places it on a GPU node; "auto" asks for none."""
-        from ..ray_cluster import splat_resources
-
         return splat_resources(self.cfg.hybrid.splat.backend)
 
 
 def _files(cfg: SimSourceConfig) -> list[Path]:
     """Every file or folder an environment built from ``cfg`` opens, and a takeover's policies."""
-    from .shipping import world_files
-
     out = world_files(cfg.world)
     if cfg.takeover is not None:
         out += [Path(d) for d in cfg.takeover.policies]

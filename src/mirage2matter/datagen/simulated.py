@@ -15,7 +15,12 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ..env.config import EnvError, check_config
+from ..env.hybrid import splat_parts
+from ..env.robot_proxy import render_robot_file
 from ..errors import M2MError
+from ..render.splat_server import SplatServer
+from ..robots import is_spec_file
 from .config import GenerateConfig
 from .dataset import GenerateError, generate_dataset, run_fingerprint
 from .runner import WorkerPool
@@ -40,8 +45,6 @@ def task_slug(task: str) -> str:
 def world_fingerprint(world: WorldConfig) -> dict[str, Any]:
     """The world's content hash (world.yaml's fields, paths relative to its folder; a user's robot spec file by its
     content): a changed world is a different dataset."""
-    from ..robots import is_spec_file
-
     text = json.dumps(world.to_dict(), sort_keys=True, default=str)
     out = {"world_sha1": hashlib.sha1(text.encode()).hexdigest()}
     if is_spec_file(world.robot.name):
@@ -69,7 +72,6 @@ def dataset_fingerprint(world: WorldConfig, task: Task, cfg: GenerateConfig) -> 
 
 def _check(world: WorldConfig, task: Task, cfg: GenerateConfig) -> None:
     """Fail fast, in the parent, with the message a user can act on."""
-    from ..env.config import EnvError, check_config
     from ..sim.tasks import TaskError
 
     if cfg.splat_server and cfg.run.ray_address:
@@ -122,7 +124,6 @@ def generate(
     no-op; a killed run resumes (the fingerprint: world content, task, frame settings, seed, count, format).
     ``pool``: workers kept across tasks (:func:`worker_pool`): each worker's twin is built once and serves every
     task's episodes; not used with a splat server (its workers hold one run's server handle)."""
-    from ..env.robot_proxy import render_robot_file
     from .sim_source import SimSourceFactory
 
     _check(world, task, cfg)
@@ -150,8 +151,6 @@ def worker_pool(cfg: GenerateConfig) -> WorkerPool:
 @contextmanager
 def _splat_server(world: WorldConfig, source, cfg: GenerateConfig, log: Callable[[str], None]):
     """A splat server for the run's workers: one slot per worker, the workers' splat settings and cameras."""
-    from ..env.hybrid import splat_parts
-    from ..render.splat_server import SplatServer
 
     workers = max(cfg.run.workers, 1)
     server = SplatServer(splat_parts(world, objects=source.hybrid.objects == "gaussians",

@@ -8,7 +8,7 @@ built.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -119,8 +119,6 @@ def hybrid_options(objects: str = "gaussians", supersample: int = 1, robot_look:
     """The hybrid renderer's settings with generation's splat settings, objects drawn as ``objects``, the splat layer
     supersampled ``supersample`` x, the robot drawn as ``robot_look`` (what ``generate`` and ``eval-policy``
     expose)."""
-    from dataclasses import replace
-
     return HybridOptions(splat=replace(_fast_splats(), supersample=int(supersample)), objects=objects,
                          robot_look=robot_look)  # fmt: skip
 

@@ -10,15 +10,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..render.composite import ColorJitter
+from ..render.table_texture import TableTexture
 from .config import Randomization
-
-if TYPE_CHECKING:
-    from ..render.composite import ColorJitter
-    from ..render.table_texture import TableTexture
 
 __all__ = ["EpisodeDraw", "draw_episode"]
 
@@ -55,8 +52,6 @@ def _small_rotation(rng: np.random.Generator, max_deg: float) -> np.ndarray:
 
 def draw_episode(seed: int, randomization: Randomization, cameras: tuple[str, ...]) -> EpisodeDraw:
     """The episode of ``seed``: the same seed gives the same draw, in generation and in the environment."""
-    from ..render.composite import ColorJitter
-
     rnd = randomization
     rng = np.random.default_rng(int(seed))
     jitter = ColorJitter.sample(rng, rnd.brightness, rnd.contrast, rnd.gain)
@@ -72,7 +67,5 @@ def draw_episode(seed: int, randomization: Randomization, cameras: tuple[str, ..
     scale = float(rng.uniform(1.0 - rnd.object_shrink, 1.0)) if rnd.object_shrink > 0 else 1.0
     texture = None
     if rnd.table_texture > 0:
-        from ..render.table_texture import TableTexture
-
         texture = TableTexture.sample(rng, rnd.table_texture)
     return EpisodeDraw(int(seed), jitter, T_cam_camj, reset_seed, task_seed, scale, texture)

@@ -9,6 +9,8 @@ from typing import Any
 
 import numpy as np
 
+from ..atomic import atomic_write
+
 __all__ = ["load_or_record_episodes"]
 
 
@@ -18,8 +20,6 @@ def load_or_record_episodes(folder: Path, prefix: str, seeds: Sequence[int],
     """The episodes of ``seeds``: those not cached yet recorded by ``record(missing seeds)`` (each a dict of arrays
     with its ``seed``) and written, then every one read back (0-d arrays as Python scalars), so a first call and a
     cached one return the same thing. ``what`` names the recording in the log line."""
-    from ..atomic import atomic_write
-
     folder.mkdir(parents=True, exist_ok=True)
     path = lambda s: folder / f"{prefix}_{s}.npz"
     missing = [s for s in seeds if not path(s).is_file()]

@@ -53,6 +53,7 @@ from ..sim.scene import RenderScene, SceneLook, pos_quat, pose_from
 from ..sim.twin import Twin, TwinOptions
 from ..world.sample_assets import build_assets
 from ..world.sample_robot_look import ROBOT_LOOK_PREFIX, robot_look_meshes
+from .config import EnvError
 
 __all__ = [
     "INTRINSICS_MODES",
@@ -584,8 +585,6 @@ def _moved_back(T_base_cam: np.ndarray, metres: float) -> np.ndarray:
 def build_ground_truth(cfg: Any) -> tuple[Any, GroundTruthFrames]:
     """The env's ``ground_truth`` renderer (``env.renderers``): a physics-only twin of ``cfg.world`` and the
     sample's world at ``cfg.ground_truth`` drawn at its state."""
-    from .config import EnvError
-
     if cfg.ground_truth is None:
         raise EnvError(
             "the ground_truth renderer needs a sample's ground truth (a sample folder with ground_truth.json, such "

@@ -8,11 +8,15 @@ The twin it renders is built for it (:func:`build_hybrid`): cameras at the frame
 
 from __future__ import annotations
 
+import json
 import time
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..render.composite import ColorJitter, composite, to_uint8
+from ..render.splat_server import RemoteSplatLayer
+from ..render.table_texture import TableGaussians
 from .config import EnvConfig, HybridOptions
 from .robot_proxy import render_robot_file
 
@@ -47,7 +51,6 @@ class HybridRenderer:
 
     def __init__(self, twin: Twin, cameras: tuple[str, ...], size: tuple[int, int], options: HybridOptions,
                  splat_server: Any = None) -> None:  # fmt: skip
-        from ..render.composite import ColorJitter
 
         world = twin.cfg
         self.twin, self.cameras, self.size, self.options = twin, tuple(cameras), tuple(size), options
@@ -57,8 +60,6 @@ class HybridRenderer:
         self.hand_cameras = {c for c in cameras if world.cameras[c].mount == world.robot.ee_link}
         self.remote = None
         if splat_server is not None:
-            from ..render.splat_server import RemoteSplatLayer
-
             self.remote, self.splat = RemoteSplatLayer(splat_server), None
         else:  # with mesh objects Genesis draws them, in the robot layer (``build_hybrid``)
             from ..render.splat_world import SplatWorld
@@ -89,8 +90,6 @@ class HybridRenderer:
     def _retexture_table(self, texture: Any) -> None:
         """The table's Gaussians in this episode's look (``texture``: a TableTexture; None: as reconstructed)."""
         import torch
-
-        from ..render.table_texture import TableGaussians
 
         if texture is None and not self._table_changed:
             return
@@ -131,8 +130,6 @@ class HybridRenderer:
 
     def render(self) -> dict[str, np.ndarray]:
         """{camera: uint8 [H,W,3]} hybrid frames of the twin's current state."""
-        from ..render.composite import composite, to_uint8
-
         twin, opt, (w, h) = self.twin, self.options, self.size
         t0 = time.perf_counter()
         poses, views = self.splat_views()
@@ -186,8 +183,6 @@ ROBOT_PART = "robot/"  # a robot link's movable part: robot/<link>
 
 def robot_link_files(world: WorldConfig) -> dict[str, Path]:
     """{link: its Gaussians' PLY} of the world's robot (``robot.gaussians``/robot.json), in its order; {} without."""
-    import json
-
     if world.robot.gaussians is None:
         return {}
     info = json.loads((world.robot.gaussians / "robot.json").read_text(encoding="utf-8"))

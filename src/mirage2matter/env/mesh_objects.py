@@ -9,6 +9,7 @@ a mesh-only pipeline could get from the same capture), and the Gaussians draw on
 from __future__ import annotations
 
 import hashlib
+import os
 from pathlib import Path
 
 import numpy as np
@@ -22,8 +23,6 @@ SH_C0 = 0.28209479177387814  # the degree-0 spherical-harmonic constant: rgb = 0
 
 
 def _cache_dir() -> Path:
-    import os
-
     return Path(os.environ.get("M2M_CACHE", Path.home() / ".cache" / "mirage2matter")) / "mesh_objects"
 
 

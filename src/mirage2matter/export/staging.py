@@ -22,6 +22,7 @@ import json
 import os
 import re
 import shutil
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -30,6 +31,7 @@ import numpy as np
 
 from ..atomic import atomic_dir, atomic_write
 from ..errors import M2MError
+from .lerobot import write_dataset
 from .spec import DatasetSpec, EpisodeData, video_key
 from .staged import StagedEpisode
 from .stats import to_json
@@ -149,8 +151,6 @@ def encode_attempt(
     """One attempt as content: (its result record, its files by name: frames.parquet and one MP4 per camera for a
     success, none for a failure). Encoded in a private temporary folder, so a worker on any machine can make it
     (the encoding is the costly part); :func:`write_attempt` puts it into the staging area."""
-    import tempfile
-
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -223,8 +223,6 @@ def consolidate(
     ``out_dir`` and swap it in; ``extra(tmp_dir, episodes)`` may add files (summary, preview) to it
     first. Then remove the staging area. Returns the dataset's info.json. Idempotent: a consolidation
     killed midway leaves the staging area intact and is simply run again."""
-    from .lerobot import write_dataset
-
     episodes = staging.episodes(attempts)
     if not episodes:
         raise StagingError("no successful episodes to write; nothing was written")

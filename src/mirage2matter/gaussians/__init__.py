@@ -1,20 +1,20 @@
-"""Gaussian splats: the model, PLY I/O, SH, transforms and renderers. Knows no physics or pipeline."""
+"""Gaussian splats: the model, PLY I/O, SH, transforms and renderers. Knows no physics or pipeline.
 
-from .model import Gaussians
-from .ply import PlyFormatError, read_ply, write_ply
-from .sh import num_sh_bases, rgb_to_sh_dc, sh_basis, sh_to_rgb
-from .sh_rotation import rotate_sh
-from .transform import apply_sim3
+The torch-backed names load on first use, so that the training settings (``gaussians.config``) read without torch.
+"""
 
-__all__ = [
-    "Gaussians",
-    "PlyFormatError",
-    "apply_sim3",
-    "num_sh_bases",
-    "read_ply",
-    "rgb_to_sh_dc",
-    "rotate_sh",
-    "sh_basis",
-    "sh_to_rgb",
-    "write_ply",
-]
+import importlib
+
+_LAZY = {
+    "Gaussians": "model", "PlyFormatError": "ply", "read_ply": "ply", "write_ply": "ply", "num_sh_bases": "sh",
+    "rgb_to_sh_dc": "sh", "sh_basis": "sh", "sh_to_rgb": "sh", "rotate_sh": "sh_rotation", "apply_sim3": "transform",
+}  # fmt: skip
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = sorted(_LAZY)

@@ -16,11 +16,11 @@ from collections.abc import Sequence
 
 import torch
 
+from .config import FILTER_3D_VARIANCE
 from .model import Gaussians
 
 __all__ = ["FILTER_3D_VARIANCE", "apply_3d_filter", "check_variance", "max_sampling_rate"]
 
-FILTER_3D_VARIANCE = 0.2  # squared training pixels (Mip-Splatting's)
 
 
 def check_variance(variance: float) -> None:

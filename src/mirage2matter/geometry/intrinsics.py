@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import M2MError
+from ..inputs import InputError, read_json, read_yaml
 from .distortion import FISHEYE_KEYS, RADTAN_KEYS
 
 __all__ = ["FORMATS", "IntrinsicsFormatError", "colmap_lens", "read_intrinsics"]
@@ -268,8 +269,6 @@ def read_intrinsics(
     """``{"K" [3x3] (our +0.5 convention), "width", "height", "distortion" {name: value, "model" for a fisheye}}``
     from any accepted file (see the module docstring). ``keys``: objects of a larger JSON to look in (e.g.
     "head_camera"); ``size`` (width, height): picks that camera of a COLMAP cameras.txt holding several."""
-    from ..inputs import InputError, read_json, read_yaml
-
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")

@@ -11,12 +11,17 @@ others.
 from __future__ import annotations
 
 import math
+import multiprocessing as mp
 import os
 import queue
 from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
+from .. import configure_threads
+from ..processes import die_with_parent
 from .errors import ObjectsError
 
 __all__ = ["object_workers", "process_objects"]
@@ -49,8 +54,6 @@ def _available_bytes() -> int:
 
 
 def _init_worker(lines: Any, threads: int, parent_pid: int) -> None:
-    from .. import configure_threads
-    from ..processes import die_with_parent
 
     global _lines
     die_with_parent(parent_pid)  # a killed stage leaves no worker behind (it resumes from the objects written)
@@ -82,9 +85,6 @@ def process_objects(
     if workers <= 1 or len(jobs) <= 1:
         return {t.name: process_object(t, config, cameras, images, folder, log, progress=True, lens=lens)
                 for t, folder in jobs}  # fmt: skip
-    import multiprocessing as mp
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-    from concurrent.futures.process import BrokenProcessPool
 
     ctx = mp.get_context("spawn")
     lines = ctx.Queue()

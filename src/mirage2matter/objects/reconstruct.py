@@ -28,9 +28,12 @@ from typing import Any
 import numpy as np
 
 from ..atomic import atomic_dir
-from ..configs import ranged
+from ..configs import fingerprinted, ranged
+from ..fingerprint import fingerprint
 from ..geometry.camera import Camera
 from ..geometry.sim3 import Sim3
+from ..inputs import InputError, check_name
+from .collision import convex_decomposition
 from .errors import ObjectsError
 from .masks import (
     FolderMasks,
@@ -44,6 +47,7 @@ from .masks import (
 )
 from .matting import MattingConfig, sample_in_hull
 from .splat import SplatConfig, mask_crop
+from .support import find_objects, name_clusters
 from .views import crop_camera
 
 __all__ = ["ObjectsConfig", "find_targets", "load_keyframes_rgb", "pinhole_keyframes", "process_object",
@@ -113,8 +117,6 @@ class ObjectsConfig:
 
     def validate(self) -> None:
         """Every object name is one (it names the folder ``objects/<name>/``): ``../evil`` is refused here."""
-        from ..inputs import InputError, check_name
-
         named = [n.partition("=")[0] for n in self.names] + list(self.mesh) + list(self.density) + list(self.keypoints)
         for name in named:
             try:
@@ -159,8 +161,6 @@ def pinhole_keyframes(cameras: list[Camera], image_dir: Path) -> tuple[list[Came
 
 def find_targets(config: ObjectsConfig, cameras, points) -> tuple[Any, list[Target]]:
     """(support plane, the objects to reconstruct) from the base-frame points [M,3], named by the config."""
-    from .support import find_objects, name_clusters
-
     plane, clusters = find_objects(points)
     targets: list[Target] = []
     free = list(clusters)
@@ -285,7 +285,6 @@ def process_object(
         object_frame,
         signed_distance,
     )
-    from .collision import convex_decomposition
     from .figure import side_by_side
     from .mesh import ensure_watertight, load_mesh, mass_properties, reconstruct_mesh
     from .silhouette import SilhouetteCost, refine_by_silhouettes
@@ -471,8 +470,6 @@ class _StepClock:
 def target_fingerprint(config: ObjectsConfig, target: Target) -> str:
     """The object's resume key: the config, the object's points (a changed cluster is another object) and the
     keyframes hidden from it."""
-    from ..configs import fingerprinted
-    from ..fingerprint import fingerprint
 
     pts = None if target.cluster is None else np.round(target.cluster.points, 4).tobytes()
     hidden = [list(target.hidden)] if target.hidden else []  # absent when none: earlier objects' keys hold

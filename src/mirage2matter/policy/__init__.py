@@ -17,6 +17,8 @@ minute and see ~29 epochs in the default 20-minute budget. On grasp_banana (3 ep
 L1 of normalised action chunks from 0.81 to 0.05.
 """
 
+import importlib
+
 from .config import AugmentConfig, PolicyTrainConfig
 from .data import (
     DatasetMeta,
@@ -40,8 +42,6 @@ _LAZY = {
 
 def __getattr__(name: str):
     if name in _LAZY:
-        import importlib
-
         return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import M2MError
+from ..video import VideoError, read_video_frames
 
 __all__ = [
     "dataset_meta",
@@ -238,8 +239,6 @@ def _episode_rows_v30(root: Path) -> list[dict[str, Any]]:
 
 def _decode_resized(path: Path, size: int) -> tuple[np.ndarray, np.ndarray]:
     """(times float64 [F] s, frames uint8 [F, 3, size, size]) of a video file."""
-    from ..video import VideoError, read_video_frames
-
     times, frames = [], []
     try:
         for _, ts, im in read_video_frames(path):

@@ -17,6 +17,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..robots import ROBOTS, get_robot
+from ..robots.kinematics import RobotKinematics
 from .data import Demonstrations, chunk_indices
 
 __all__ = ["future_tcp", "robot_for"]
@@ -24,8 +26,6 @@ __all__ = ["future_tcp", "robot_for"]
 
 def robot_for(robot_type: str | None):
     """The shipped :class:`~mirage2matter.robots.RobotSpec` whose ``robot_type`` datasets carry, or None."""
-    from ..robots import ROBOTS, get_robot
-
     if robot_type is None:
         return None
     return next((spec for spec in map(get_robot, ROBOTS) if spec.robot_type == robot_type), None)
@@ -33,8 +33,6 @@ def robot_for(robot_type: str | None):
 
 def tcp_of_actions(action: np.ndarray, spec) -> np.ndarray:
     """float32 [N, 3]: the TCP position (base frame, m) where each action's arm joint targets [N, >= n_arm] put it."""
-    from ..robots.kinematics import RobotKinematics
-
     kin = RobotKinematics(spec.name)  # a shipped robot by name (composed models included)
     tcp = np.append(spec.T_ee_tcp[:3, 3], 1.0)
     out = np.empty((len(action), 3), np.float32)

@@ -12,12 +12,14 @@ the hybrid renderer draws them), so the robot's pixels are compared with the rob
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..atomic import atomic_write
 from ..calib.board import BoardSpec
 from ..geometry.camera import Camera
 
@@ -166,11 +168,7 @@ def check_head_view(
 def save_head_view(out_png: Path, check: HeadViewCheck, photo: np.ndarray | None) -> None:
     """``out_png``: the render (beside the photo when there is one) and ``out_png`` with .json: the check's
     figures; each written atomically."""
-    import json
-
     from PIL import Image
-
-    from ..atomic import atomic_write
 
     out_png = Path(out_png)
     sheet = check.render if photo is None else np.concatenate([check.render, photo], axis=1)

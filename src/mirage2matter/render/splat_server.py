@@ -20,6 +20,7 @@ the layers in the slot's buffer, ``("detach", slot)`` (unanswered); ``None`` sto
 
 from __future__ import annotations
 
+import multiprocessing as mp
 import os
 import queue
 import time
@@ -30,6 +31,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import M2MError
+from ..processes import die_with_parent
+from .table_texture import TableGaussians
 
 __all__ = ["RemoteSplatLayer", "SplatServer", "SplatServerError", "SplatServerHandle"]
 
@@ -83,8 +86,6 @@ class SplatServer:
         self.stats: dict[str, Any] = {}
 
     def start(self) -> SplatServerHandle:
-        import multiprocessing as mp
-
         ctx = mp.get_context("spawn")  # CUDA, numba and Genesis do not survive fork
         parts, options, slots, cameras, (w, h), *_ = self.args
         requests, free = ctx.Queue(), ctx.Queue()
@@ -146,7 +147,6 @@ class SplatServer:
 
 def _serve(parts, options, slots, cameras, size, background, table_z, gather_s, requests, replies, buffers, status,
            parent) -> None:  # fmt: skip  (the server process)
-    from ..processes import die_with_parent
 
     die_with_parent(parent)
     try:
@@ -192,8 +192,6 @@ def _serve(parts, options, slots, cameras, size, background, table_z, gather_s, 
                 batch.set_scale(slot, scale)
                 if texture is not None or slot in textured:
                     if table is None:
-                        from .table_texture import TableGaussians
-
                         table = TableGaussians.find(world.gaussians, world.static_rows, table_z)
                     with torch.no_grad():
                         batch.stack["sh"][slot, table.rows, 0] = table.sh_dc(texture)

@@ -13,6 +13,7 @@ from functools import lru_cache
 from pathlib import Path
 
 from .spec import CameraMount, RobotError, RobotSpec, RobotSpecError
+from .specfile import load_robot_spec
 
 __all__ = [
     "DEFAULT_ROBOT", "ROBOTS", "CameraMount", "RobotError", "RobotSpec", "RobotSpecError", "get_robot",
@@ -43,8 +44,6 @@ def is_spec_file(robot: str | os.PathLike) -> bool:
 
 @lru_cache(maxsize=32)
 def _load(path: str, mtime_ns: int, size: int) -> RobotSpec:
-    from .specfile import load_robot_spec
-
     return load_robot_spec(path)
 
 

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from ..atomic import atomic_dir
 from ..errors import M2MError
 
 __all__ = [
@@ -359,7 +360,6 @@ def _compose(arm: Path, gripper: Path, mount: str, name: str, prefix: str, pos, 
     compiler.set("texturedir", "meshes")
     ET.indent(root, space="  ")
     xml = ET.tostring(root, encoding="unicode")
-    from ..atomic import atomic_dir
 
     with atomic_dir(out_dir) as tmp:
         (tmp / "meshes").mkdir()

@@ -56,7 +56,8 @@ from typing import Any
 
 import numpy as np
 
-from .model import ModelError, ModelInfo, compose_model, load_model, model_info, resolve_model
+from ..inputs import InputError, read_json, read_yaml
+from .model import ModelError, ModelInfo, compose_model, genesis_assets_dir, load_model, model_info, resolve_model
 from .spec import CameraMount, RobotSpec, RobotSpecError
 
 __all__ = [
@@ -487,16 +488,12 @@ def spec_from_dict(data: Any, source: str | os.PathLike | None = None) -> RobotS
 
 
 def _bundled_root() -> Path | None:
-    from .model import genesis_assets_dir
-
     a = genesis_assets_dir()
     return a.absolute() if a is not None else None
 
 
 def load_robot_spec(path: str | os.PathLike) -> RobotSpec:
     """Read the robot spec file ``path`` (YAML, or JSON by its ``.json`` suffix)."""
-    from ..inputs import InputError, read_json, read_yaml
-
     path = Path(path)
     if not path.is_file():
         raise RobotSpecError(f"robot spec file {path} not found")

@@ -27,6 +27,8 @@ import numpy as np
 from ..atomic import atomic_dir
 from ..calib.board import BoardSpec, board_frame_to_board_image
 from ..errors import M2MError
+from ..robots import DEFAULT_ROBOT, get_robot
+from ..robots.kinematics import RobotKinematics
 
 __all__ = ["HandEyeCaptureConfig", "HandEyeCaptureError", "make_handeye_capture", "render_board_view"]
 
@@ -245,8 +247,6 @@ def make_handeye_capture(out_dir: str | Path, cfg: HandEyeCaptureConfig = HandEy
     Returns the ground truth."""
     from PIL import Image
 
-    from ..robots import DEFAULT_ROBOT, get_robot
-    from ..robots.kinematics import RobotKinematics
 
     cfg.check()
     robot = get_robot(DEFAULT_ROBOT)

@@ -28,12 +28,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from ..atomic import atomic_dir
 from ..calib.board import BoardSpec, GridSpec, MarkerSpec
 from ..errors import M2MError
+from ..inputs import read_yaml
 from ..robots import DEFAULT_ROBOT, get_robot
 from ..robots.surface import check_capture_joints
+from ..video import write_video
 from ..world.sample_assets import LAYOUTS
 from .inspect import BUNDLED_SAMPLE
 from .lens import LENSES, LensConfig
@@ -177,9 +180,6 @@ def _write_settings(path: Path, config: SampleConfig, objects: list[str], captur
     if bundled and config.robot_in_view and config.capture_joints is None:
         shutil.copyfile(BUNDLED_SAMPLE / "m2m.yaml", path)
         return
-    import yaml
-
-    from ..inputs import read_yaml
 
     data = read_yaml(BUNDLED_SAMPLE / "m2m.yaml", "sample settings")
     notes = []
@@ -231,7 +231,6 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
     out = Path(out)
     _check_output_dir(out)  # before the slow imports, so a bad path fails at once
 
-    from ..video import write_video
     from ..world.sample_assets import board_asset, build_assets, export_assets, ground_truth_entries
     from ..world.sample_robot_look import capture_joints_for, robot_look_assets
     from .lens import lens_rays, pinhole_cover, resample_through_lens

@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 from ..atomic import atomic_dir
@@ -59,8 +60,6 @@ def with_fixed_intrinsics(config: SfMConfig, camera: Camera) -> SfMConfig:
 
     Self-calibration lets the focal length drift by tenths of a percent (fx and fy apart on the
     sample), which shows up as millimetres in every pose; a calibrated camera's K avoids that."""
-    from dataclasses import replace
-
     model, params = colmap_camera_params(camera)
     return replace(
         config,

@@ -16,7 +16,9 @@ from ..atomic import atomic_write
 from ..calib.align import AlignError, align_scene, default_T_base_board, draw_base_overlay
 from ..calib.board import load_target
 from ..configs import ranged
-from ..robots import DEFAULT_ROBOT, is_spec_file
+from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
+from ..robots.kinematics import RobotKinematics
+from ..robots.surface import check_capture_joints, robot_surface
 from ..workspace import Workspace
 from .base import ADDED_LATER, SHARED, Input, Log
 
@@ -60,8 +62,6 @@ class Config:
             raise AlignError("align-scene: no calibration target; give its spec JSON (--board, from `m2m board`), "
                              "or --unaligned to keep the SfM frame for a scene-only capture")  # fmt: skip
         if self.capture_joints is not None and self.robot.lower() != "none":
-            from ..robots import get_robot
-            from ..robots.surface import check_capture_joints
 
             check_capture_joints(get_robot(self.robot), self.capture_joints, "align capture_joints")
 
@@ -88,7 +88,6 @@ def _board_pose(path: Path) -> np.ndarray:
 def _footprint(robot: str) -> np.ndarray | None:
     if robot.lower() == "none":
         return None
-    from ..robots.kinematics import RobotKinematics
 
     return RobotKinematics(robot).base_footprint()
 
@@ -151,8 +150,6 @@ def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarra
         return {"seen": False, "line": "robot: none given (align.robot none)", "on_robot": None}
     from ..calib.align import apply_to_cameras
     from ..calib.robot_view import POSE_MIN_ON_FRACTION, fit_to_robot, robot_points, robot_silhouettes, visual_hull
-    from ..robots import get_robot
-    from ..robots.surface import check_capture_joints, robot_surface
 
     spec = get_robot(cfg.robot)
     q = check_capture_joints(spec, cfg.capture_joints, "align capture_joints")

@@ -28,6 +28,7 @@ from ..errors import M2MError
 from ..fingerprint import fingerprint
 from ..robots import DEFAULT_ROBOT
 from ..workspace import Workspace, WorkspaceError
+from .transaction import OutputLock, Transaction, holds_lock, workspace_lock
 
 __all__ = ["SHARED", "Input", "PipelineSettings", "Stage", "StageRecord", "jsonable", "run_stage", "stage_fingerprint"]
 
@@ -187,8 +188,6 @@ def run_stage(
     together only when it succeeded (see ``stages.transaction``). A policy stage (not part of a pipeline) holds
     it only to start and to commit, and its own output's lock in between, so several run side by side. With
     ``ground_truth`` (a sample's ground_truth.json) the stage's ``compare`` adds how close it came."""
-    from .transaction import OutputLock, Transaction, holds_lock, workspace_lock
-
     check_ranges(cfg, stage.name)  # a Config built in code, not read: its numbers as a read one's
     validate = getattr(cfg, "validate", None)
     if validate is not None:

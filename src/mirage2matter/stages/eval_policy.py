@@ -14,15 +14,22 @@ unseen. A killed evaluation resumes at the episode it was on.
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from ..atomic import atomic_write
 from ..configs import ranged
-from ..env.config import EpisodeSpec
+from ..datagen import task_slug
+from ..env.config import EnvError, EpisodeSpec, Randomization, hybrid_options, parse_start_region
+from ..eval_workers import EvalJob, PolicyRecipe, evaluate_on_ray
+from ..evaluation import contact_sheet, evaluate_policy
+from ..inputs import read_yaml
 from ..policy.config import POLICY_FILE
-from ..policy.data import PolicyError
+from ..policy.data import PolicyError, dataset_meta
 from ..render.options import MAX_SUPERSAMPLE
+from ..video import write_video
 from ..workspace import Workspace
 from .base import Input, Log
 
@@ -95,8 +102,6 @@ class Config:
 
     def randomization(self):
         """The episodes' randomisation: generation's defaults, with the start regions."""
-        from ..env.config import EnvError, Randomization, parse_start_region
-
         try:
             return Randomization(start_regions=tuple(parse_start_region(t) for t in self.start_region))
         except EnvError as e:
@@ -124,7 +129,6 @@ class Config:
             bad.append(f"objects={self.objects} is how the hybrid renderer draws them; the {self.renderer} renderer "
                        "draws its own world: add --objects gaussians (a setting given once stays in the workspace's "
                        "m2m.yaml)")  # fmt: skip
-        from ..render.options import MAX_SUPERSAMPLE
 
         if not 0 <= self.supersample <= MAX_SUPERSAMPLE:
             bad.append(f"supersample must be from 0 (the datasets') or 1 (off) to {MAX_SUPERSAMPLE}, got "
@@ -207,8 +211,6 @@ def task_of(ws: Workspace, cfg: Config) -> str:
 
 
 def _size_of(ws: Workspace, cfg: Config) -> int:
-    from ..policy.data import dataset_meta
-
     if cfg.size:
         return cfg.size
     for d in _trained_on(policy_paths(ws, cfg)):
@@ -238,8 +240,6 @@ def ground_truth_dir(ws: Workspace, cfg: Config) -> Path:
     if cfg.ground_truth is not None:
         gt = Path(cfg.ground_truth)
     else:
-        from ..inputs import read_yaml
-
         source = None
         path = ws.committed.config_file
         if path.is_file():  # m2m.yaml's capture.source, relative to its folder (not the pipeline: it imports us)
@@ -260,8 +260,6 @@ def ground_truth_dir(ws: Workspace, cfg: Config) -> Path:
 
 
 def report_name(ws: Workspace, cfg: Config) -> str:
-    from ..datagen import task_slug
-
     if cfg.name:
         return cfg.name
     paths = policy_paths(ws, cfg)
@@ -292,8 +290,6 @@ def open_policy(ws: Workspace, cfg: Config, world: Any):
 
 def policy_recipe(ws: Workspace, cfg: Config, world: Any):
     """How to open the policy (here or on a Ray worker, ``eval_workers.PolicyRecipe``); the settings checked."""
-    from ..eval_workers import PolicyRecipe
-
     spec = world.robot.spec
     episode = EpisodeSpec()  # the rate and cameras of the episodes it runs in (eval-policy sets the size alone)
     paths = policy_paths(ws, cfg)
@@ -314,13 +310,7 @@ def policy_recipe(ws: Workspace, cfg: Config, world: Any):
 
 
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
-    import time
-
-    from ..atomic import atomic_write
-    from ..env.config import hybrid_options
     from ..env.twin_env import TwinEnv, make_config
-    from ..evaluation import contact_sheet, evaluate_policy
-    from ..video import write_video
 
     task = task_of(ws, cfg)
     size = _size_of(ws, cfg)
@@ -413,8 +403,6 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
 def _on_ray(ws: Workspace, cfg: Config, env_cfg: Any, limit: float | None, done: list[dict], save: Any,
             log: Log) -> tuple[dict[str, Any], list]:  # fmt: skip
     """The episodes on Ray workers (``eval_workers``): the same records, appended by ``save`` here as they come."""
-    from ..eval_workers import EvalJob, evaluate_on_ray
-
     job = EvalJob(env_cfg, policy_recipe(ws, cfg, env_cfg.world), max_episode_seconds=limit)
     return evaluate_on_ray(job, cfg.episodes, cfg.ray_address, cfg.workers, seed=cfg.seed, log=log,
                            keep_frames=cfg.video_episodes, done=done, on_episode=save)  # fmt: skip

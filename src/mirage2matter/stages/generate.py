@@ -10,13 +10,16 @@ from pathlib import Path
 from typing import Any, Literal
 
 from ..configs import ranged
-from ..datagen import GenerateConfig, GenerateError, RunConfig, task_slug
+from ..datagen import GenerateConfig, GenerateError, RunConfig, dataset_fingerprint, generate, task_slug, worker_pool
 from ..datagen.config import MAX_TAKEOVER_STEPS, Randomization, Takeover, takeover_steps_problem
-from ..env.config import EpisodeSpec, hybrid_options
+from ..env.config import EnvError, EpisodeSpec, hybrid_options, parse_start_region
+from ..export.validate import validate
+from ..policy import PolicyError
 from ..policy.config import POLICY_FILE
-from ..render.options import MAX_SUPERSAMPLE
+from ..render.options import MAX_SUPERSAMPLE, supersample_problem
 from ..workspace import Workspace
 from .base import ADDED_LATER, Input, Log
+from .eval_policy import trained_policy_dirs
 
 
 @dataclass
@@ -91,7 +94,6 @@ class Config:
             raise GenerateError(f"generate: object_shrink must be in [0, 1), got {self.object_shrink}")
         if not 0.0 <= self.table_texture < 1.0:
             raise GenerateError(f"generate: table_texture must be in [0, 1), got {self.table_texture}")
-        from ..render.options import supersample_problem
 
         bad_supersample = supersample_problem(self.supersample)
         if bad_supersample:
@@ -105,8 +107,6 @@ class Config:
                                 "leave it out")  # fmt: skip
 
     def start_regions(self) -> tuple[tuple[str, float, float, float, float], ...]:
-        from ..env.config import EnvError, parse_start_region
-
         try:
             return tuple(parse_start_region(t) for t in self.start_region)
         except EnvError as e:
@@ -116,8 +116,6 @@ class Config:
         """The takeover's policy folders (none without one); GenerateError when a policy is missing."""
         if self.takeover is None:
             return []
-        from ..policy import PolicyError
-        from .eval_policy import trained_policy_dirs
 
         try:
             return trained_policy_dirs(ws, self.takeover)
@@ -146,8 +144,6 @@ class Config:
 
 
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
-    from ..policy.config import POLICY_FILE
-
     files = [Input(ws.world_yaml, made_by="compose")]
     return files + [Input(p / POLICY_FILE, made_by="train-policy") for p in cfg.takeover_dirs(ws.committed)]
 
@@ -168,8 +164,6 @@ def _finished(folder: Path, fingerprint: dict) -> dict | None:
 
 
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
-    from ..datagen import dataset_fingerprint, generate, worker_pool
-    from ..export.validate import validate
     from ..sim.tasks import parse_task
     from ..world import load_world
 

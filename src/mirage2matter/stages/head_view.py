@@ -14,6 +14,11 @@ from typing import Any, Literal
 import numpy as np
 
 from ..configs import ranged
+from ..fingerprint import fingerprint
+from ..inputs import read_image_rgb
+from ..robots import get_robot
+from ..robots.kinematics import RobotKinematics
+from ..robots.surface import check_capture_joints
 from ..workspace import Workspace, WorkspaceError
 from .base import ADDED_LATER, Input, Log
 
@@ -46,7 +51,6 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     from ..calib.board import target_from_json
     from ..gaussians.ply import read_ply
-    from ..inputs import read_image_rgb
     from ..render.head_view import check_head_view, save_head_view
 
     board = ws.board_on_table()
@@ -89,9 +93,6 @@ def robot_at_photo(ws: Workspace, cfg: Config) -> tuple[dict | None, dict | None
     capture did not show the robot): the scene is drawn alone. A ``photo_joints`` that does not fit the robot
     (length, limits, degrees) is refused, naming the setting."""
     from ..gaussians.ply import read_ply
-    from ..robots import get_robot
-    from ..robots.kinematics import RobotKinematics
-    from ..robots.surface import check_capture_joints
 
     info_file = ws.robot_gaussians_dir / "robot.json"
     if not info_file.is_file():
@@ -140,8 +141,6 @@ def head_camera(ws: Workspace, who: str, photo: np.ndarray | None = None, photo_
 def _scene_trained_on(ws: Workspace, photo: Path) -> bool:
     """Whether the scene was trained on this photo (``train-scene --head-photo``, the same file contents): the
     check then measures a fit, not a new view."""
-    from ..fingerprint import fingerprint
-
     try:
         metrics = json.loads(ws.scene_metrics.read_text())
         key = metrics.get("head_photo_fingerprint")

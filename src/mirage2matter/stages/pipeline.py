@@ -24,6 +24,7 @@ from ..atomic import atomic_write
 from ..configs import ConfigError, from_dict, to_dict, to_yaml
 from ..errors import M2MError
 from ..inputs import read_yaml_lines
+from ..robots import get_robot
 from ..workspace import Workspace
 from . import PIPELINE, STAGES
 from .base import Log, PipelineSettings, run_stage
@@ -123,8 +124,6 @@ class _Pipeline(PipelineSettings):
 
 def _robots(names: set[str]) -> set[str]:
     """``names`` without a model file that is another name's robot model (old m2m.yaml's handeye.robot)."""
-    from ..robots import get_robot
-
     models = set()
     for n in names:
         try:
@@ -297,8 +296,6 @@ def plan_run(
 
 def _check_required(cfg: PipelineConfig, where: SettingsFile, names: list[str]) -> None:
     """The inputs a stage cannot do without, and a robot that loads; ConfigError naming the line."""
-    from ..robots import get_robot
-
     at = where.at
     if cfg.robot.lower() != "none":
         try:

@@ -25,14 +25,12 @@ import numpy as np
 from ..atomic import atomic_write
 from ..configs import ranged, to_dict
 from ..fingerprint import fingerprint
-from ..gaussians.budget import budget_config
-from ..gaussians.dataset import DatasetError, build_views, photo_view
-from ..gaussians.filter3d import FILTER_3D_VARIANCE, check_variance
-from ..gaussians.ply import write_ply
-from ..gaussians.render import render, resolve_backend
-from ..gaussians.train import TrainConfig, init_gaussians_from_points, train
+from ..gaussians.config import FILTER_3D_VARIANCE, TrainConfig
+from ..inputs import read_image_rgb
 from ..workspace import Workspace, WorkspaceError
+from . import get_stage
 from .base import ADDED_LATER, Input, Log, stage_fingerprint
+from .head_view import head_camera
 
 __all__ = ["Config", "inputs", "outputs", "run"]
 
@@ -90,6 +88,8 @@ class Config:
     robot_iterations: int = ranged(300, ge=0, le=10**6, metadata=ADDED_LATER)
 
     def validate(self) -> None:
+        from ..gaussians.filter3d import check_variance
+
         if self.iterations < 0 or (self.iterations == 0 and not self.minutes > 0):
             raise WorkspaceError("train-scene: give a positive --minutes budget or --iterations")
         if self.downscale < 1 or self.holdout_every < 0 or self.max_gaussians < 1000:
@@ -117,6 +117,8 @@ def _heldout_sheet(g, views, config, backend: str, max_views: int = 4) -> np.nda
     """Held-out photos (top row) above their renders (bottom row), uint8."""
     import torch
 
+    from ..gaussians.render import render
+
     tops, bottoms = [], []
     bg = torch.tensor(config.background, dtype=torch.float32)
     for v in views[:max_views]:
@@ -142,8 +144,8 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
 
 def head_photo_view(ws: Workspace, cfg: Config, frame: str):
     """The head photo as a training view (``gaussians.train.View``) from the calibrated head camera."""
-    from ..inputs import read_image_rgb
-    from .head_view import head_camera
+    from ..gaussians.dataset import DatasetError, photo_view
+
 
     if frame != "base":
         raise WorkspaceError("train-scene --head-photo: the head camera's pose is in the robot-base frame; run "
@@ -163,7 +165,11 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
     """Train the scene Gaussians; writes and returns the metrics of ``scene/metrics.json``."""
     from PIL import Image
 
-    from . import get_stage
+    from ..gaussians.budget import budget_config
+    from ..gaussians.dataset import build_views
+    from ..gaussians.ply import write_ply
+    from ..gaussians.render import resolve_backend
+    from ..gaussians.train import init_gaussians_from_points, train
 
     posed = ws.posed_capture()
     frame_note = _frame_note(ws, posed.frame)
@@ -318,6 +324,7 @@ def _robot_gaussians(
     the keyframes' robot pixels with the scene in front, written to scene/robot/ (<link>.ply in the link's frame,
     robot.json: the capture joints, how much of each link the keyframes saw, held-out PSNR on the robot's pixels of
     the mesh look and of the captured one)."""
+    from ..gaussians.ply import write_ply
     from ..gaussians.robot import fit_robot_colours, mesh_gaussians
 
     links = robot["links"]

@@ -12,8 +12,10 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
+from ..datagen import task_slug
 from ..policy.config import POLICY_FILE, PolicyTrainConfig
-from ..policy.data import PolicyError
+from ..policy.data import PolicyError, dataset_meta
+from ..robots import get_robot
 from ..workspace import Workspace
 from .base import Input, Log
 
@@ -46,8 +48,6 @@ class Config(PolicyTrainConfig):
 
 def dataset_dirs(ws: Workspace, cfg: Config) -> list[Path]:
     """The dataset folders ``cfg.datasets`` names (task instructions or folder names under datasets/)."""
-    from ..datagen import task_slug
-
     root = ws.committed.datasets_dir
     if not cfg.datasets:
         found = sorted(p.parent.parent for p in root.glob("*/meta/info.json"))
@@ -77,11 +77,8 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
 
 def _check_robot(ws: Workspace, dirs: list[Path]) -> None:
     """Datasets of another robot than the world's are an error naming the dataset."""
-    from ..policy.data import dataset_meta
-
     if not ws.committed.world_yaml.is_file():
         return
-    from ..robots import get_robot
     from ..world import load_world
 
     spec = get_robot(load_world(ws.committed.world_yaml).robot.name)

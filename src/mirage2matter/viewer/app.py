@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from ..atomic import atomic_write
 from ..errors import M2MError
 from ..geometry.rotation import quat_to_matrix
 from ..geometry.sim3 import Sim3
@@ -267,8 +268,6 @@ class TwinViewer:
     def export_html(self, path: Path) -> int:
         """The scene as one HTML file that opens without a server (viser's serializer with its client inlined; an
         episode plays as its animation); bytes written."""
-        from ..atomic import atomic_write
-
         serializer = self.server.get_scene_serializer()
         ep = self.episode
         if ep is not None:

@@ -16,7 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from ..env.config import EpisodeSpec
+from ..policy.data import dataset_meta, load_episodes
 from ..robots import RobotSpec
+from ..video import VideoError, read_video_frames
 from .inputs import ViewerError
 
 __all__ = ["Episode", "dataset_episode", "eval_episode"]
@@ -55,8 +57,6 @@ class Episode:
 
 def _check_robot(root: Path, spec: RobotSpec) -> None:
     """A dataset recorded with another robot (or other joint names) cannot drive this world's robot."""
-    from ..policy.data import dataset_meta
-
     meta, _ = dataset_meta(root)
     if meta.robot_type not in (None, spec.robot_type) or tuple(meta.state_names[: spec.n_dofs]) != spec.state_names:
         raise ViewerError(
@@ -68,8 +68,6 @@ def _check_robot(root: Path, spec: RobotSpec) -> None:
 
 def dataset_episode(root: Path, index: int, spec: RobotSpec) -> Episode:
     """Episode ``index`` of the LeRobot dataset at ``root`` (one of ours: v3.0 or v2.1)."""
-    from ..policy.data import load_episodes
-
     root = Path(root)
     _check_robot(root, spec)
     info = json.loads((root / "meta" / "info.json").read_text(encoding="utf-8"))
@@ -99,8 +97,6 @@ def dataset_episode(root: Path, index: int, spec: RobotSpec) -> Episode:
 
 def eval_episode(root: Path, index: int) -> Episode:
     """Episode ``index`` of the evaluation report at ``root`` (``episodes.jsonl`` + ``rollout.mp4``)."""
-    from ..video import VideoError, read_video_frames
-
     root = Path(root)
     rows_file = root / "episodes.jsonl"
     if not rows_file.is_file():

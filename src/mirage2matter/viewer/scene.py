@@ -12,6 +12,7 @@ Viser's frustums and images use OpenCV camera axes (x right, y down, z forward),
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -21,6 +22,7 @@ import numpy as np
 
 from ..geometry.rotation import matrix_to_quat
 from ..geometry.sim3 import Sim3
+from ..robots.surface import robot_surface
 from .config import ViewerConfig
 from .inputs import Board, ViewerInputs
 from .splats import SplatArrays, read_splats
@@ -105,8 +107,6 @@ def add_robot(server: Any, inputs: ViewerInputs, T_base_link: dict[str, np.ndarr
               progress: Progress) -> tuple[dict[str, Any], list[Any]]:  # fmt: skip
     """({link: its frame node}, the nodes that draw it): the robot's captured look (per-link Gaussians) where it has
     one, else its model's meshes."""
-    import json
-
     files: dict[str, Path] = {}
     if inputs.robot_gaussians is not None:
         info = json.loads((inputs.robot_gaussians / "robot.json").read_text(encoding="utf-8"))
@@ -123,7 +123,6 @@ def add_robot(server: Any, inputs: ViewerInputs, T_base_link: dict[str, np.ndarr
                 looks.append(_splats(server, f"/robot/{link}/splats", read_splats(path, per_link)))
         return nodes, looks
     progress("the robot's meshes (no captured look: train-scene draws one when the keyframes show the robot)")
-    from ..robots.surface import robot_surface
 
     for s in robot_surface(inputs.robot, None):
         if s.link in nodes:

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from ..atomic import atomic_write
 from ..configs import ranged
@@ -573,8 +574,6 @@ def save_world(
 ) -> Path:
     """Write ``cfg`` as YAML (atomically) to ``path`` (default ``<cfg.root>/world.yaml``); returns the path.
     Paths are written relative to ``home``, the folder the file will be read from (default: ``path``'s)."""
-    import yaml
-
     path = Path(path) if path is not None else cfg.root / "world.yaml"
     home = Path(home).resolve() if home is not None else path.parent.resolve()
     if home != cfg.root:

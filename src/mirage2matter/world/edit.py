@@ -28,6 +28,7 @@ from ..gaussians.sh import SH_C0
 from ..geometry.sim3 import Sim3
 from ..geometry.umeyama import umeyama
 from ..inputs import InputError, read_json
+from ..objects.errors import ObjectsError
 from .config import ObjectConfig, PartConfig, WorldConfig, WorldConfigError
 from .validate import load_mesh, validate_world
 
@@ -87,7 +88,6 @@ def insert(
     reconstructions) and add it at ``placement``; convex parts are
     computed (CoACD) when no collision folder is given. Raises WorldConfigError on a taken name or an
     overlap with what is there."""
-    from ..objects.errors import ObjectsError
     from ..objects.mesh import ensure_watertight
     from .sample import convex_parts
 

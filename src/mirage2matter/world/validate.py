@@ -14,7 +14,7 @@ import numpy as np
 import trimesh
 
 from ..inputs import InputError, check_joints, check_mesh
-from ..robots.model import ModelInfo
+from ..robots.model import ModelError, ModelInfo, model_info, resolve_model
 from .config import _NAME_RE, ArticulatedConfig, ObjectConfig, PartConfig, WorldConfig, WorldConfigError
 
 __all__ = ["check_overlaps", "load_collision_parts", "placed_parts", "validate_world"]
@@ -25,8 +25,6 @@ OVERLAP_TOL = 0.002
 
 def _robot_model(file: str) -> ModelInfo:
     """What the robot model file says (MuJoCo reads MJCF and URDF in well under a second, without Genesis)."""
-    from ..robots.model import ModelError, model_info, resolve_model
-
     try:
         path = resolve_model(file)
     except ModelError as e:
