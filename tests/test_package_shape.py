@@ -196,7 +196,7 @@ def test_thin_command_line_and_short_stage_functions(limit):
 # count as packages. One level may hold several packages (they may import one another; the circle test keeps them
 # apart at module level).
 PACKAGE_LEVELS = [
-    {"errors", "inputs", "atomic", "progress", "processes", "fingerprint", "video", "configs", "ray_cluster"},
+    {"errors", "inputs", "atomic", "progress", "processes", "fingerprint", "video", "configs", "ray_cluster", "lazy"},
     {"geometry"},
     {"robots"},
     {"gaussians", "sfm", "capture", "calib", "objects"},
@@ -308,7 +308,11 @@ def _loads_heavy() -> dict[str, bool]:
 def _lazy_names(path: Path) -> set[str] | None:
     """A package's module ``__getattr__`` hands out names on first use (loading torch): those names, else None."""
     tree = ast.parse(path.read_text())
-    if not any(isinstance(n, ast.FunctionDef) and n.name == "__getattr__" for n in tree.body):
+    getattr_assigned = any(
+        isinstance(n, ast.Assign) and any(isinstance(x, ast.Name) and x.id == "__getattr__" for x in n.targets)
+        for n in tree.body
+    )
+    if not getattr_assigned and not any(isinstance(n, ast.FunctionDef) and n.name == "__getattr__" for n in tree.body):
         return None
     bound = {a.asname or a.name for n in tree.body if isinstance(n, ast.Import | ast.ImportFrom) for a in n.names}
     return {"*"} - bound  # any name not bound at import is lazy

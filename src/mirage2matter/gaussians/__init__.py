@@ -3,18 +3,13 @@
 The torch-backed names load on first use, so that the training settings (``gaussians.config``) read without torch.
 """
 
-import importlib
+from ..lazy import lazy_names
 
 _LAZY = {
     "Gaussians": "model", "PlyFormatError": "ply", "read_ply": "ply", "write_ply": "ply", "num_sh_bases": "sh",
     "rgb_to_sh_dc": "sh", "sh_basis": "sh", "sh_to_rgb": "sh", "rotate_sh": "sh_rotation", "apply_sim3": "transform",
 }  # fmt: skip
 
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
+__getattr__ = lazy_names(__name__, _LAZY)
 
 __all__ = sorted(_LAZY)

@@ -17,8 +17,7 @@ minute and see ~29 epochs in the default 20-minute budget. On grasp_banana (3 ep
 L1 of normalised action chunks from 0.81 to 0.05.
 """
 
-import importlib
-
+from ..lazy import lazy_names
 from .config import AugmentConfig, PolicyTrainConfig
 from .data import (
     DatasetMeta,
@@ -39,12 +38,7 @@ _LAZY = {
     "PolicyTrainer": "train", "train_policy": "train",
 }  # fmt: skip
 
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
+__getattr__ = lazy_names(__name__, _LAZY)
 
 __all__ = [
     "AugmentConfig",

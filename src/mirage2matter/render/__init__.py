@@ -5,7 +5,7 @@ The torch-backed names load on first use, so that the settings' bounds (``render
 texture read without torch.
 """
 
-import importlib
+from ..lazy import lazy_names
 
 _LAZY = {
     "ColorJitter": "composite", "composite": "composite", "robot_visible": "composite", "to_uint8": "composite",
@@ -13,11 +13,6 @@ _LAZY = {
     "SplatWorldBatch": "splat_world",
 }  # fmt: skip
 
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
+__getattr__ = lazy_names(__name__, _LAZY)
 
 __all__ = sorted(_LAZY)
