@@ -37,7 +37,8 @@ def detect_corners(image_rgb: np.ndarray, board: BoardSpec) -> dict[int, np.ndar
 @dataclass
 class HeadViewCheck:
     """render uint8 [H,W,3]; psnr vs the photo (dB, None without one); corner offsets in pixels:
-    render vs photo detections and render vs the board's known pose (median / max, ids used).
+    render vs photo detections, render vs the board's known pose, and photo vs the known pose (median / max, ids
+    used): the last is the calibration alone (no render), the others what the scene's Gaussians draw.
     With the robot drawn: robot_mask bool [H,W], the pixels the robot covers (drawn alone, alpha >= 0.5), and the
     PSNR vs the photo on them (psnr_robot) and on the rest (psnr_elsewhere)."""
 
@@ -45,6 +46,7 @@ class HeadViewCheck:
     psnr: float | None = None
     corners_vs_photo_px: dict[str, float] = field(default_factory=dict)
     corners_vs_known_px: dict[str, float] = field(default_factory=dict)
+    photo_vs_known_px: dict[str, float] = field(default_factory=dict)
     robot_mask: np.ndarray | None = None
     psnr_robot: float | None = None
     psnr_elsewhere: float | None = None
@@ -54,6 +56,7 @@ class HeadViewCheck:
             "psnr": self.psnr,
             "corners_vs_photo_px": self.corners_vs_photo_px,
             "corners_vs_known_px": self.corners_vs_known_px,
+            "photo_vs_known_px": self.photo_vs_known_px,
         }
         if self.robot_mask is not None:
             out.update(robot_drawn=True, robot_fraction=float(self.robot_mask.mean()), psnr_robot=self.psnr_robot,
@@ -154,15 +157,23 @@ def check_head_view(
             result.psnr_elsewhere = _psnr_on(rgb, seen, ~robot_mask)
     if board is not None:
         seen = detect_corners(result.render, board)
+        in_photo = detect_corners(photo[..., :3], board) if photo is not None else {}
         if photo is not None:
-            result.corners_vs_photo_px = _offsets(seen, detect_corners(photo[..., :3], board))
+            result.corners_vs_photo_px = _offsets(seen, in_photo)
         if T_base_board is not None:
-            ids = sorted(seen)
-            pts = board.points_board(np.asarray(ids, np.int64)) @ T_base_board[:3, :3].T + T_base_board[:3, 3]
-            uv, z = camera.project(pts)
-            known = {pid: uv[k] for k, pid in enumerate(ids) if z[k] > 0}
+            known = _known_corners(board, T_base_board, camera, sorted(set(seen) | set(in_photo)))
             result.corners_vs_known_px = _offsets(seen, known)
+            if photo is not None:
+                result.photo_vs_known_px = _offsets(in_photo, known)
     return result
+
+
+def _known_corners(board: BoardSpec, T_base_board: np.ndarray, camera: Camera, ids: list[int]
+                   ) -> dict[int, np.ndarray]:  # fmt: skip
+    """The board's points ``ids`` at its known pose, projected through ``camera`` (those in front of it)."""
+    pts = board.points_board(np.asarray(ids, np.int64)) @ T_base_board[:3, :3].T + T_base_board[:3, 3]
+    uv, z = camera.project(pts)
+    return {pid: uv[k] for k, pid in enumerate(ids) if z[k] > 0}
 
 
 def save_head_view(out_png: Path, check: HeadViewCheck, photo: np.ndarray | None) -> None:

@@ -83,6 +83,9 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         parts.append(f"board corners {known['median']:.2f} px (median, {known['n']}) from the board's known pose")
     if seen.get("n"):
         parts.append(f"{seen['median']:.2f} px from the photo's")
+    if check.photo_vs_known_px.get("n"):  # the calibration alone: the photo's corners vs the board's known pose
+        pk = check.photo_vs_known_px
+        parts.append(f"the photo's corners {pk['median']:.2f} px (median, {pk['n']}) from the known pose")
     line = "; ".join(parts) or "rendered (the board is not seen in the render)"
     return {**check.to_json(), "photo_trained_on": trained_on, "robot": robot_words, "line": f"{line}; {robot_words}"}
 
