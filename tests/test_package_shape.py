@@ -362,3 +362,22 @@ def _bound(path: Path) -> set[str]:
     tree = ast.parse(path.read_text())
     out = {a.asname or a.name for n in tree.body if isinstance(n, ast.Import | ast.ImportFrom) for a in n.names}
     return out | {n.name for n in tree.body if isinstance(n, ast.FunctionDef | ast.ClassDef)}
+
+
+# Each engine in one package: the rest of the code asks that package (sfm.load_model_points, robots.kinematics,
+# sim.scene.ensure_genesis), so that a version change of an engine is one package's concern.
+ENGINE_OWNERS = {"pycolmap": "sfm", "mujoco": "robots", "genesis": "sim"}
+
+
+def test_each_engine_is_imported_by_one_package():
+    wrong = []
+    for m, p in _modules().items():
+        for n in ast.walk(ast.parse(p.read_text())):
+            names = [a.name for a in n.names] if isinstance(n, ast.Import) else []
+            if isinstance(n, ast.ImportFrom) and not n.level:
+                names = [n.module or ""]
+            for name in names:
+                owner = ENGINE_OWNERS.get(name.split(".")[0])
+                if owner is not None and _package(m) != owner:
+                    wrong.append(f"{_rel(p)}:{n.lineno} imports {name} (only {owner}/ does)")
+    assert not wrong, "\n".join(wrong)
