@@ -6,7 +6,7 @@ the sample's ground truth instead (a stand-in to try the twin without reconstruc
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -52,8 +52,12 @@ class Config:
     sample: Path | None = None
 
     def options(self) -> ReconstructionOptions:
-        shared = {f.name for f in fields(ReconstructionOptions)} & {f.name for f in fields(self)} - {"robot"}
-        return ReconstructionOptions(robot=RobotConfig(name=self.robot), **{k: getattr(self, k) for k in shared})
+        """The library's options from these settings, each named (a renamed field fails here, not silently)."""
+        return ReconstructionOptions(
+            robot=RobotConfig(name=self.robot), buttons=self.buttons, crop_margin=self.crop_margin,
+            means_margin=self.means_margin, fill_spacing=self.fill_spacing, snap_to_table=self.snap_to_table,
+            button_travel=self.button_travel, button_stiffness=self.button_stiffness, randomize=self.randomize,
+        )  # fmt: skip
 
 
 def _object_dirs(ws: Workspace) -> dict[str, Path]:
