@@ -51,7 +51,6 @@ SHARED = {
 # Mirrors found by this test in code outside the change that introduced it (issue 66: the episode settings), each
 # to become a reference to its owner there; ``test_known_mirrors_are_still_there`` makes the list shrink as they go.
 KNOWN = {
-    ("bench/policy_gap.py", "size", 128),  # bench policy-gap's frame side, written again in commands/
     ("bench/train.py", "curve_points", 12),  # budget.py's (the trainer object, issue 66 part 3)
     ("gaussians/train.py", "max_gaussians", 1_000_000),  # CappedStrategy's and TrainConfig's
     ("gaussians/dataset.py", "holdout_every", 8),  # the scene stage's (and objects/splat.py's)

@@ -40,7 +40,7 @@ RENDERERS = ("hybrid", "ground_truth")
 
 
 def record_expert_pairs(
-    world: str | Path, task: str, sample_dir: str | Path, seeds: Sequence[int], size: int = 128
+    world: str | Path, task: str, sample_dir: str | Path, seeds: Sequence[int], size: int
 ) -> list[dict[str, Any]]:
     """The scripted expert of ``task`` in the twin of ``world`` for each seed (the env's episode seed), every
     observation rendered by the hybrid renderer (what generation writes) and by the sample's ground truth."""
