@@ -93,6 +93,17 @@ def test_sample_head_camera_within_tolerance(sample):
     assert deg_b <= 0.1 and mm_b <= 1.0
 
 
+def test_a_joints_file_of_another_robot_is_named_not_calibrated(sample):
+    """The pipeline's robot has a default (the Panda): a joints file that names another arm is refused before any
+    image is read, naming both, while the same robot named two ways (registered name, model file) is accepted."""
+    _, board, K, _ = sample
+    images, joints = SAMPLE / "handeye" / "images", SAMPLE / "handeye" / "joints.json"
+    with pytest.raises(HandEyeError, match=r"names the robot .*panda.xml.* but the calibration was given 'ur5e'"):
+        calibrate_from_files(images, joints, board, K, robot="ur5e")
+    result, _ = calibrate_from_files(images, joints, board, K, robot="panda")  # the file's model, by its name
+    assert result.T.shape == (4, 4)
+
+
 def test_sample_with_noisy_robot_poses(sample):
     gt, board, K, T_true = sample
     joints = json.loads((SAMPLE / "handeye" / "joints.json").read_text())

@@ -24,6 +24,7 @@ from ..geometry.sim3 import invert_rigid
 from ..inputs import InputError, check_joints, read_image_rgb, read_json
 from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
 from ..robots.kinematics import RobotKinematics
+from ..robots.model import ModelError, resolve_model
 
 METHODS = ("tsai", "park", "horaud", "andreff", "daniilidis")
 
@@ -619,7 +620,13 @@ def calibrate_from_files(
             f"{images_dir} holds {len(images)} images but {joints_file} lists {len(views)} robot poses; "
             "give one pose per image"
         )
-    robot = robot or spec.get("robot") or DEFAULT_ROBOT  # a robot (name, spec file) or a model file
+    named = spec.get("robot")
+    if robot and named and _robot_model(robot) != _robot_model(named):
+        # the pipeline's robot is a setting with a default: a joints file of another robot is a mistake to name, not
+        # one to calibrate through (the wrong arm's kinematics give a wrong mount and no error)
+        raise HandEyeError(f"{joints_file} names the robot {named!r} but the calibration was given {robot!r}; give "
+                           f"the robot the images show (`--robot`, or m2m.yaml's top-level robot)")  # fmt: skip
+    robot = robot or named or DEFAULT_ROBOT  # a robot (name, spec file) or a model file
     names_robot = is_spec_file(robot) or not Path(str(robot)).suffix
     link = link or spec.get("link") or get_robot(robot if names_robot else DEFAULT_ROBOT).ee_link
     have_joints = all("joints" in v for v in views)
@@ -698,3 +705,13 @@ def _image_size(camera) -> tuple[int | None, int | None]:
     if isinstance(camera, np.ndarray):
         return None, None
     return camera.width, camera.height
+
+
+def _robot_model(robot: str) -> str:
+    """The model file a robot reference comes down to (a registered name, a spec file, or a model file itself)."""
+    if is_spec_file(robot) or not Path(str(robot)).suffix:
+        robot = get_robot(robot).model
+    try:
+        return str(resolve_model(robot))
+    except ModelError:
+        return str(robot)
