@@ -16,7 +16,10 @@ def test_sample_scene_is_reconstructed_in_the_base_frame_and_seen_by_the_head_ca
     ws, s = str(tmp_path / "ws"), str(SAMPLE)
     assert main(["capture", f"{s}/scene.mp4", "-w", ws, "--max-keyframes", "48"]) == 0
     assert main(["sfm", "-w", ws, "--intrinsics", f"{s}/ground_truth.json"]) == 0
-    assert main(["align-scene", "-w", ws, "--board", f"{s}/board.json", "--board-pose", f"{s}/ground_truth.json"]) == 0
+    # the robot stands in the video at its logged joint state (not home): a user gives it, as the sample's m2m.yaml does
+    joints = [str(q) for q in json.loads((SAMPLE / "ground_truth.json").read_text())["robot"]["capture_joints"]]
+    assert main(["align-scene", "-w", ws, "--board", f"{s}/board.json", "--board-pose", f"{s}/ground_truth.json",
+                 "--capture-joints", *joints]) == 0  # fmt: skip
     he = f"{s}/handeye"
     assert main(["calibrate-handeye", "--images", f"{he}/images", "--joints", f"{he}/joints.json",
                  "--board", f"{he}/board.json", "--intrinsics", f"{s}/ground_truth.json", "-w", ws]) == 0  # fmt: skip
