@@ -293,7 +293,7 @@ def test_demo_first_stages_and_resume(tmp_path: Path, capsys: pytest.CaptureFixt
     assert main(["align-scene", "-w", str(ws)]) == 0
     assert "up to date" in capsys.readouterr().out
     # the run's page (the demo wrote it; `m2m report` again, now with align): every picture loads, every link exists
-    assert "m2m demo</code> <span class=\"ok\">finished" in (ws / "report.html").read_text()
+    assert 'm2m demo</code> <span class="ok">finished' in (ws / "report.html").read_text()
     assert main(["report", "-w", str(ws)]) == 0
     with chromium() as browser:
         text = open_page(browser, ws / "report.html")
@@ -322,6 +322,20 @@ def test_entry_points_and_light_import() -> None:
     code = "import sys, mirage2matter.cli; print(sorted(m for m in ('torch', 'numba') if m in sys.modules))"
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and r.stdout.strip() == "[]"
+
+
+def test_the_command_line_loads_neither_gymnasium_nor_generation() -> None:
+    """`m2m --help` loads no gymnasium (~90 ms) and no generation library (datagen, the benchmarks: they load in the
+    commands that run them), and the twin's id is still registered once gymnasium is imported after the CLI."""
+    code = (
+        "import sys, mirage2matter.cli as cli; cli.build_parser(None); "
+        "print(sorted(m for m in ('gymnasium', 'mirage2matter.datagen', 'mirage2matter.env.twin_env') "
+        "if m in sys.modules)); "
+        "import gymnasium, mirage2matter.env; print(mirage2matter.env.ENV_ID in gymnasium.registry)"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["[]", "True"]
 
 
 @pytest.mark.slow

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from fixtures.sim2real_bench import evaluation, recorded_bench
 from mirage2matter.datagen.shipping import ShipError
 from mirage2matter.env.twin_env import make_config
 from mirage2matter.eval_workers import EvalJob, PolicyRecipe
@@ -69,29 +70,10 @@ def test_the_job_carries_the_world_the_checkpoint_and_the_ground_truth(sample_wo
 def test_bench_sim2real_passes_the_ray_address_on(tmp_path, sample_dir, monkeypatch) -> None:
     """Every generation and evaluation of ``bench sim2real --ray-address`` runs on the cluster with its workers;
     the evaluations one after another in this process (``--parallel`` child processes would each join the cluster)."""
-    import json
-
     from mirage2matter.bench import sim2real
-    from mirage2matter.evaluation import wilson_interval
-    from mirage2matter.workspace import Workspace
 
-    ws = Workspace(tmp_path / "ws")
-    ws.world_yaml.parent.mkdir(parents=True)
-    ws.world_yaml.write_text("objects: []\n")
-    ws.scene_metrics.parent.mkdir(parents=True)
-    ws.scene_metrics.write_text(json.dumps({"psnr_heldout": 29.7, "config": {"head_photo": "/x/head_view.png"}}))
-    calls = []
-
-    def fake_run(stage_name, ws_, cfg, log):  # the stage runs recorded instead of run
-        calls.append((stage_name, cfg))
-        if stage_name == "generate":
-            return {"tasks": {cfg.task[0]: {"episodes": cfg.episodes, "success_rate": 1.0}}}, 1.0, False
-        if stage_name == "train_policy":
-            return {"seconds": {"train": 60.0}, "steps": cfg.steps}, 60.0, False
-        return {"successes": 5, "episodes": 10, "success_rate": 0.5, "wilson95": list(wilson_interval(5, 10)),
-                "mean_steps": 60.0}, 30.0, False  # fmt: skip
-
-    monkeypatch.setattr(sim2real, "_run_stage", fake_run)
+    ws, calls = recorded_bench(tmp_path, monkeypatch, lambda cfg: evaluation(5, 10), first_seed_done=False)
+    fake_run = sim2real._run_stage  # the stage runs recorded instead of run
     monkeypatch.setattr(sim2real, "_side_by_side", lambda ws_, name, cs, parallel, log: (
         [fake_run(name, ws_, c, log) for c in cs] if parallel == 1 or name != "eval_policy"
         else pytest.fail("evaluations side by side in child processes")))  # fmt: skip

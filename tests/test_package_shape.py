@@ -245,7 +245,7 @@ def test_the_runtime_does_not_import_the_sample_maker():
 HEAVY_THIRD_PARTY = {
     "torch", "genesis", "pycolmap", "ray", "open3d", "viser", "mujoco", "cv2", "av", "numba", "ompl", "coacd",
     "gsplat", "trimesh", "skimage", "scipy", "pyarrow", "matplotlib", "selenium", "PIL", "lerobot", "plyfile",
-    "fsspec", "pandas", "manifold3d", "mkdocs", "tqdm", "sam2", "fast_simplification",
+    "fsspec", "pandas", "manifold3d", "mkdocs", "tqdm", "sam2", "fast_simplification", "gymnasium",
 }  # fmt: skip
 
 
@@ -284,9 +284,15 @@ def _top_level_imports(module: str, path: Path) -> tuple[set[str], set[str]]:
 # every stage's Config.
 LOADS_EVERY_STAGE = {"mirage2matter.stages.pipeline"}
 
+# Ours slow to import though they load no heavy third-party package: the generation library (datagen/ brings ~30 of
+# our modules, its renderers, export, workers; and with it the generate stage and the benchmarks), which `m2m --help`
+# and the commands that do not generate load none of (tests/test_cli.py checks).
+HEAVY_OURS = {"mirage2matter.datagen"}
+
 
 def _loads_heavy() -> dict[str, bool]:
-    """Our module -> whether importing it loads a heavy third-party package (through any of ours it imports)."""
+    """Our module -> whether importing it loads a heavy third-party package or one of ``HEAVY_OURS`` (through any of
+    ours it imports)."""
     mods = _modules()
     table = {m: _top_level_imports(m, p) for m, p in mods.items()}
     memo: dict[str, bool] = {}
@@ -297,7 +303,7 @@ def _loads_heavy() -> dict[str, bool]:
             chain = {".".join(d.split(".")[:i]) for d in ours for i in range(2, d.count(".") + 2)}
             memo[m] = (
                 bool(third)
-                or m in LOADS_EVERY_STAGE
+                or m in LOADS_EVERY_STAGE | HEAVY_OURS
                 or any(heavy(d, stack | {m}) for d in chain if d in mods and d not in stack | {m})
             )
         return memo[m]

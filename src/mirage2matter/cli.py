@@ -86,7 +86,7 @@ def build_parser(only: str | None = "*") -> argparse.ArgumentParser:
         "simulator and robot demonstrations.",
         epilog=(
             "examples:\n"
-            "  m2m init -w ws --video table.mp4 --board board.json --task \"grasp banana\"   your capture's settings\n"
+            '  m2m init -w ws --video table.mp4 --board board.json --task "grasp banana"   your capture\'s settings\n'
             "  m2m run -w ws                              every stage, from ws/m2m.yaml\n"
             "  m2m demo                                   the whole pipeline on the bundled sample\n"
             "  m2m capture my_table.mp4 -w ws && m2m sfm -w ws\n"
@@ -105,7 +105,10 @@ def build_parser(only: str | None = "*") -> argparse.ArgumentParser:
     for stage in STAGES:
         _stage_parser(sub, stage, full=only in ("*", stage.command))
     bench.register(sub, full=only in ("*", "bench"))
-    for module in (render, board, intrinsics, validate, sample, world, robot, report, view):
+    for module in (render, board, intrinsics, validate, sample):
+        module.register(sub)
+    world.register(sub, full=only in ("*", "task"))  # m2m task's flags import the generation libraries
+    for module in (robot, report, view):
         module.register(sub)
     return parser
 

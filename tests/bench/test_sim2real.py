@@ -4,15 +4,10 @@ from __future__ import annotations
 
 import pytest
 
+from fixtures.sim2real_bench import evaluation as _e
+from fixtures.sim2real_bench import recorded_bench
 from mirage2matter.bench.sim2real import Sim2RealConfig, markdown_tables
 from mirage2matter.errors import M2MError
-
-
-def _e(k: int, n: int = 50) -> dict:
-    from mirage2matter.evaluation import wilson_interval
-
-    return {"successes": k, "episodes": n, "success_rate": k / n, "wilson95": list(wilson_interval(k, n)),
-            "mean_steps": 60.0}  # fmt: skip
 
 
 def test_tables_hold_every_policy_with_its_interval(sample_dir):
@@ -24,7 +19,7 @@ def test_tables_hold_every_policy_with_its_interval(sample_dir):
         {"kind": "data_scale", "task": "grasp banana", "demos": 50, "ground_truth": _e(20)},
         {"kind": "data_scale", "task": "grasp banana", "demos": 150, "ground_truth": _e(35)},
         {"kind": "ablation", "task": "grasp banana", "demos": 150, "ground_truth": _e(30), "hybrid": _e(44)},
-    ]
+    ]  # fmt: skip
     md = markdown_tables({"policies": rows, "minutes": {"generation": 30.0, "training": 50.0, "evaluation": 60.0}},
                          cfg)  # fmt: skip
     assert "| grasp banana | 300 | 4 training seeds as one | 80.0 % [67-89] (40/50) | 90.0 % [79-96] (45/50) |" in md
@@ -51,38 +46,11 @@ def test_settings_are_checked(tmp_path, sample_dir):
         Sim2RealConfig(sample=sample_dir, steps=-1).validate()
 
 
-def _bench_ws(tmp_path, monkeypatch, evals=lambda cfg: _e(8, 10)):
-    """A workspace with a world and a scene trained with the head photo, and the bench's stage runs recorded (calls:
-    (stage name, config)) instead of run: the first training seed counts as done earlier (60 s recorded)."""
-    import json
-
-    from mirage2matter.bench import sim2real
-    from mirage2matter.workspace import Workspace
-
-    ws = Workspace(tmp_path / "ws")
-    ws.world_yaml.parent.mkdir(parents=True)
-    ws.world_yaml.write_text("objects: []\n")
-    ws.scene_metrics.parent.mkdir(parents=True)
-    ws.scene_metrics.write_text(json.dumps({"psnr_heldout": 29.7, "config": {"head_photo": "/x/head_view.png"}}))
-    calls = []
-
-    def fake_run(stage_name, ws_, cfg, log):
-        calls.append((stage_name, cfg))
-        if stage_name == "generate":
-            return {"tasks": {cfg.task[0]: {"episodes": cfg.episodes, "success_rate": 1.0}}}, 1.0, False
-        if stage_name == "train_policy":
-            return {"seconds": {"train": 60.0}, "steps": cfg.steps}, 60.0, cfg.seed == 0
-        return evals(cfg), 30.0, False
-
-    monkeypatch.setattr(sim2real, "_run_stage", fake_run)
-    return ws, calls
-
-
 def test_the_bench_draws_its_demos_supersampled_and_records_the_scene(tmp_path, sample_dir, monkeypatch):
     """Every generation (main, press, ablation) gets the bench's supersample; the result says what scene it used."""
     from mirage2matter.bench import sim2real
 
-    ws, calls = _bench_ws(tmp_path, monkeypatch)
+    ws, calls = recorded_bench(tmp_path, monkeypatch)
     cfg = Sim2RealConfig(sample=sample_dir, demos=(50, 150), ablation_demos=150, episodes=10, supersample=3,
                          parallel=1)  # fmt: skip
     result = sim2real.run_sim2real(ws, cfg, log=lambda m: None)
@@ -104,10 +72,10 @@ def test_the_main_policies_are_their_training_seeds_as_one(tmp_path, sample_dir,
     from mirage2matter.bench import sim2real
 
     scores = {"grasp_banana_tie_2_look_0_5_300_x4": 43, "grasp_banana_tie_2_look_0_5_300": 40}
-    ws, calls = _bench_ws(tmp_path, monkeypatch, lambda cfg: _e(scores.get(cfg.name.split("-")[0], 30)))
+    ws, calls = recorded_bench(tmp_path, monkeypatch, lambda cfg: _e(scores.get(cfg.name.split("-")[0], 30)))
     cfg = Sim2RealConfig(sample=sample_dir)
     assert (cfg.task, cfg.seeds, cfg.steps, cfg.supersample, cfg.parallel) == (
-        "grasp banana --tie 2 --look 0.5", 4, 4000, 1, 2)
+        "grasp banana --tie 2 --look 0.5", 4, 4000, 1, 2)  # fmt: skip
     cfg.parallel = 1  # side by side: the test below
     result = sim2real.run_sim2real(ws, cfg, log=lambda m: None)
     grasp = [c for name, c in calls if name == "generate" and c.task == (cfg.task,)]
@@ -115,8 +83,9 @@ def test_the_main_policies_are_their_training_seeds_as_one(tmp_path, sample_dir,
     trains = [c for name, c in calls if name == "train_policy"]
     main = [c for c in trains if c.episodes == 300]
     slug = "grasp_banana_tie_2_look_0_5"
-    assert [(c.name, c.seed, c.steps) for c in main] == [(f"{slug}_300", 0, 4000), (f"{slug}_300_s1", 1, 4000),
-                                                         (f"{slug}_300_s2", 2, 4000), (f"{slug}_300_s3", 3, 4000)]
+    assert [(c.name, c.seed, c.steps) for c in main] == [
+        (f"{slug}_300", 0, 4000), (f"{slug}_300_s1", 1, 4000), (f"{slug}_300_s2", 2, 4000), (f"{slug}_300_s3", 3, 4000)
+    ]  # fmt: skip
     assert sorted(c.seed for c in trains if c.episodes != 300 and c.datasets == (slug,)) == [0, 0]  # curve: 50, 150
     evals = {c.name: c for name, c in calls if name == "eval_policy"}
     ens = evals[f"{slug}_300_x4-ground_truth"]
@@ -146,8 +115,9 @@ def test_the_seeds_train_side_by_side_in_one_workspace(tmp_path, capfd):
 
     ws = Workspace(tmp_path / "ws")
     build_dataset(ws.datasets_dir / "demos", spec_for(), length=12)
-    base = {f: getattr(tiny_config(steps=4), f) for f in ("image_size", "chunk", "batch_size", "warmup_steps", "steps",
-                                                           "widths", "keypoints", "hidden", "val_fraction")}
+    base = {f: getattr(tiny_config(steps=4), f)
+            for f in ("image_size", "chunk", "batch_size", "warmup_steps", "steps", "widths", "keypoints", "hidden",
+                      "val_fraction")}  # fmt: skip
     cfgs = [train_policy.Config(datasets=("demos",), name=f"p{k}", seed=k, **base) for k in range(2)]
     done = sim2real._side_by_side(ws, "train_policy", cfgs, 2, log=lambda m: None)
     assert [(s["steps"], skipped) for s, _, skipped in done] == [(4, False), (4, False)]

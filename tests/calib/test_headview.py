@@ -38,14 +38,18 @@ def board_gaussians(board: BoardSpec, T_base_board: np.ndarray, pps: int = 60) -
     )  # fmt: skip
 
 
-@pytest.mark.skipif(not (SAMPLE / "ground_truth.json").is_file(), reason="samples/tabletop not built")
-def test_head_view_check_sees_the_board_where_it_is_and_flags_a_wrong_mount():
+def head_sample() -> tuple[dict, BoardSpec, np.ndarray, Camera, np.ndarray]:
+    """The sample's ground truth (gt), its board and the board's pose T_base_board, the head camera and its photo."""
     gt = json.loads((SAMPLE / "ground_truth.json").read_text())
-    board = BoardSpec.from_json(gt["board"]["spec"])
-    T_base_board = np.asarray(gt["board"]["T_base_board"])
     head = gt["head_camera"]
     cam = Camera(head["K"], head["T_base_headcam"], head["width"], head["height"], "head")
     photo = np.asarray(Image.open(SAMPLE / head["image"]).convert("RGB"))
+    return gt, BoardSpec.from_json(gt["board"]["spec"]), np.asarray(gt["board"]["T_base_board"]), cam, photo
+
+
+@pytest.mark.skipif(not (SAMPLE / "ground_truth.json").is_file(), reason="samples/tabletop not built")
+def test_head_view_check_sees_the_board_where_it_is_and_flags_a_wrong_mount():
+    _, board, T_base_board, cam, photo = head_sample()
     g = board_gaussians(board, T_base_board)
 
     good = check_head_view(g, cam, photo, board, T_base_board, backend="cpu")
@@ -87,12 +91,7 @@ def test_head_view_draws_the_robot_at_the_photo_joints_in_the_scene_pass():
     render match the photo's; the scene alone leaves the room behind it (here: nothing) in their place."""
     from mirage2matter.robots.kinematics import RobotKinematics
 
-    gt = json.loads((SAMPLE / "ground_truth.json").read_text())
-    board = BoardSpec.from_json(gt["board"]["spec"])
-    T_base_board = np.asarray(gt["board"]["T_base_board"])
-    head = gt["head_camera"]
-    cam = Camera(head["K"], head["T_base_headcam"], head["width"], head["height"], "head")
-    photo = np.asarray(Image.open(SAMPLE / head["image"]).convert("RGB"))
+    gt, board, T_base_board, cam, photo = head_sample()
     q = gt["robot"]["capture_joints"]
     robot, links = photo_coloured_robot(cam, photo, q)
     scene = board_gaussians(board, T_base_board, pps=20)

@@ -17,6 +17,17 @@ from test_headview import board_gaussians  # noqa: E402
 from fixtures import SAMPLE
 
 
+def write_calibration(ws: Path, head: dict, board: BoardSpec, T_base_board: np.ndarray) -> None:
+    """calib/ as the hand-eye and alignment stages leave it: the head camera (handeye.json) and the board's pose."""
+    (ws / "calib").mkdir()
+    (ws / "calib" / "handeye.json").write_text(json.dumps({
+        "mount": "head", "T_base_headcam": head["T_base_headcam"], "K": head["K"],
+        "width": head["width"], "height": head["height"]}))  # fmt: skip
+    (ws / "calib" / "sim3_sfm_to_base.json").write_text(
+        json.dumps({"board": board.to_json(), "T_base_board": T_base_board.tolist()})
+    )
+
+
 @pytest.mark.skipif(not (SAMPLE / "ground_truth.json").is_file(), reason="samples/tabletop not built")
 def test_head_view_cli_writes_the_comparison_and_names_missing_stages(tmp_path, capsys):
     gt = json.loads((SAMPLE / "ground_truth.json").read_text())
@@ -28,14 +39,7 @@ def test_head_view_cli_writes_the_comparison_and_names_missing_stages(tmp_path, 
     T_base_board = np.asarray(gt["board"]["T_base_board"])
     (ws / "scene").mkdir(parents=True)
     write_ply(ws / "scene" / "gaussians.ply", board_gaussians(board, T_base_board))
-    head = gt["head_camera"]
-    (ws / "calib").mkdir()
-    (ws / "calib" / "handeye.json").write_text(json.dumps({
-        "mount": "head", "T_base_headcam": head["T_base_headcam"], "K": head["K"],
-        "width": head["width"], "height": head["height"]}))  # fmt: skip
-    (ws / "calib" / "sim3_sfm_to_base.json").write_text(
-        json.dumps({"board": board.to_json(), "T_base_board": T_base_board.tolist()})
-    )
+    write_calibration(ws, gt["head_camera"], board, T_base_board)
     assert main(["head-view", "-w", str(ws), "--photo", str(SAMPLE / "head_view.png"), "--backend", "cpu"]) == 0
     out = capsys.readouterr().out
     assert "px (median, 24) from the board's known pose" in out  # all of it: the head camera sees the whole board
@@ -61,13 +65,7 @@ def test_head_view_cli_draws_the_robots_gaussians_at_the_photo_joints(tmp_path, 
     ws = tmp_path / "ws"
     (ws / "scene" / "robot").mkdir(parents=True)
     write_ply(ws / "scene" / "gaussians.ply", board_gaussians(board, T_base_board, pps=20))
-    (ws / "calib").mkdir()
-    (ws / "calib" / "handeye.json").write_text(json.dumps({
-        "mount": "head", "T_base_headcam": head["T_base_headcam"], "K": head["K"],
-        "width": head["width"], "height": head["height"]}))  # fmt: skip
-    (ws / "calib" / "sim3_sfm_to_base.json").write_text(
-        json.dumps({"board": board.to_json(), "T_base_board": T_base_board.tolist()})
-    )
+    write_calibration(ws, head, board, T_base_board)
     photo = SAMPLE / "head_view.png"
     run = ["head-view", "-w", str(ws), "--photo", str(photo), "--backend", "cpu"]
     assert main(run) == 0  # no robot Gaussians: the scene alone, as before, and the line says so

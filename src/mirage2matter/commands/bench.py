@@ -11,16 +11,14 @@ from typing import Literal
 
 from .. import configure_threads
 from ..atomic import atomic_write
-from ..bench.datagen import BENCH_KEYS, bench_datagen
-from ..bench.policy_gap import PolicyGapConfig, run_policy_gap
 from ..bench.render import RenderBenchConfig, bench_render
-from ..bench.sim2real import Sim2RealConfig, run_sim2real
-from ..bench.splats import SplatsBenchConfig, run_splats
 from ..configs import add_flags, from_flags, ranged
-from ..stages import generate
 from ..stages.transaction import workspace_lock
 from ..workspace import Workspace
 from .args import backend, info
+
+# The other benchmarks (and their Configs) load the generation and policy libraries: imported by the function that
+# runs one, and by register() only for `m2m bench ...` (full), so that `m2m --help` and every other command load none.
 
 
 @dataclass
@@ -47,6 +45,8 @@ class TrainBenchConfig:
 def datagen_config() -> type:
     """bench datagen's Config: the generate stage's with one task, defaults for a benchmark, and ``runs``
     (a function: the generate stage's Config imports the generation libraries)."""
+    from ..stages import generate
+
     @dataclass
     class DatagenBenchConfig(generate.Config):
         """bench datagen settings (the generate stage's, one task, and these).
@@ -62,6 +62,11 @@ def datagen_config() -> type:
 
 
 def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
+    if full:  # the Configs' flags (this imports the generation and policy libraries)
+        from ..bench.policy_gap import PolicyGapConfig
+        from ..bench.sim2real import Sim2RealConfig
+        from ..bench.splats import SplatsBenchConfig
+
     bench = sub.add_parser("bench", help="benchmarks (prints one JSON line last on stdout)")
     bench_sub = bench.add_subparsers(dest="what", metavar="WHAT", required=True)
     b = bench_sub.add_parser(
@@ -104,9 +109,9 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
         "for each B (medians of --runs).",
     )  # fmt: skip
     p.add_argument("-w", "--workspace", required=True, type=Path, help="workspace with a composed world")
-    add_flags(p, SplatsBenchConfig)
+    if full:
+        add_flags(p, SplatsBenchConfig)
     p.set_defaults(func=_splats)
-
 
     s = bench_sub.add_parser(
         "sim2real", help="the paper's sim-to-real experiment on the sample: train on the reconstruction, test on "
@@ -117,7 +122,8 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
         "step is a stage run in the workspace (a killed bench resumes). Hours on a 2-core CPU.",
     )  # fmt: skip
     s.add_argument("-w", "--workspace", required=True, type=Path, help="workspace with the sample's world")
-    add_flags(s, Sim2RealConfig)
+    if full:
+        add_flags(s, Sim2RealConfig)
     s.set_defaults(func=_sim2real)
 
     g = bench_sub.add_parser(
@@ -134,8 +140,9 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     g.add_argument("-w", "--workspace", required=True, type=Path, help="workspace with the sample's world")
     g.add_argument("--policy", nargs="+", required=True, metavar="POLICY",
                    help="policies: names under <workspace>/policies or folders that train-policy wrote (A,B,C: "
-                        "one ensemble of them)")
-    add_flags(g, PolicyGapConfig)
+                        "one ensemble of them)")  # fmt: skip
+    if full:
+        add_flags(g, PolicyGapConfig)
     g.set_defaults(func=_policy_gap)
 
 
@@ -179,6 +186,7 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _datagen(args: argparse.Namespace) -> int:
+    from ..bench.datagen import BENCH_KEYS, bench_datagen
     from ..sim.tasks import parse_task
     from ..world import load_world
 
@@ -195,6 +203,7 @@ def _datagen(args: argparse.Namespace) -> int:
 
 
 def _sim2real(args: argparse.Namespace) -> int:
+    from ..bench.sim2real import Sim2RealConfig, run_sim2real
 
     cfg = from_flags(Sim2RealConfig, args)
     configure_threads()
@@ -212,6 +221,8 @@ def _sim2real(args: argparse.Namespace) -> int:
 
 
 def _policy_gap(args: argparse.Namespace) -> int:
+    from ..bench.policy_gap import PolicyGapConfig, run_policy_gap
+
     gap = from_flags(PolicyGapConfig, args)
     configure_threads()
     result = run_policy_gap(Workspace(args.workspace), gap, args.policy, log=info)
@@ -220,6 +231,8 @@ def _policy_gap(args: argparse.Namespace) -> int:
 
 
 def _splats(args: argparse.Namespace) -> int:
+    from ..bench.splats import SplatsBenchConfig, run_splats
+
     cfg = from_flags(SplatsBenchConfig, args)
     threads = configure_threads()
     result = run_splats(Workspace(args.workspace), replace(cfg, backend=backend(cfg.backend)), threads, log=info)

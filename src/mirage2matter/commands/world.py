@@ -11,7 +11,6 @@ from pathlib import Path
 
 from ..atomic import atomic_write
 from ..configs import add_flags, from_flags, ranged
-from ..stages import generate
 from ..stages.transaction import Transaction, workspace_lock
 from ..workspace import Workspace
 from .args import CliError, check_output, positive_float, show, xyz
@@ -49,16 +48,23 @@ class LightingConfig:
     radius: float = ranged(0.3, gt=0)
 
 
-@dataclass
-class TaskConfig:
-    """m2m task settings.
+def task_config() -> type:
+    """m2m task's Config (a function: its episodes default is the generate stage's, whose Config imports the
+    generation libraries)."""
+    from ..stages import generate
 
-    episodes  per task
-    seed      first reset seed
-    """
+    @dataclass
+    class TaskConfig:
+        """m2m task settings.
 
-    episodes: int = ranged(generate.Config.episodes, ge=1, metadata={"metavar": "N"})
-    seed: int = ranged(0, ge=0)
+        episodes  per task
+        seed      first reset seed
+        """
+
+        episodes: int = ranged(generate.Config.episodes, ge=1, metadata={"metavar": "N"})
+        seed: int = ranged(0, ge=0)
+
+    return TaskConfig
 
 
 # the edits whose flags come from a Config
@@ -72,15 +78,18 @@ def _given(args: argparse.Namespace, *configs: type) -> argparse.Namespace:
     return argparse.Namespace(**{**vars(args), **values})
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     wo = sub.add_parser("world", help="edit world.yaml: insert, move, duplicate, delete, import-placement, ...")
     wo_sub = wo.add_subparsers(dest="op", metavar="OP", required=True)
     for op, text in _EDITS:
         w = wo_sub.add_parser(op, help=text)
         w.add_argument("-w", "--workspace", required=True, metavar="DIR")
         if op == "check":
-            w.add_argument("--max-mm", type=positive_float,
-                           help="largest median Gaussian-to-mesh distance per part (mm; default: compose's max_mm)")
+            w.add_argument(
+                "--max-mm",
+                type=positive_float,
+                help="largest median Gaussian-to-mesh distance per part (mm; default: compose's max_mm)",
+            )
             w.set_defaults(func=check_world)
             continue
         w.add_argument("--name", required=True)
@@ -107,7 +116,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     ta = sub.add_parser("task", help="run scripted tasks on randomised starts in the Genesis twin -> summary.json")
     ta.add_argument("-w", "--workspace", required=True, metavar="DIR", help="workspace with world/world.yaml")
     ta.add_argument("task", nargs="+", help='e.g. "grasp banana" "press button" "push croissant --direction 0,1"')
-    add_flags(ta, TaskConfig)
+    if full:  # the Config's flags (this imports the generation libraries)
+        add_flags(ta, task_config())
     ta.add_argument("--out", metavar="JSON", help="the summary (without it: <workspace>/world/task_summary.json)")
     ta.set_defaults(func=run_tasks)
 
@@ -203,7 +213,7 @@ def check_world(args: argparse.Namespace) -> int:
 def run_tasks(args: argparse.Namespace) -> int:
     from ..sim.tasks import parse_task
 
-    args = _given(args, TaskConfig)
+    args = _given(args, task_config())
     ws, cfg = _world(args.workspace)
     tasks = [parse_task(t, cfg) for t in args.task]  # unknown tasks / objects fail before Genesis starts
     out = Path(args.out) if args.out else ws.task_summary

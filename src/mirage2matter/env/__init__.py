@@ -6,36 +6,29 @@ environment with the scripted expert acting: an episode's recorded actions repla
 
     import gymnasium, mirage2matter.env
     env = gymnasium.make("mirage2matter/Twin-v0", world="path/to/workspace/world", task="grasp banana", size=224)
+
+Importing this package loads neither gymnasium nor the simulator (the command line and the stages' Configs read
+``env.config``): the id is registered when gymnasium is imported, before or after this package, and the episode's
+and the environment's names load on first use.
 """
 
-import gymnasium
-
+from ..lazy import lazy_names, when_imported
 from .config import CAMERAS, EnvConfig, EnvError, HybridOptions, Randomization, check_config
-from .episode import EpisodeDraw, draw_episode
 
 ENV_ID = "mirage2matter/Twin-v0"
 
-if ENV_ID not in gymnasium.registry:
-    gymnasium.register(ENV_ID, entry_point="mirage2matter.env.twin_env:TwinEnv")
 
-__all__ = [
-    "CAMERAS",
-    "ENV_ID",
-    "EnvConfig",
-    "EnvError",
-    "EpisodeDraw",
-    "HybridOptions",
-    "Randomization",
-    "TwinEnv",
-    "check_config",
-    "draw_episode",
-]
+def _register() -> None:
+    import gymnasium
+
+    if ENV_ID not in gymnasium.registry:
+        gymnasium.register(ENV_ID, entry_point="mirage2matter.env.twin_env:TwinEnv")
 
 
-def __getattr__(name: str):
-    # TwinEnv imports the simulator's stack (torch); importing this package (datagen.config does) stays light.
-    if name == "TwinEnv":
-        from .twin_env import TwinEnv
+when_imported("gymnasium", _register)
 
-        return TwinEnv
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+_LAZY = {"EpisodeDraw": "episode", "draw_episode": "episode", "TwinEnv": "twin_env"}
+
+__getattr__ = lazy_names(__name__, _LAZY)
+
+__all__ = ["CAMERAS", "ENV_ID", "EnvConfig", "EnvError", "HybridOptions", "Randomization", "check_config", *_LAZY]
