@@ -113,6 +113,15 @@ def test_init_takes_the_robots_joint_state_while_filming(tmp_path, capsys):
     assert "its home pose (give --capture-joints" in capsys.readouterr().out
     assert main([*args, "--force", "--capture-joints", "0", "1"]) == 2
     assert "2 values given" in capsys.readouterr().err
+    # a move while filming: from frame 360 on, the base turned by 1.2 rad
+    moved = ["1.2", *q[1:]]
+    assert main([*args, "--force", "--capture-joints", *q, "--capture-move", "360", *moved]) == 0
+    assert PipelineConfig.load(ws / "m2m.yaml").align.capture_moves == {360: [float(v) for v in moved]}
+    assert "moved at frame 360 to [1.2," in capsys.readouterr().out
+    for bad, words in ((["360.5", *moved], "the video frame (a whole number)"), (["0", *moved], "frame 0"),
+                       (["360", "0", "1"], "capture_moves[360]: 2 values given")):  # fmt: skip
+        assert main([*args, "--force", "--capture-move", *bad]) == 2
+        assert words in capsys.readouterr().err
 
 
 def test_init_lists_five_independent_mistakes_together_and_writes_nothing(tmp_path, capsys):

@@ -95,3 +95,41 @@ def test_a_keyframe_where_the_robot_stood_elsewhere_is_named(robot):
         sils.append(robot_silhouette(cam, links))  # where the capture joints put the robot
     fit = fit_robot_colours(lg, T, None, views, sils, iterations=60)
     assert fit.disagreeing == ["k4"], fit.view_error
+
+
+def test_a_second_pose_shows_the_links_from_another_side(robot):
+    """The robot painted orange, filmed from its +x side only, then turned by 2.8 rad about its base (a logged move):
+    fitting both poses' keyframes, each at its own joint state, colours the back the first pose hid, and the views
+    of the second pose agree with the rest."""
+    links, T = robot
+    lg = mesh_gaussians(links, spacing=0.012)
+    truth = {n: Gaussians(g.means, g.quats, g.log_scales, g.logit_opacities, g.sh.clone()) for n, g in lg.items()}
+    for g in truth.values():
+        g.sh[:, 0] = rgb_to_sh_dc(torch.tensor([0.87, 0.47, 0.16]))
+    spec = get_robot("panda")
+    q = np.asarray(spec.home_q(spec.gripper_open), float)
+    q[0] = 2.8  # near the limit (2.897): the other side towards the cameras
+    turned = {link.link: link.T_base_link for link in robot_surface(spec, q)}
+    K = np.array([[150.0, 0, 80.0], [0, 150.0, 60.0], [0, 0, 1]])
+    cams = [Camera(K, look_at_pose((0.2 + 1.4 * np.cos(a), 1.4 * np.sin(a), 0.7), (0.1, 0.0, 0.35)), 160, 120, f"c{i}")
+            for i, a in enumerate(np.linspace(-0.9, 0.9, 7))]  # fmt: skip
+    cams += [Camera(c.K, c.T_world_cam, 160, 120, f"d{i}") for i, c in enumerate(cams)]  # the same, after the move
+    views, sils, pose_of = [], [], []
+    for i, cam in enumerate(cams):
+        p = int(i >= 7)
+        pose = (T, turned)[p]
+        with torch.no_grad():
+            img = render(posed_robot(truth, pose), torch.tensor(cam.viewmat, dtype=torch.float32),
+                         torch.tensor(cam.K, dtype=torch.float32), 160, 120, torch.zeros(3), "cpu").rgb  # fmt: skip
+        views.append(make_view(cam, img.numpy()))
+        sils.append(robot_silhouette(cam, robot_surface(spec, q) if p else links))
+        pose_of.append(p)
+    # held out: a view of the second pose, showing the side the first pose turned away from every camera
+    train = [i for i in range(14) if i != 10]
+    one = fit_robot_colours(lg, [T, turned], None, views[:7], sils[:7], [views[10]], [sils[10]], iterations=120,
+                            view_pose_train=pose_of[:7], view_pose_eval=[1])  # fmt: skip
+    both = fit_robot_colours(lg, [T, turned], None, [views[i] for i in train], [sils[i] for i in train],
+                             [views[10]], [sils[10]], iterations=120, view_pose_train=[pose_of[i] for i in train],
+                             view_pose_eval=[1])  # fmt: skip
+    assert both.psnr_captured > one.psnr_captured + 5.0, (one.psnr_captured, both.psnr_captured)
+    assert both.psnr_captured > both.psnr_mesh + 10.0 and both.disagreeing == [], both.view_error

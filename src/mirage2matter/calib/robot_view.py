@@ -34,10 +34,12 @@ from ..geometry.icp import scaled_icp
 from ..geometry.rotation import rotation_angle
 from ..geometry.sim3 import Sim3
 from ..robots import get_robot
+from ..robots.capture_poses import CapturePoses
 from ..robots.surface import LinkSurface, robot_surface, sample_surface
 
-__all__ = ["RobotFit", "RobotPoints", "fit_to_robot", "grow_mask", "robot_depth", "robot_depths", "robot_points",
-           "robot_silhouette", "robot_silhouettes", "seen_robot", "views_behind_robot", "visual_hull"]  # fmt: skip
+__all__ = ["RobotFit", "RobotPoints", "SeenRobot", "fit_to_robot", "grow_mask", "robot_depth", "robot_depths",
+           "robot_points", "robot_silhouette", "robot_silhouettes", "seen_robot", "views_behind_robot",
+           "visual_hull"]  # fmt: skip
 
 # A point this close (m) to a link's surface is the robot's: SfM noise on a textured link at ~1 m is a few mm, and
 # the link meshes are the model's, not the real casting (a few mm off in places).
@@ -109,16 +111,51 @@ def visual_hull(points: np.ndarray, cameras: Sequence[Camera], silhouettes: Sequ
     return inside & (seen >= min_views)
 
 
-def seen_robot(record_file: Path) -> tuple[dict, list[LinkSurface]] | None:
-    """(align-scene's calib/robot.json, the robot's links at its capture joint state) when the keyframes show the
-    robot; None when they do not (or no alignment recorded it)."""
+@dataclass
+class SeenRobot:
+    """align-scene's calib/robot.json and the robot's links at each joint state it held while filmed.
+
+    pose_links      per pose (``robots.capture_poses``), the links at that pose (base frame)
+    keyframe_pose   {keyframe: pose}; a keyframe not named holds the first pose
+    """
+
+    record: dict
+    pose_links: list[list[LinkSurface]]
+    keyframe_pose: dict[str, int]
+
+    @property
+    def links(self) -> list[LinkSurface]:
+        """The links at the first joint state (``capture_joints``)."""
+        return self.pose_links[0]
+
+    def links_for(self, keyframe: str) -> list[LinkSurface]:
+        """The links as keyframe ``keyframe`` saw them."""
+        return self.pose_links[self.keyframe_pose.get(keyframe, 0)]
+
+    def depths(self, cameras: Sequence[Camera]) -> list[np.ndarray]:
+        """:func:`robot_depths` of each camera (named by its keyframe), the robot as that keyframe saw it."""
+        samples: dict[int, np.ndarray] = {}
+        out = []
+        for cam in cameras:
+            p = self.keyframe_pose.get(cam.name, 0)
+            if p not in samples:
+                samples[p] = sample_surface(self.pose_links[p], 0.003)[0]
+            out.append(robot_depth(cam, samples[p]))
+        return out
+
+
+def seen_robot(record_file: Path) -> SeenRobot | None:
+    """The robot as align-scene found it in the keyframes (calib/robot.json); None when they do not show it (or no
+    alignment recorded it)."""
 
     if not record_file.is_file():
         return None
     record = json.loads(record_file.read_text(encoding="utf-8"))
     if not record.get("seen"):
         return None
-    return record, robot_surface(get_robot(record["robot"]), record["capture_joints"])
+    spec = get_robot(record["robot"])
+    poses = CapturePoses.from_json(record)
+    return SeenRobot(record, [robot_surface(spec, q) for q in poses.joints], dict(record.get("keyframe_pose") or {}))
 
 
 def robot_depth(camera: Camera, samples_base: np.ndarray, close_px: int = 2) -> np.ndarray:

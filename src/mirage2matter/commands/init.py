@@ -95,6 +95,10 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     g.add_argument("--capture-joints", nargs="+", type=float, metavar="RAD", help="the robot's joint angles while "
                    "you filmed (radians, as it logged them; default: its home pose): how align-scene and train-scene "
                    "find the robot in the capture")  # fmt: skip
+    g.add_argument("--capture-move", nargs="+", type=float, action="append", metavar="FRAME RAD", help="you moved the "
+                   "robot while filming: the video frame from which on it stood still again, then its joint angles "
+                   "there (radians); repeat for each move. Keyframes after it are matched to that pose: a second pose "
+                   "shows the robot's far side and what its first pose hid")  # fmt: skip
     p.add_argument("--force", action="store_true", help="replace the workspace's m2m.yaml if it has one")
     add_settings(p, full)  # every field as --<stage>.<field> (when full: imports every stage's libraries)
     p.set_defaults(func=run)
@@ -123,6 +127,14 @@ def _settings(args: argparse.Namespace) -> Any:
             given[field] = value.resolve() if isinstance(value, Path) else value
     if args.capture_joints is not None:
         given["align.capture_joints"] = list(args.capture_joints)
+    if args.capture_move:
+        moves = {}
+        for move in args.capture_move:
+            if len(move) < 2 or move[0] != int(move[0]):
+                raise CliError(f"--capture-move {' '.join(f'{v:g}' for v in move)}: give the video frame (a whole "
+                                     "number) and then the joint angles in radians")  # fmt: skip
+            moves[int(move[0])] = list(move[1:])
+        given["align.capture_moves"] = moves
     if args.handeye_images is not None and args.handeye_board is None and args.board is not None:
         given["handeye.board"] = args.board.resolve()  # one board for both, unless a second is named
     sections: dict[str, dict[str, Any]] = {}
@@ -236,6 +248,8 @@ def run(args: argparse.Namespace) -> int:
         joints = cfg.align.capture_joints
         lines.append(f"  the robot ({cfg.robot}) while filming: " + (
             f"{list(joints)} rad" if joints else "its home pose (give --capture-joints if it stood elsewhere)"))
+        for frame, q in sorted((cfg.align.capture_moves or {}).items()):
+            lines.append(f"  moved at frame {frame} to {list(q)} rad")
     lines.append(f"next: m2m run -w {show(ws.root)}")
     print("\n".join(lines))
     return 0

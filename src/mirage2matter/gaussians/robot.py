@@ -115,14 +115,20 @@ def _render(scene: Gaussians | None, robot: Gaussians, view, backend: str, backg
     return render(g, view.viewmat, view.K, view.width, view.height, background, backend).rgb
 
 
-def _psnr(views, silhouettes, scene, robot, backend, background) -> float | None:
+def _with_dc(robot: Gaussians, dc: torch.Tensor) -> Gaussians:
+    """``robot`` with its colours' DC term ``dc`` [N,3] (the rest of its SH kept)."""
+    sh = torch.cat([dc[:, None], robot.sh[:, 1:]], dim=1)
+    return Gaussians(robot.means, robot.quats, robot.log_scales, robot.logit_opacities, sh)
+
+
+def _psnr(views, silhouettes, scene, robots, view_pose, dc, backend, background) -> float | None:
     se, n = 0.0, 0
     with torch.no_grad():
-        for v, sil in zip(views, silhouettes, strict=True):
+        for v, sil, p in zip(views, silhouettes, view_pose, strict=True):
             m = _robot_pixels(sil, v.mask)
             if int(m.sum()) < 50:
                 continue
-            rgb = _render(scene, robot, v, backend, background).clamp(0, 1)
+            rgb = _render(scene, _with_dc(robots[p], dc), v, backend, background).clamp(0, 1)
             d = (rgb - v.image)[m]
             se += float((d**2).sum())
             n += int(d.numel())
@@ -131,7 +137,7 @@ def _psnr(views, silhouettes, scene, robot, backend, background) -> float | None
 
 def fit_robot_colours(
     link_gaussians: dict[str, Gaussians],
-    T_base_link: dict[str, np.ndarray],
+    T_base_link: dict[str, np.ndarray] | Sequence[dict[str, np.ndarray]],
     scene: Gaussians | None,
     views_train: Sequence,
     silhouettes_train: Sequence[np.ndarray],
@@ -142,20 +148,30 @@ def fit_robot_colours(
     backend: str = "cpu",
     background: Sequence[float] = (0.0, 0.0, 0.0),
     seed: int = 0,
+    view_pose_train: Sequence[int] | None = None,
+    view_pose_eval: Sequence[int] | None = None,
 ) -> RobotFitResult:
     """Fit the colours (SH DC) of the robot's Gaussians to the keyframes (``views_*``: ``gaussians.train.View``,
     undistorted, at the scene's training size) on the robot's pixels (``silhouettes_*`` [H,W] bool per view: the
-    robot at the capture joint state through that view), the frozen ``scene`` rendered with it."""
+    robot at the joint state that view saw), the frozen ``scene`` rendered with it.
+
+    ``T_base_link``: the links' poses at the capture joint state, or a list of them, one per pose the robot held
+    while filmed, with ``view_pose_*`` the pose of each view (default: the first). The colours are one set: each link
+    seen from another side at the second pose gets its colours there."""
     names = list(link_gaussians)
-    robot0 = posed_robot(link_gaussians, T_base_link).map(lambda t: t.detach())
+    poses = [T_base_link] if isinstance(T_base_link, dict) else list(T_base_link)
+    robots = [posed_robot(link_gaussians, T).map(lambda t: t.detach()) for T in poses]
+    pose_train = list(view_pose_train) if view_pose_train is not None else [0] * len(views_train)
+    pose_eval = list(view_pose_eval) if view_pose_eval is not None else [0] * len(views_eval)
     sizes = [len(link_gaussians[n]) for n in names]
     bg = torch.as_tensor(background, dtype=torch.float32)
     scene = None if scene is None else scene.map(lambda t: t.detach())
     usable = [i for i, (v, s) in enumerate(zip(views_train, silhouettes_train, strict=True))
               if int(_robot_pixels(s, v.mask).sum()) >= 50]  # fmt: skip
-    psnr_mesh = _psnr(views_eval, silhouettes_eval, scene, robot0, backend, bg)
-    dc = robot0.sh[:, 0].clone().requires_grad_(True)
-    seen = torch.zeros(len(robot0), dtype=torch.bool)
+    dc0 = robots[0].sh[:, 0].clone()
+    psnr_mesh = _psnr(views_eval, silhouettes_eval, scene, robots, pose_eval, dc0, backend, bg)
+    dc = dc0.clone().requires_grad_(True)
+    seen = torch.zeros(len(robots[0]), dtype=torch.bool)
     steps = 0
     if usable:
         opt = torch.optim.Adam([dc], lr=lr)
@@ -164,30 +180,28 @@ def fit_robot_colours(
             i = usable[int(rng.integers(len(usable)))]
             v = views_train[i]
             m = _robot_pixels(silhouettes_train[i], v.mask)
-            sh = torch.cat([dc[:, None], robot0.sh[:, 1:]], dim=1)
-            robot = Gaussians(robot0.means, robot0.quats, robot0.log_scales, robot0.logit_opacities, sh)
-            rgb = _render(scene, robot, v, backend, bg)
+            rgb = _render(scene, _with_dc(robots[pose_train[i]], dc), v, backend, bg)
             loss = (rgb - v.image).abs()[m].mean()
             opt.zero_grad()
             loss.backward()
             seen |= dc.grad.abs().sum(dim=1) > 0
             opt.step()
-    sh = torch.cat([dc.detach()[:, None], robot0.sh[:, 1:]], dim=1)
-    fitted = Gaussians(robot0.means, robot0.quats, robot0.log_scales, robot0.logit_opacities, sh)
-    psnr_captured = _psnr(views_eval, silhouettes_eval, scene, fitted, backend, bg)
+    fitted = dc.detach()
+    psnr_captured = _psnr(views_eval, silhouettes_eval, scene, robots, pose_eval, fitted, backend, bg)
     view_error = {}
     with torch.no_grad():
         for i in usable:
             v = views_train[i]
             m = _robot_pixels(silhouettes_train[i], v.mask)
-            view_error[v.name] = float((_render(scene, fitted, v, backend, bg) - v.image).abs()[m].mean())
+            rgb = _render(scene, _with_dc(robots[pose_train[i]], fitted), v, backend, bg)
+            view_error[v.name] = float((rgb - v.image).abs()[m].mean())
     median = float(np.median(list(view_error.values()))) if view_error else 0.0
     disagreeing = [n for n, e in view_error.items() if e > max(DISAGREE_FACTOR * median, DISAGREE_MIN)]
     out, frac, start = {}, {}, 0
     for name, size in zip(names, sizes, strict=True):
         g = link_gaussians[name]
         new_sh = g.sh.detach().clone()
-        new_sh[:, 0] = dc.detach()[start : start + size]
+        new_sh[:, 0] = fitted[start : start + size]
         out[name] = Gaussians(g.means.detach(), g.quats.detach(), g.log_scales.detach(), g.logit_opacities.detach(),
                               new_sh)  # fmt: skip
         frac[name] = float(seen[start : start + size].float().mean())

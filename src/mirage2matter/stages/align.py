@@ -15,10 +15,12 @@ import numpy as np
 from ..atomic import atomic_write
 from ..calib.align import AlignError, align_scene, default_T_base_board, draw_base_overlay
 from ..calib.board import load_target
+from ..capture import load_keyframes
 from ..configs import ranged
 from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
+from ..robots.capture_poses import CapturePoses, capture_poses
 from ..robots.kinematics import RobotKinematics
-from ..robots.surface import check_capture_joints, robot_surface
+from ..robots.surface import robot_surface
 from ..workspace import Workspace
 from .base import ADDED_LATER, SHARED, Input, Log
 
@@ -43,6 +45,10 @@ class Config:
                  the robot, its links at this state are found in them: their SfM points are kept out of the scene
                  and the objects, the scene is not trained on their pixels, and their surface is a second target
                  that checks (and may refine) the board's alignment
+    capture_moves  the robot moved while filming: {N: joints} says that from the video's frame N on (an image
+                 folder's image N, in name order) it stood at these joints (as capture_joints: arm joints in
+                 radians); capture_joints holds before the first move. Each keyframe is then taken out of the scene,
+                 and fitted to the robot's look, at its own joint state: a second pose shows what the first hid
     robot_fit    "auto": refine the alignment with the robot's surface (board corners held) when that lowers the
                  robot's residual by a quarter or more and keeps the corners within 1.5x (+0.5 mm) of the board's
                  fit; "off": the board alone, the robot's residual reported
@@ -55,15 +61,15 @@ class Config:
     unaligned: bool = False
     # wide: degrees given for radians are the robot's check to name (check_capture_joints), not a bare range
     capture_joints: list[float] | None = ranged(None, ge=-1000, le=1000, metadata=ADDED_LATER)
+    capture_moves: dict[int, list[float]] | None = ranged(None, ge=-1000, le=1000, metadata=ADDED_LATER)
     robot_fit: Literal["auto", "off"] = field(default="auto", metadata=ADDED_LATER)
 
     def validate(self) -> None:
         if self.board is None and not self.unaligned:
             raise AlignError("align-scene: no calibration target; give its spec JSON (--board, from `m2m board`), "
                              "or --unaligned to keep the SfM frame for a scene-only capture")  # fmt: skip
-        if self.capture_joints is not None and self.robot.lower() != "none":
-
-            check_capture_joints(get_robot(self.robot), self.capture_joints, "align capture_joints")
+        if self.robot.lower() != "none" and (self.capture_joints is not None or self.capture_moves):
+            capture_poses(get_robot(self.robot), self.capture_joints, self.capture_moves)
 
 
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
@@ -152,25 +158,31 @@ def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarra
     from ..calib.robot_view import POSE_MIN_ON_FRACTION, fit_to_robot, robot_points, robot_silhouettes, visual_hull
 
     spec = get_robot(cfg.robot)
-    q = check_capture_joints(spec, cfg.capture_joints, "align capture_joints")
+    poses = capture_poses(spec, cfg.capture_joints, cfg.capture_moves)
     given = "given" if cfg.capture_joints is not None else "the robot's home: align.capture_joints not given"
-    links = robot_surface(spec, q)
+    if len(poses) > 1:
+        given += f", {len(poses) - 1} move(s) while filming"
+    pose_links = [robot_surface(spec, q) for q in poses.joints]
+    links = [link for each in pose_links for link in each]  # every pose's surface: a point on any is the robot's
     sim = result.sim3_sfm_to_base
     cameras = apply_to_cameras(sim, posed.cameras)
+    keyframe_pose = _keyframe_poses(posed.image_dir, cameras, poses)
     points = sim.apply(posed.points)
     found = robot_points(points, links, cameras)
-    record: dict[str, Any] = {"robot": spec.name, "capture_joints": q.tolist(), "capture_joints_source": given,
-                              "seen": found.seen, "points_on_surface": found.on_surface,
-                              "on_fraction": found.on_fraction,
+    record: dict[str, Any] = {"robot": spec.name, **poses.to_json(), "capture_joints_source": given,
+                              "keyframe_pose": keyframe_pose, "seen": found.seen,
+                              "points_on_surface": found.on_surface, "on_fraction": found.on_fraction,
                               "seen_fraction": found.seen_fraction, "per_link": found.per_link}  # fmt: skip
     if not found.seen:
         record["line"] = (f"robot: not in the keyframes ({found.on_surface} SfM points on its surface at "
                           f"{given.split(':')[0]}); nothing removed")  # fmt: skip
         return {**record, "on_robot": None}
-    # the visual hull too (only now: the silhouettes cost ~0.3 s a keyframe): points every view sees inside the robot
-    # are the robot's even off its model surface
-    small = [c.scaled(0.25) for c in cameras]
-    on = found.on_robot | visual_hull(points, small, robot_silhouettes(small, links, dilate_px=1))
+    # the visual hull too (only now: the silhouettes cost ~0.3 s a keyframe): points every view of a pose sees inside
+    # the robot at that pose are the robot's even off its model surface
+    on = found.on_robot.copy()
+    for p, each in enumerate(pose_links):
+        small = [c.scaled(0.25) for c in cameras if keyframe_pose[c.name] == p]
+        on |= visual_hull(points, small, robot_silhouettes(small, each, dilate_px=1))
     tri = result.triangulation
     corners_base = board.points_board(tri.ids) @ T_base_board[:3, :3].T + T_base_board[:3, 3]
     near = on & (found.distance <= 0.03)
@@ -204,6 +216,19 @@ def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarra
             line += f"; WARNING: {record['warning']}"
     record["line"] = line
     return {**record, "on_robot": on}
+
+
+def _keyframe_poses(capture_dir: Path, cameras: list, poses: CapturePoses) -> dict[str, int]:
+    """{keyframe: the pose the robot held when the video frame it came from was taken} (capture/keyframes.json)."""
+    if len(poses) == 1:
+        return {c.name: 0 for c in cameras}
+    frame_of = {k["file"]: int(k["frame_index"]) for k in load_keyframes(capture_dir)["keyframes"]}
+    missing = [c.name for c in cameras if c.name not in frame_of]
+    if missing:
+        raise AlignError(f"align capture_moves: the keyframes {', '.join(missing[:4])} are not in "
+                         f"{capture_dir}/keyframes.json, so their frame (the robot's pose then) is unknown; run the "
+                         "capture stage again")  # fmt: skip
+    return {c.name: poses.index_at(frame_of[c.name]) for c in cameras}
 
 
 def _save(ws: Workspace, result, T_base_board: np.ndarray, board, posed, robot: dict | None = None) -> list:

@@ -75,13 +75,13 @@ def _off_the_board(ws: Workspace, points_base: np.ndarray) -> np.ndarray:
 
 def _hidden_by_robot(ws: Workspace, cameras: list, targets: list) -> None:
     """Where align-scene found the robot in the keyframes, each object's ``hidden``: the keyframes in which the robot
-    (at its capture joint state) stands in front of it. Its masks there would be the robot's pixels."""
-    from ..calib.robot_view import robot_depths, seen_robot, views_behind_robot
+    (at the joint state it held then) stands in front of it. Its masks there would be the robot's pixels."""
+    from ..calib.robot_view import seen_robot, views_behind_robot
 
     robot = seen_robot(ws.robot_capture_file)
     if robot is None:
         return
-    depths = robot_depths(cameras, robot[1])
+    depths = robot.depths(cameras)  # each keyframe against the robot as it stood then
     for t in targets:
         if t.cluster is not None:
             t.hidden = tuple(i for i, h in enumerate(views_behind_robot(t.cluster.points, cameras, depths)) if h)

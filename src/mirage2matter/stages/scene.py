@@ -146,7 +146,6 @@ def head_photo_view(ws: Workspace, cfg: Config, frame: str):
     """The head photo as a training view (``gaussians.train.View``) from the calibrated head camera."""
     from ..gaussians.dataset import DatasetError, photo_view
 
-
     if frame != "base":
         raise WorkspaceError("train-scene --head-photo: the head camera's pose is in the robot-base frame; run "
                              "align-scene first (the scene is in the SfM frame)")  # fmt: skip
@@ -273,9 +272,10 @@ def _robot_summary(robot: dict[str, Any] | None) -> dict[str, Any] | None:
 
 
 def _robot_masks(ws: Workspace, views: list, frame: str, margin_px: int, log: Log) -> dict[str, Any] | None:
-    """Where align-scene found the robot in the keyframes (calib/robot.json): its silhouette at the capture joint
-    state, grown by ``margin_px``, taken out of every view's valid pixels (training and held-out), so no Gaussian is
-    fitted to the robot and the held-out figures measure the scene alone. None when the keyframes do not show it.
+    """Where align-scene found the robot in the keyframes (calib/robot.json): its silhouette at the joint state each
+    keyframe saw (the capture joints, or a move's), grown by ``margin_px``, taken out of every view's valid pixels
+    (training and held-out), so no Gaussian is fitted to the robot and the held-out figures measure the scene alone.
+    None when the keyframes do not show it.
     ``views``: the keyframes' (a head photo shows the robot at another joint state; its own mask: head_photo_mask)."""
     from ..calib.robot_view import grow_mask, robot_silhouette, seen_robot
 
@@ -287,13 +287,13 @@ def _robot_masks(ws: Workspace, views: list, frame: str, margin_px: int, log: Lo
     from ..geometry.camera import Camera
     from ..geometry.sim3 import invert_rigid
 
-    record, links = robot
     cameras, silhouettes, exacts, valid, masked = [], [], [], [], []
     for v in views:
         h, w = v.image.shape[:2]
         cam = Camera(K=v.K.numpy().astype(np.float64), T_world_cam=invert_rigid(v.viewmat.numpy().astype(np.float64)),
                      width=w, height=h, name=v.name)  # fmt: skip
-        exact = robot_silhouette(cam, links)  # rasterized once: grown for the mask, exact for the robot's own fit
+        # rasterized once: grown for the mask, exact for the robot's own fit
+        exact = robot_silhouette(cam, robot.links_for(v.name))
         sil = grow_mask(exact, margin_px)
         keep = torch.from_numpy(~sil)
         valid.append(v.mask)  # before the robot is taken out: the robot's own fit reads its pixels
@@ -306,8 +306,8 @@ def _robot_masks(ws: Workspace, views: list, frame: str, margin_px: int, log: Lo
     line = (f"the robot (calib/robot.json) masked out of every keyframe ({100 * frac:.1f} % of the pixels, {margin_px} "
             "px margin)")  # fmt: skip
     log(f"scene: {line}")
-    return {"cameras": cameras, "silhouettes": silhouettes, "exact": exacts, "valid": valid, "links": links,
-            "record": record, "masked_fraction": frac, "line": line}  # fmt: skip
+    return {"cameras": cameras, "silhouettes": silhouettes, "exact": exacts, "valid": valid, "seen": robot,
+            "record": robot.record, "masked_fraction": frac, "line": line}  # fmt: skip
 
 
 def _robot_gaussians(
@@ -327,22 +327,26 @@ def _robot_gaussians(
     from ..gaussians.ply import write_ply
     from ..gaussians.robot import fit_robot_colours, mesh_gaussians
 
-    links = robot["links"]
+    captured = robot["seen"]
     n_train = len(views_train) - (config.head_photo_repeat if config.head_photo is not None else 0)
     exact = robot["exact"]
     # the keyframes with their robot pixels back (train-scene masked them out)
     views = [replace(v, mask=m) for v, m in zip(views_train[:n_train] + views_eval, robot["valid"], strict=True)]
+    # each keyframe's links at the pose it saw (the Gaussians are the same: each link's own frame)
+    poses = [{link.link: link.T_base_link for link in links} for links in captured.pose_links]
+    view_pose = [captured.keyframe_pose.get(v.name, 0) for v in views]
     fit = fit_robot_colours(
-        mesh_gaussians(links), {link.link: link.T_base_link for link in links}, scene, views[:n_train],
-        exact[:n_train], views[n_train:], exact[n_train:], iterations=config.robot_iterations, backend=backend,
-        seed=config.seed,
+        mesh_gaussians(captured.links), poses, scene, views[:n_train], exact[:n_train], views[n_train:],
+        exact[n_train:], iterations=config.robot_iterations, backend=backend, seed=config.seed,
+        view_pose_train=view_pose[:n_train], view_pose_eval=view_pose[n_train:],
     )  # fmt: skip
     out = ws.robot_gaussians_dir
     out.mkdir(parents=True, exist_ok=True)
     for name, g in fit.link_gaussians.items():
         write_ply(out / f"{name}.ply", g)
     record = robot["record"]
-    summary = {"robot": record["robot"], "capture_joints": record["capture_joints"], "frame": "each link's own",
+    summary = {"robot": record["robot"], "capture_joints": record["capture_joints"],
+               "capture_moves": record.get("capture_moves") or {}, "frame": "each link's own",
                "links": {name: f"{name}.ply" for name in fit.link_gaussians}, "seen_fraction": fit.seen_fraction,
                "psnr_mesh_look": fit.psnr_mesh, "psnr_captured": fit.psnr_captured,
                "iterations": fit.iterations, "view_error": fit.view_error,
@@ -359,7 +363,8 @@ def _robot_gaussians(
         warning = (
             f"WARNING: the robot in keyframe(s) {', '.join(fit.disagreeing)} disagrees with the rest (its "
             "colours there are explained far worse): did the robot move while filming? Its joint state must "
-            "be the same in every keyframe (align.capture_joints); remove those keyframes or film again"
+            "be the one align.capture_joints / capture_moves give for that keyframe's frame; log the moves, remove "
+            "those keyframes or film again"
         )
         robot["gaussians_line"] += f"; {warning}"
         log(f"scene: {warning}")
