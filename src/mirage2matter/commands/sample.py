@@ -66,11 +66,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     sm.add_argument("dir", help="output directory (must not exist, or be empty)")
     add_flags(sm, SampleMakeConfig)
     sm.add_argument("--short", action="store_true", help="a quick version: 4 s of video at 5 fps, 6 hand-eye views")
-    sm.add_argument("--empty-table", action="store_true",
-                    help="film the table without the robot (it appears only in the hand-eye images; the board lies "
-                    "where its base would stand). By default the robot stands in the video at a logged joint state "
-                    "(ground_truth.json robot.capture_joints, align.capture_joints in the sample's m2m.yaml), as on "
-                    "every real capture")
+    sm.add_argument(
+        "--empty-table",
+        action="store_true",
+        help="film the table without the robot (it appears only in the hand-eye images; the board lies "
+        "where its base would stand). By default the robot stands in the video at a logged joint state "
+        "(ground_truth.json robot.capture_joints, align.capture_joints in the sample's m2m.yaml), as on "
+        "every real capture",
+    )
+    sm.add_argument(
+        "--second-pose",
+        action="store_true",
+        help="the robot moves once while filmed: from the video's middle frame on it stands at a second "
+        "pose that shows the orbit what the first hid (its upper arm, wrist and hand from above, the room "
+        "behind it), as if the user paused the recording, moved the arm and resumed (ground_truth.json "
+        "robot.capture_moves, align.capture_moves in the sample's m2m.yaml). The head view and hand-eye "
+        "images are as without it",
+    )
     sm.set_defaults(func=run)
     he = sample_sub.add_parser(
         "handeye",
@@ -88,18 +100,28 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..sample.make import SampleConfig, make_sample, with_layout, with_lens, with_marker, with_robot_in_view
+    from ..sample.make import (
+        SampleConfig,
+        SampleError,
+        make_sample,
+        with_layout,
+        with_lens,
+        with_marker,
+        with_robot_in_view,
+    )
 
-    short, empty_table, out_dir, args = args.short, args.empty_table, args.dir, from_flags(SampleMakeConfig, args)
+    short, empty_table, second_pose = args.short, args.empty_table, args.second_pose
+    out_dir, args = args.dir, from_flags(SampleMakeConfig, args)
+    if empty_table and second_pose:
+        raise SampleError("--second-pose moves the robot in the video; --empty-table films none: give one of them")
     config = SampleConfig.short(args.seed) if short else SampleConfig(seed=args.seed)
     config = with_layout(with_lens(with_marker(config, args.marker), args.lens), args.layout)
-    if not empty_table:
-        config = with_robot_in_view(config)
     if args.robot != config.robot:
-
         robot = str(Path(args.robot).resolve()) if is_spec_file(args.robot) else args.robot
         get_robot(robot)  # an unknown robot or a bad spec file fails before anything renders
         config = replace(config, robot=robot)
+    if not empty_table:  # after the robot is chosen: its second pose is its own
+        config = with_robot_in_view(config, second_pose=second_pose)
     make_sample(out_dir, config, log=info)
     print(f"wrote the sample to {out_dir} (ground_truth.json, scene.mp4, handeye/, gt/, contact_sheet.jpg)")
     return 0
@@ -111,6 +133,8 @@ def run_handeye(args: argparse.Namespace) -> int:
     given = from_flags(SampleHandEyeConfig, args)
     cfg = HandEyeCaptureConfig(mount=given.mount, views=given.views, seed=given.seed)
     gt = make_handeye_capture(args.dir, cfg, log=info)
-    print(f"wrote a {cfg.mount} hand-eye capture of {cfg.views} views to {args.dir}; reported hand poses off by "
-          f"{np.median(gt['hand_pose_error_mm']):.2f} mm / {np.median(gt['hand_pose_error_deg']):.3f} deg (median)")
+    print(
+        f"wrote a {cfg.mount} hand-eye capture of {cfg.views} views to {args.dir}; reported hand poses off by "
+        f"{np.median(gt['hand_pose_error_mm']):.2f} mm / {np.median(gt['hand_pose_error_deg']):.3f} deg (median)"
+    )
     return 0

@@ -4,9 +4,11 @@ Writes, into a new directory (built under a temporary name and renamed at the en
 never half-written):
 
     scene.mp4            hand-held orbit around the table, H.264 (the robot at its base, in its own look, only with
-                         ``robot_in_view``); through a phone-like lens with ``lens`` (distortion, off-centre principal
-                         point), else the renderer's pinhole
-    head_view.png        the fixed head camera's view of the same scene (the robot in it as in the video)
+                         ``robot_in_view``; at another pose from each frame of ``capture_moves`` on); through a
+                         phone-like lens with ``lens`` (distortion, off-centre principal point), else the renderer's
+                         pinhole
+    head_view.png        the fixed head camera's view of the same scene (the robot in it as in the video, at
+                         ``capture_joints``)
     handeye/images/*.png the head camera's view of a ChArUco board held by the robot's gripper
     handeye/joints.json  the joint angles of each hand-eye image
     handeye/board.json   the held board's spec
@@ -35,7 +37,7 @@ from ..calib.board import BoardSpec, GridSpec, MarkerSpec
 from ..errors import M2MError
 from ..inputs import read_yaml
 from ..robots import DEFAULT_ROBOT, get_robot
-from ..robots.surface import check_capture_joints
+from ..robots.surface import check_capture_joints, robot_surface
 from ..video import write_video
 from ..world.sample_assets import LAYOUTS
 from .inspect import BUNDLED_SAMPLE
@@ -79,6 +81,10 @@ class SampleConfig:
     robot_in_view: bool = False
     capture_joints: tuple[float, ...] | None = None
     board_at: tuple[float, float, float] | None = None
+    # The robot's moves while filmed (with ``robot_in_view``): {video frame N: arm joints}, from frame N on it stands
+    # there (an instant change, as if the user paused the recording, moved the arm and resumed); ``capture_joints``
+    # holds before the first move. None: it stands still (`with_robot_in_view(second_pose=True)` moves it once).
+    capture_moves: dict[int, tuple[float, ...]] | None = None
 
     @classmethod
     def short(cls, seed: int = 0) -> SampleConfig:
@@ -116,13 +122,22 @@ ROBOT_IN_VIEW_BOARD = BoardSpec(square=0.055, marker=0.042, dictionary="DICT_4X4
 ROBOT_IN_VIEW_BOARD_AT = (0.17, -0.3, 90.0)
 
 
-def with_robot_in_view(config: SampleConfig, capture_joints: tuple[float, ...] | None = None) -> SampleConfig:
+def with_robot_in_view(
+    config: SampleConfig, capture_joints: tuple[float, ...] | None = None, second_pose: bool = False
+) -> SampleConfig:
     """``config`` filming the robot at its base (at ``capture_joints``, default the sample's pose), the board
-    beside it."""
+    beside it; with ``second_pose`` the robot moves, at the video's middle frame, to the robot's second pose
+    (world.sample_robot_look.second_pose_for), so that the orbit sees what the first pose hid. Choose the robot and
+    the orbit first: the move is for ``config.robot`` at ``config.orbit``'s middle frame."""
     board = ROBOT_IN_VIEW_BOARD if isinstance(config.board, BoardSpec) and config.board.kind == "charuco" else \
         config.board  # fmt: skip
+    moves = None
+    if second_pose:
+        from ..world.sample_robot_look import second_pose_for
+
+        moves = {config.orbit.n_frames // 2: tuple(float(v) for v in second_pose_for(get_robot(config.robot)))}
     return replace(config, robot_in_view=True, capture_joints=capture_joints, board=board,
-                   board_at=ROBOT_IN_VIEW_BOARD_AT)  # fmt: skip
+                   board_at=ROBOT_IN_VIEW_BOARD_AT, capture_moves=moves)  # fmt: skip
 
 
 def with_marker(config: SampleConfig, marker: str) -> SampleConfig:
@@ -172,12 +187,14 @@ def _robot_ref(robot: str, renderer: Any) -> str:
     return renderer.robot_file if robot == DEFAULT_ROBOT else robot
 
 
-def _write_settings(path: Path, config: SampleConfig, objects: list[str], capture_joints=None) -> None:
+def _write_settings(path: Path, config: SampleConfig, objects: list[str], capture_joints=None,
+                    capture_moves: dict[int, Any] | None = None) -> None:  # fmt: skip
     """The sample's m2m.yaml: the bundled one; with another robot, lens or layout, changed where they matter: the robot
     named once, at the top (the pipeline's), no video intrinsics with a lens (SfM calibrates the camera
-    itself, as on a phone video), the objects named nearest the base first (``objects``: the names in that order)."""
+    itself, as on a phone video), the objects named nearest the base first (``objects``: the names in that order),
+    the robot's moves while filmed (``capture_moves``: {frame: arm joints})."""
     bundled = config.robot == DEFAULT_ROBOT and config.lens is None and config.layout == "nominal"
-    if bundled and config.robot_in_view and config.capture_joints is None:
+    if bundled and config.robot_in_view and config.capture_joints is None and not capture_moves:
         shutil.copyfile(BUNDLED_SAMPLE / "m2m.yaml", path)
         return
 
@@ -194,6 +211,11 @@ def _write_settings(path: Path, config: SampleConfig, objects: list[str], captur
                      "(ground_truth.json holds the true one under \"camera\").")  # fmt: skip
     if config.robot_in_view:  # the bundled sample's header says so already
         data.setdefault("align", {})["capture_joints"] = [round(float(v), 6) for v in capture_joints]
+        if capture_moves:
+            data["align"]["capture_moves"] = {int(n): [round(float(v), 6) for v in q]
+                                              for n, q in sorted(capture_moves.items())}  # fmt: skip
+            notes.append(f"The robot moves while filmed: from video frame {', '.join(map(str, sorted(capture_moves)))}"
+                         " on it stands at align.capture_moves (`m2m sample make --second-pose`).")  # fmt: skip
     else:
         data.get("align", {}).pop("capture_joints", None)
         notes.append("The table is filmed without the robot (`m2m sample make --empty-table`): it appears only in "
@@ -213,7 +235,9 @@ def _config_json(config: SampleConfig) -> dict:
     """The config as ground_truth.json records it; a field added since the bundled sample is left out at its default,
     so a default sample's ground truth stays as it was."""
     out = asdict(config)
-    for key in ("lens", "layout", "robot_in_view", "capture_joints", "board_at"):
+    if out["capture_moves"] is not None:  # JSON's keys are strings: the frame, as ground_truth.json's robot has it
+        out["capture_moves"] = {str(n): list(q) for n, q in sorted(out["capture_moves"].items())}
+    for key in ("lens", "layout", "robot_in_view", "capture_joints", "board_at", "capture_moves"):
         if out[key] == getattr(SampleConfig, key):
             del out[key]
     return out
@@ -226,13 +250,25 @@ def _nearest_first(assets: list) -> list[str]:
     return sorted(objects, key=lambda name: float(np.hypot(*np.asarray(objects[name])[:2, 3])))
 
 
+def _checked_moves(config: SampleConfig, spec: Any) -> dict[int, np.ndarray]:
+    """The robot's moves while filmed: {video frame: joints [n_dofs]}, in frame order, each checked (a frame after
+    the first and inside the video, joints within the robot's limits)."""
+    n_frames = config.orbit.n_frames
+    out = {}
+    for n, q in sorted((config.capture_moves or {}).items()):
+        if not 1 <= int(n) < n_frames:
+            raise SampleError(f"capture_moves: frame {n} is not in the video after its first frame (1..{n_frames - 1})")
+        out[int(n)] = check_capture_joints(spec, q, f"sample capture_moves[{n}]")
+    return out
+
+
 def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Callable[[str], None] = print) -> dict:
     """Generate the sample into the new directory ``out``; returns the ground truth dict."""
     out = Path(out)
     _check_output_dir(out)  # before the slow imports, so a bad path fails at once
 
     from ..world.sample_assets import board_asset, build_assets, export_assets, ground_truth_entries
-    from ..world.sample_robot_look import capture_joints_for, robot_look_assets
+    from ..world.sample_robot_look import ROBOT_LOOK_PREFIX, capture_joints_for, robot_look_assets
     from .lens import lens_rays, pinhole_cover, resample_through_lens
     from .render import RenderConfig, SampleRenderer, default_T_base_headcam, sample_handeye_configurations
 
@@ -243,16 +279,23 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
         assets = build_assets(seed=config.seed, board=board, layout=config.layout, board_at=config.board_at)
         board.save(tmp / "board.json")
         config.handeye_board.save(tmp / "handeye" / "board.json")
-        robot_assets, q_capture = [], None
-        if config.robot_in_view:  # the robot at its base, static while filmed, in its own look
+        robot_assets, q_capture, moves = [], None, {}
+        if config.robot_in_view:  # the robot at its base, static while filmed (but for its moves), in its own look
             spec = get_robot(config.robot)
             q_capture = check_capture_joints(spec, config.capture_joints if config.capture_joints is not None
                                              else capture_joints_for(spec), "sample capture_joints")  # fmt: skip
             robot_assets = robot_look_assets(spec, q_capture, config.seed)
             log(f"robot: {config.robot} in the video at {np.round(q_capture[: spec.n_arm], 3).tolist()}")
+            moves = _checked_moves(config, spec)
+            for n, q in moves.items():
+                log(f"robot: from video frame {n} on at {np.round(q[: spec.n_arm], 3).tolist()}")
+        elif config.capture_moves:
+            raise SampleError("capture_moves needs the robot in the video (with_robot_in_view)")
         # the pipeline settings of the sample layout (inputs by relative path), as `m2m demo --sample` reads them
+        n_arm = get_robot(config.robot).n_arm
         _write_settings(tmp / "m2m.yaml", config, _nearest_first(assets),
-                        None if q_capture is None else q_capture[: get_robot(config.robot).n_arm])  # fmt: skip
+                        None if q_capture is None else q_capture[:n_arm],
+                        {n: q[:n_arm] for n, q in moves.items()})  # fmt: skip
         ground_truth_assets = [a for a in assets if a.category in ("board", "object", "button")]
         mesh_paths = export_assets(ground_truth_assets, tmp / "gt")
         log(f"assets: {len(assets)} meshes, ground truth for {', '.join(mesh_paths)}")
@@ -272,9 +315,15 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
         with SampleRenderer(assets + robot_assets, video_cfg, workdir=tmp / ".render") as renderer:
             K = renderer.K if lens_camera is None else lens_camera.K
 
+            def place_robot(q: np.ndarray) -> None:
+                for link in robot_surface(spec, q):
+                    renderer.place_asset(f"{ROBOT_LOOK_PREFIX}{link.link}", link.T_base_link)
+
             def frames():
                 pick = set(np.linspace(0, len(poses) - 1, 8).round().astype(int).tolist())
                 for i, T in enumerate(poses):
+                    if i in moves:  # the recording paused while the arm moved
+                        place_robot(moves[i])
                     image = renderer.render(T)
                     if rays is not None:
                         image = resample_through_lens(image, video_cfg.focal, rays)
@@ -288,6 +337,8 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
             lens_note = "" if lens_camera is None else f" through the {config.lens.name} lens"
             log(f"video: {n} frames at {config.width}x{config.height}, {config.orbit.fps:g} fps{lens_note}")
             (x0, y0) = crop
+            if moves:  # the head photo shows the robot at capture_joints, as the pipeline's head view expects
+                place_robot(q_capture)
             head_view = renderer.render(T_base_headcam)[y0 : y0 + config.height, x0 : x0 + config.width]
             _save_png(tmp / "head_view.png", np.ascontiguousarray(head_view))
 
@@ -376,6 +427,7 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
         if q_capture is not None:
             ground_truth["robot"] = {
                 "name": config.robot, "in_view": True, "capture_joints": q_capture.tolist(),
+                **({"capture_moves": {str(n): q.tolist() for n, q in moves.items()}} if moves else {}),
                 # the name the bundled sample records (the look lives in world.sample_robot_look now); kept, so a
                 # sample made again is the same bytes
                 "look": "mirage2matter.sample.robot_look (the sample's seed)",

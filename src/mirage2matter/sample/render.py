@@ -297,6 +297,14 @@ class SampleRenderer:
         """bool [H,W]: pixels where entity ``name`` (an asset's name, "robot") is the visible surface."""
         return self.render_segmentation(T_world_cam) == self.entity_names.index(name)
 
+    def place_asset(self, name: str, T_base_obj: np.ndarray) -> None:
+        """Move the placed asset ``name`` to ``T_base_obj`` [4,4] (a link of the filmed robot's look, when the robot
+        moves while filmed)."""
+        pos, quat = pos_quat(T_base_obj)
+        entity = self._scene.entities[name]
+        entity.set_pos(pos)
+        entity.set_quat(quat)
+
     # ---- robot -----------------------------------------------------------------------------------
     @property
     def robot_file(self) -> str:

@@ -14,11 +14,12 @@ from collections.abc import Sequence
 import numpy as np
 import trimesh
 
+from ..robots.kinematics import RobotKinematics
 from ..robots.spec import RobotSpec
 from ..robots.surface import LinkSurface, robot_surface
 from .sample_assets import PlacedAsset, _fbm, _grain, _textured, _to_image
 
-__all__ = ["ROBOT_LOOK_PREFIX", "capture_joints_for", "robot_look_assets", "robot_look_meshes"]
+__all__ = ["ROBOT_LOOK_PREFIX", "capture_joints_for", "robot_look_assets", "robot_look_meshes", "second_pose_for"]
 
 ROBOT_LOOK_PREFIX = "robot_"  # asset names: robot_<link>
 _TILE = 512  # texture pixels per projection tile (three tiles side by side)
@@ -36,6 +37,51 @@ def capture_joints_for(spec: RobotSpec) -> np.ndarray:
     lo, hi = spec.joint_limits[0]
     q[0] = float(np.clip(q[0] - 0.35, lo, hi))
     return q
+
+
+# The pose the robot moves to half-way through the video (`m2m sample make --second-pose`). The orbit's second half
+# films the robot from its front and left (+y), 0.5-0.85 m up, looking down at the table; at the first pose the upper
+# arm, wrist and hand stand above its view. The second pose brings the hand down, low over the free table left of the
+# banana and the button, its approach axis tilted from straight down (toward the base by ``tilt`` rad, in the
+# vertical plane through the base and the hand), so that the faces the head camera sees at the first pose face the
+# orbit's cameras, and the room the first pose hid is in view again. Checked for the bundled robots
+# (tests/sample/test_sample_second_pose.py): clear of the table, the objects, the board and the robot itself.
+SECOND_POSE_HAND_AT = (0.45, 0.4, 0.16)  # the end-effector link's origin, base frame (m)
+SECOND_POSE_TILT = 0.8
+
+
+def second_pose_for(spec: RobotSpec, hand_at=SECOND_POSE_HAND_AT, tilt: float = SECOND_POSE_TILT) -> np.ndarray:
+    """The arm joints [n_arm] the sample's robot moves to half-way through the video, to show the orbit what the
+    first pose (:func:`capture_joints_for`) hid: inverse kinematics of the end-effector link at ``hand_at`` with its
+    approach axis tilted ``tilt`` rad from straight down toward the base, from home turned toward ``hand_at`` (the
+    solution nearest it; rounded to 1e-4 rad). Home turned so, when the robot cannot reach it."""
+    from scipy.optimize import least_squares
+
+    kin = RobotKinematics(spec.model)
+    n, _ = kin.chain(spec.ee_link)
+    lo, hi = (np.asarray(v, dtype=np.float64) for v in zip(*spec.joint_limits[: spec.n_arm], strict=True))
+    home = np.asarray(spec.home, dtype=np.float64)
+
+    def pose(q: np.ndarray) -> np.ndarray:
+        return kin.link_pose(np.r_[q, np.zeros(n - spec.n_arm)][:n] if n > spec.n_arm else q[:n], spec.ee_link)
+
+    target = np.asarray(hand_at, dtype=np.float64)
+    at_home = pose(home)[:3, 3]
+    seed = home.copy()
+    turn = np.arctan2(target[1], target[0]) - np.arctan2(at_home[1], at_home[0])
+    seed[0] = float(np.clip(home[0] + turn, lo[0], hi[0]))
+    inward = -target[:2] / np.linalg.norm(target[:2])  # horizontal, from the hand toward the base
+    approach = np.r_[np.sin(tilt) * inward, -np.cos(tilt)]
+    approach_ee = np.asarray(spec.tcp_approach, dtype=np.float64)
+
+    def residual(q: np.ndarray) -> np.ndarray:
+        T = pose(q)
+        return np.concatenate([T[:3, 3] - target, 0.3 * (T[:3, :3] @ approach_ee - approach), 0.01 * (q - seed)])
+
+    sol = least_squares(residual, seed, bounds=(lo, hi), xtol=1e-10, ftol=1e-10)
+    if np.linalg.norm(sol.fun[:3]) > 0.01 or np.linalg.norm(sol.fun[3:6]) > 0.3 * 0.1:
+        return seed  # out of reach
+    return np.clip(np.round(sol.x, 4), lo, hi) + 0.0  # + 0.0: no -0.0 in the files
 
 
 def _paint(spec: RobotSpec, link: str, index: int) -> tuple[tuple[int, int, int], float]:
