@@ -10,6 +10,7 @@ import pytest
 from mirage2matter.calib.board import BoardSpec
 from mirage2matter.cli import main
 from mirage2matter.gaussians.ply import write_ply
+from mirage2matter.stages.pipeline import PipelineConfig
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_headview import board_gaussians  # noqa: E402
@@ -51,8 +52,9 @@ def test_head_view_cli_writes_the_comparison_and_names_missing_stages(tmp_path, 
 @pytest.mark.skipif(not (SAMPLE / "ground_truth.json").is_file(), reason="samples/tabletop not built")
 def test_head_view_cli_draws_the_robots_gaussians_at_the_photo_joints(tmp_path, capsys):
     """With scene/robot/ (the robot's Gaussians train-scene fits) the check draws the robot at the capture joints
-    (photo_joints: another state), says so, and its robot pixels match the photo; a photo_joints in degrees is
-    refused naming the setting, nothing written."""
+    (head_photo_joints: another state, the pipeline's: m2m.yaml holds it once, train-scene reads it too), says so,
+    and its robot pixels match the photo; a head_photo_joints in degrees or of the wrong length is refused naming the
+    setting, nothing written."""
     from PIL import Image
     from test_headview import photo_coloured_robot
 
@@ -87,13 +89,19 @@ def test_head_view_cli_draws_the_robots_gaussians_at_the_photo_joints(tmp_path, 
     assert drawn["robot_drawn"] and drawn["psnr"] > alone["psnr"] + 0.5 and drawn["psnr_robot"] > 20.0
 
     away = [str(v) for v in np.asarray(q[:7]) + [0.4, 0, 0, 0, 0, 0, 0]]
-    assert main([*run, "--photo-joints", *away]) == 0
-    assert "at photo_joints" in capsys.readouterr().out
+    assert main([*run, "--head-photo-joints", *away]) == 0
+    assert "at head_photo_joints" in capsys.readouterr().out
+    saved = PipelineConfig.load(ws / "m2m.yaml")
+    assert saved.head_photo_joints == saved.scene.head_photo_joints == saved.head_view.head_photo_joints == \
+        [float(v) for v in away]  # fmt: skip
+    assert "\nhead_photo_joints: [" in (ws / "m2m.yaml").read_text()  # once, at the top
     assert json.loads((ws / "calib" / "head_view.json").read_text())["psnr_robot"] < drawn["psnr_robot"] - 5.0
 
     before = (ws / "calib" / "head_view.json").read_bytes()
     degrees = [str(round(float(np.degrees(v)), 1)) for v in q[:7]]
-    assert main([*run, "--photo-joints", *degrees]) == 2
+    assert main([*run, "--head-photo-joints", *degrees]) == 2
     err = capsys.readouterr().err
-    assert "head_view photo_joints" in err and "reads as degrees" in err
+    assert "head_photo_joints" in err and "reads as degrees" in err
+    assert main([*run, "--head-photo-joints", "0.1", "0.2"]) == 2
+    assert "head_photo_joints: 2 values given; panda has 7 arm joints" in capsys.readouterr().err
     assert (ws / "calib" / "head_view.json").read_bytes() == before

@@ -184,12 +184,28 @@ def test_stages_whose_optional_inputs_are_absent_are_skipped_with_the_reason(tmp
     [
         ({"capture": {"source": None}}, "capture.source", r"capture\.source: no video or image folder; give"),
         ({"align": {"board": None}}, "align.board", r"align\.board: no calibration target; .*align\.unaligned: true"),
-        ({"handeye": {"images": SAMPLE / "handeye/images"}}, "handeye",
-         r"the hand-eye calibration lacks handeye\.joints .*handeye\.board .*handeye\.intrinsics \(the head camera's"),
+        (
+            {"handeye": {"images": SAMPLE / "handeye/images"}},
+            "handeye",
+            r"the hand-eye calibration lacks handeye\.joints .*handeye\.board .*handeye\.intrinsics \(the head "
+            r"camera's",
+        ),
         ({"robot": "robbie"}, "robot", r"robot: unknown robot 'robbie'; known robots: panda"),
         ({"scene": {"minutes": 0.0}}, "scene", r"section scene: train-scene: give a positive --minutes budget"),
+        (
+            {"head_photo_joints": [0.1, 0.2]},
+            "head_photo_joints",
+            r"head_photo_joints: 2 values given; panda has 7 arm joints",
+        ),
     ],
-    ids=["no capture", "no board", "hand-eye half given", "unknown robot", "a stage refuses a value"],
+    ids=[
+        "no capture",
+        "no board",
+        "hand-eye half given",
+        "unknown robot",
+        "a stage refuses a value",
+        "a head photo's joint state that is not the robot's",
+    ],
 )
 def test_what_a_run_cannot_do_without_is_named_with_its_line(tmp_path, sections, field, message):
     ws = Workspace(tmp_path / "ws")
@@ -245,4 +261,41 @@ def test_an_m2m_yaml_with_the_robot_under_the_sections_still_loads(tmp_path):
     path.write_text("align: {robot: ur5e}\nworld: {robot: panda}\n")
     with pytest.raises(ConfigError, match=r"align\.robot: ur5e, world\.robot: panda: one robot for the whole pipeline "
                        r"now, set once at the top of the file; write `robot: \.\.\.` there"):  # fmt: skip
+        PipelineConfig.load(path)
+
+
+def test_an_m2m_yaml_with_head_view_photo_joints_still_loads(tmp_path):
+    """Before the head photo's joint state was the pipeline's (train-scene's head photo reads it too), it was
+    head_view.photo_joints: it moves to the top as head_photo_joints, every stage that reads it holding it (a null,
+    as every old file wrote, is the default); the top and head_view naming two states is an error saying how to fix
+    the file; a bad value is named at its old line."""
+    path = tmp_path / "m2m.yaml"
+    q = [0.1, -0.7, 0.0, -2.3, 0.0, 1.5, 0.7]
+    path.write_text(f"head_view:\n  photo: null\n  photo_joints: {q}\n  backend: cpu\n")
+    cfg = PipelineConfig.load(path)
+    assert cfg.head_photo_joints == cfg.head_view.head_photo_joints == cfg.scene.head_photo_joints == q
+    assert cfg.head_view.backend == "cpu"
+    cfg.save(path)  # written the new way: once, at the top
+    text = path.read_text()
+    assert f"\nhead_photo_joints: {q}\n" in text and "photo_joints" not in text.replace("head_photo_joints", "")
+    assert PipelineConfig.load(path) == cfg
+    path.write_text("head_view: {photo_joints: null}\n")
+    assert PipelineConfig.load(path) == PipelineConfig()
+    path.write_text(f"head_photo_joints: {q}\nhead_view: {{photo_joints: {q}}}\n")  # the same state twice: one
+    assert PipelineConfig.load(path).head_photo_joints == q
+    path.write_text(f"head_photo_joints: {q}\nhead_view: {{photo_joints: [0.0, 0, 0, 0, 0, 0, 0]}}\n")
+    with pytest.raises(
+        ConfigError,
+        match=r"head_view\.photo_joints: \[0\.0, 0, .*\], head_photo_joints: \[0\.1, .*\]: "
+        r"one head_photo_joints for the whole pipeline now, .*; remove photo_joints from head_view",
+    ):
+        PipelineConfig.load(path)
+    path.write_text("robot: panda\nhead_view:\n  photo_joints: [0.1, fast]\n")
+    with pytest.raises(ConfigError, match=r"m2m\.yaml, line 3: head_photo_joints"):
+        PipelineConfig.load(path)
+    # a section naming the pipeline's setting: one state, moved to the top; two: an error
+    path.write_text(f"scene: {{head_photo_joints: {q}}}\n")
+    assert PipelineConfig.load(path).head_view.head_photo_joints == q
+    path.write_text(f"scene: {{head_photo_joints: {q}}}\nhead_view: {{head_photo_joints: [0.0, 0, 0, 0, 0, 0, 0]}}\n")
+    with pytest.raises(ConfigError, match=r"one head_photo_joints for the whole pipeline now"):
         PipelineConfig.load(path)

@@ -54,12 +54,9 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
         "init",
         help="write a workspace's m2m.yaml (every setting, explained) from your capture, board, robot and tasks",
         description=(
-            "Write <workspace>/m2m.yaml for `m2m run`: every stage's section with every field, at its default unless "
-            "given, each explained in a comment; edit it to change any setting. The inputs are checked first (files "
-            "exist, the board and calibrations read). Paths are written relative to the workspace when inside it, "
-            "else absolute. Without hand-eye images the run skips the hand-eye "
-            "calibration, the head-view check and the world; without a head-camera photo, the head-view check; "
-            "without tasks, the demonstrations."
+            "Write <workspace>/m2m.yaml for `m2m run`: every setting, explained, at its default unless given. The "
+            "inputs are checked first. Without hand-eye images the run skips the hand-eye calibration, the head "
+            "view and the world; without a head photo, the head view; without tasks, the demonstrations."
         ),
         epilog=EXAMPLE,
         formatter_class=Formatter,
@@ -75,17 +72,15 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
                    "(from `m2m board`)")  # fmt: skip
     g.add_argument("--board-pose", type=Path, metavar="FILE", help="a JSON with T_base_board when the target is not "
                    "centred on the base with its x along base x")  # fmt: skip
-    g.add_argument("--intrinsics", type=Path, metavar="FILE", help="the capture camera's calibration (any format "
-                   "`m2m intrinsics FILE` reads), held fixed in SfM; without it SfM estimates one")  # fmt: skip
+    g.add_argument("--intrinsics", type=Path, metavar="FILE", help="the capture camera's calibration (`m2m "
+                   "intrinsics FILE` reads it); without it SfM estimates one")  # fmt: skip
     g.add_argument("--handeye-images", type=Path, metavar="DIR", help="the head camera's images of a board the robot "
-                   "holds (hand-eye calibration); without them no head camera, so no world")  # fmt: skip
-    g.add_argument("--handeye-poses", type=Path, metavar="FILE", help="the robot's pose per hand-eye image (JSON: "
-                   "joints or end-effector poses; see `m2m calibrate-handeye --help`)")  # fmt: skip
-    g.add_argument("--handeye-board", type=Path, metavar="FILE", help="spec JSON of the board the robot holds "
-                   "(without it: --board)")  # fmt: skip
+                   "holds (without them: no world)")  # fmt: skip
+    g.add_argument("--handeye-poses", type=Path, metavar="FILE", help="the robot's joints per hand-eye image (JSON)")
+    g.add_argument("--handeye-board", type=Path, metavar="FILE", help="the held board's spec (without it: --board)")
     g.add_argument("--handeye-intrinsics", type=Path, metavar="FILE", help="the head camera's calibration")
-    g.add_argument("--head-photo", type=Path, metavar="FILE", help="a photo the head camera took of the table (the "
-                   "head-view check compares the scene with it; without one the check is skipped)")  # fmt: skip
+    g.add_argument("--head-photo", type=Path, metavar="FILE", help="a photo the head camera took of the table, "
+                   "for the head-view check")  # fmt: skip
     g.add_argument("--objects", nargs="+", metavar="NAME", help="the objects on the table, nearest the base first "
                    "(without them: every object found, named object_0, object_1, ...)")  # fmt: skip
     g.add_argument("--task", nargs="+", action="extend", metavar="TEXT", help='task instructions, e.g. "grasp banana" '
@@ -93,12 +88,10 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     g.add_argument("--episodes", type=int_at_least(1), metavar="N", help="successful episodes per task")
     add_flags(g, PipelineSettings)  # the whole pipeline's settings (the robot), written once at the top of m2m.yaml
     g.add_argument("--capture-joints", nargs="+", type=float, metavar="RAD", help="the robot's joint angles while "
-                   "you filmed (radians, as it logged them; default: its home pose): how align-scene and train-scene "
-                   "find the robot in the capture")  # fmt: skip
+                   "you filmed (radians, as it logged them; default: its home pose)")  # fmt: skip
     g.add_argument("--capture-move", nargs="+", type=float, action="append", metavar="FRAME RAD", help="you moved the "
-                   "robot while filming: the video frame from which on it stood still again, then its joint angles "
-                   "there (radians); repeat for each move. Keyframes after it are matched to that pose: a second pose "
-                   "shows the robot's far side and what its first pose hid")  # fmt: skip
+                   "robot while filming: the video frame from which on it stood at these joint angles; repeatable")
+
     p.add_argument("--force", action="store_true", help="replace the workspace's m2m.yaml if it has one")
     add_settings(p, full)  # every field as --<stage>.<field> (when full: imports every stage's libraries)
     p.set_defaults(func=run)

@@ -18,19 +18,20 @@ import json
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
 from ..atomic import atomic_write
-from ..configs import check_ranges, fingerprinted, to_dict
+from ..configs import check_ranges, fingerprinted, ranged, to_dict
 from ..errors import M2MError
 from ..fingerprint import fingerprint
 from ..robots import DEFAULT_ROBOT
 from ..workspace import Workspace, WorkspaceError
 from .transaction import OutputLock, Transaction, holds_lock, workspace_lock
 
-__all__ = ["SHARED", "Input", "PipelineSettings", "Stage", "StageRecord", "jsonable", "run_stage", "stage_fingerprint"]
+__all__ = ["SHARED", "Input", "PipelineSettings", "Stage", "StageRecord", "jsonable", "run_stage", "stage_fingerprint",
+           "used_with"]  # fmt: skip
 
 Log = Callable[[str], None]
 
@@ -118,7 +119,11 @@ def stage_fingerprint(stage: Stage, ws: Workspace, cfg: Any) -> str:
     inputs = stage.inputs(ws, cfg)
     for i in inputs:
         i.check(ws)
-    return fingerprint(stage.name, fingerprinted(cfg), *[i.path for i in inputs])
+    settings = fingerprinted(cfg)
+    for f in fields(cfg):  # a setting of no use without another: out while that one is not set
+        if f.metadata.get("used_with") and getattr(cfg, f.metadata["used_with"]) is None:
+            settings.pop(f.name, None)
+    return fingerprint(stage.name, settings, *[i.path for i in inputs])
 
 
 START_WAIT_S = 60.0  # how long a policy stage's start waits for the workspace lock before it is refused
@@ -130,16 +135,28 @@ SHARED = {"shared": True}
 changes it for every stage."""
 
 
+def used_with(name: str) -> dict[str, str]:
+    """Field metadata of a stage's setting that only its field ``name`` uses (e.g. the head photo's joint state, of no
+    use without a head photo): while ``name`` is None it stays out of the stage's fingerprint, so setting it for
+    another stage (a SHARED one) does not rerun this one."""
+    return {"used_with": name}
+
+
 @dataclass
 class PipelineSettings:
     """The settings of the whole pipeline (at the top of ``m2m.yaml``), read by the stages whose Config has a
-    field of the same name marked :data:`SHARED` (the robot: align-scene, calibrate-handeye and compose).
+    field of the same name marked :data:`SHARED` (the robot: align-scene, calibrate-handeye and compose; the head
+    photo's joint state: train-scene and head-view).
 
     robot   the robot at the base: a registered name (panda, ur5e) or a robot spec file ("none": a scene-only
             workspace)
+    head_photo_joints  the robot's arm joints (radians) in the head camera's photo, where train-scene masks it
+            out and head-view draws it. Default: the capture joints
     """
 
     robot: str = DEFAULT_ROBOT
+    # wide: degrees given for radians are the robot's check to name (check_capture_joints), not a bare range
+    head_photo_joints: list[float] | None = ranged(None, ge=-1000, le=1000, metadata={"metavar": "RAD"})
 
 
 ADDED_LATER = {"fingerprint": "when_set"}

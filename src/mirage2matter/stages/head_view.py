@@ -1,7 +1,8 @@
 """Stage ``head_view``: the scene rendered through the calibrated head camera, compared with a photo the
 head camera took (PSNR, board corners) -> ``calib/head_view.png`` + ``head_view.json``. A wrong scale,
 alignment or hand-eye shows up as pixels of offset. The robot's own Gaussians (scene/robot/, when the capture
-showed it) are drawn with the scene at the photo's joint state: the photo shows the robot too."""
+showed it) are drawn with the scene at the photo's joint state (the pipeline's ``head_photo_joints``, which
+train-scene's head photo shares): the photo shows the robot too."""
 
 from __future__ import annotations
 
@@ -16,11 +17,11 @@ import numpy as np
 from ..configs import ranged
 from ..fingerprint import fingerprint
 from ..inputs import read_image_rgb
-from ..robots import get_robot
+from ..robots import RobotSpec, get_robot
 from ..robots.kinematics import RobotKinematics
 from ..robots.surface import check_capture_joints
 from ..workspace import Workspace, WorkspaceError
-from .base import ADDED_LATER, Input, Log
+from .base import ADDED_LATER, SHARED, Input, Log
 
 
 @dataclass
@@ -29,15 +30,17 @@ class Config:
 
     photo         an image the head camera took of the same scene (without one: the render alone)
     backend       renderer: auto (cuda when available), cpu, cuda
-    photo_joints  the robot's joint state when the photo was taken (the arm's joint angles in radians, or every
-                  joint's with the fingers); its Gaussians (scene/robot/) are drawn there. Default: the capture
-                  joints (the state the robot was filmed at)
+    head_photo_joints  the robot's joint state when the photo was taken (the arm's joint angles in radians, or
+                  every joint's with the fingers); its Gaussians (scene/robot/) are drawn there. Default: the
+                  capture joints. The pipeline's (m2m.yaml's top-level head_photo_joints, train-scene's head photo
+                  too): giving it here changes it for every stage
     """
 
     photo: Path | None = None
     backend: Literal["auto", "cpu", "cuda"] = "auto"
     # wide: degrees given for radians are the robot's check to name (check_capture_joints), not a bare range
-    photo_joints: list[float] | None = ranged(None, ge=-1000, le=1000, metadata=ADDED_LATER)
+    head_photo_joints: list[float] | None = ranged(None, ge=-1000, le=1000, metadata={**SHARED, **ADDED_LATER,
+                                                                                     "metavar": "RAD"})  # fmt: skip
 
 
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
@@ -93,13 +96,13 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
 def robot_at_photo(ws: Workspace, cfg: Config) -> tuple[dict | None, dict | None, str]:
     """(the robot's Gaussians {link: Gaussians, link frame}, their poses {link: T_base_link [4,4]} at the photo's
     joint state, the words for the stage line); (None, None, words) when the workspace has no robot Gaussians (the
-    capture did not show the robot): the scene is drawn alone. A ``photo_joints`` that does not fit the robot
+    capture did not show the robot): the scene is drawn alone. A ``head_photo_joints`` that does not fit the robot
     (length, limits, degrees) is refused, naming the setting."""
     from ..gaussians.ply import read_ply
 
     info_file = ws.robot_gaussians_dir / "robot.json"
     if not info_file.is_file():
-        unused = "; photo_joints unused" if cfg.photo_joints is not None else ""
+        unused = "; head_photo_joints unused" if cfg.head_photo_joints is not None else ""
         return None, None, ("the robot not drawn: the workspace has no robot Gaussians (scene/robot/: train-scene "
                             f"fits them when the keyframes show the robot){unused}")  # fmt: skip
     try:
@@ -107,17 +110,25 @@ def robot_at_photo(ws: Workspace, cfg: Config) -> tuple[dict | None, dict | None
         name, links, capture = info["robot"], dict(info["links"]), info["capture_joints"]
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise WorkspaceError(f"{info_file}: unreadable ({e}); run `m2m train-scene -w {ws.root}` again") from None
-    given = cfg.photo_joints is not None
-    what = "head_view photo_joints" if given else f"{info_file} capture_joints"
-    q = check_capture_joints(get_robot(name), cfg.photo_joints if given else capture, what)
+    q, where = photo_joint_state(get_robot(name), cfg.head_photo_joints, capture, info_file)
     T_base_link = RobotKinematics(name).link_poses(q)
     unknown = sorted(set(links) - set(T_base_link))
     if unknown:
         raise WorkspaceError(f"{info_file}: link(s) {', '.join(unknown)} are not {name}'s; run `m2m train-scene -w "
                              f"{ws.root}` again")  # fmt: skip
     robot = {link: read_ply(ws.robot_gaussians_dir / f) for link, f in links.items()}
-    where = "photo_joints" if given else "the capture joints (photo_joints: the photo's, if it was taken at another)"
     return robot, T_base_link, f"the robot drawn from its Gaussians (scene/robot/) at {where}"
+
+
+def photo_joint_state(spec: RobotSpec, head_photo_joints: list[float] | None, capture_joints: list[float],
+                      capture_file: Path) -> tuple[np.ndarray, str]:  # fmt: skip
+    """(the robot's joint state [n_dofs] when the head photo was taken, the words saying which): the pipeline's
+    ``head_photo_joints`` when given, else the capture joints (``capture_joints``, as ``capture_file`` records
+    them). One that does not fit the robot (length, limits, degrees) is refused naming the setting."""
+    if head_photo_joints is not None:
+        return check_capture_joints(spec, head_photo_joints, "head_photo_joints"), "head_photo_joints"
+    q = check_capture_joints(spec, capture_joints, f"{capture_file} capture_joints")
+    return q, "the capture joints (head_photo_joints: the photo's, if it was taken at another)"
 
 
 def head_camera(ws: Workspace, who: str, photo: np.ndarray | None = None, photo_path: Path | None = None):

@@ -16,6 +16,7 @@ import dataclasses
 import functools
 import re
 import time
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from ..configs import ConfigError, from_dict, to_dict, to_yaml
 from ..errors import M2MError
 from ..inputs import read_yaml_lines
 from ..robots import get_robot
+from ..robots.surface import check_capture_joints
 from ..workspace import Workspace
 from . import PIPELINE, STAGES
 from .base import Log, PipelineSettings, run_stage
@@ -34,8 +36,8 @@ from .transaction import workspace_lock
 __all__ = ["PipelineConfig", "PipelineError", "SettingsFile", "input_paths", "plan_run", "run_pipeline"]
 
 _HEADER = """\
-# Mirage2Matter workspace settings (m2m.yaml): every input and setting of the pipeline, the robot (the whole
-# pipeline's), then one section per stage.
+# Mirage2Matter workspace settings (m2m.yaml): every input and setting of the pipeline, the whole pipeline's own
+# (the robot, the head photo's joint state), then one section per stage.
 #   m2m run -w WORKSPACE      runs the stages in order from this file (--until / --from STAGE: part of them)
 #   m2m <stage> --help        explains a stage's fields; `m2m <stage> -w WORKSPACE --field VALUE` runs one stage
 # Every field is written, at its stage's default unless set. Paths: relative to this file's folder, or absolute.
@@ -61,25 +63,41 @@ class _Pipeline(PipelineSettings):
 
     @staticmethod
     def upgrade(data: dict[str, Any]) -> dict[str, Any]:
-        """An m2m.yaml of before the robot was the pipeline's (``robot`` under align, handeye and world, as ``m2m
-        init`` fanned it out): the sections' robot moved to the top when they name one robot (handeye's may be
-        that robot's model file); a ConfigError saying how to fix the file when they differ."""
+        """An m2m.yaml of before a setting was the pipeline's: ``robot`` under align, handeye and world (as ``m2m
+        init`` fanned it out) moved to the top when they name one robot (handeye's may be that robot's model file),
+        ``head_view.photo_joints`` to the top as ``head_photo_joints`` (:data:`_RENAMED`); a ConfigError saying how
+        to fix the file when they differ."""
+        for (section, old), name in _RENAMED.items():
+            d = data.get(section)
+            if not isinstance(d, dict) or old not in d:
+                continue
+            data = {**data, section: {k: v for k, v in d.items() if k != old}}
+            if d[old] is None:  # every field was written: at its default, it says nothing
+                continue
+            if data.get(name) is not None and data[name] != d[old]:
+                raise ConfigError(f"{section}.{old}: {d[old]}, {name}: {data[name]}: one {name} for the whole "
+                                  f"pipeline now, set once at the top of the file; remove {old} from {section}",
+                                  name)  # fmt: skip
+            data[name] = d[old]
         for name in (f.name for f in dataclasses.fields(PipelineSettings)):
             sections = {s: data[s] for s in _sharing(name) if isinstance(data.get(s), dict)}
-            # texts only: a value of another type stays where it is, for its section to refuse by name
-            given = {s: d[name] for s, d in sections.items() if isinstance(d.get(name), str)}
+            # values of the setting's kind only (a text, a list): another stays where it is, for its section to
+            # refuse by name
+            kind = _kind(name)
+            given = {s: d[name] for s, d in sections.items() if isinstance(d.get(name), kind)}
             if not given:
                 continue
-            values = {*given.values(), *([data[name]] if isinstance(data.get(name), str) else [])}
+            top = [data[name]] if isinstance(data.get(name), kind) else []
+            values = {_hashable(v): v for v in [*given.values(), *top]}
             if name == "robot":
-                values = _robots(values)
+                values = {n: n for n in _robots(set(values))}
             if len(values) > 1:
                 top = [f"{name}: {data[name]}"] if name in data else []
                 where = ", ".join([f"{s}.{name}: {v}" for s, v in given.items()] + top)
                 raise ConfigError(f"{where}: one {name} for the whole pipeline now, set once at the top of the file; "
                                   f"write `{name}: ...` there and remove {name} from the sections", name)  # fmt: skip
             data = {k: {n: x for n, x in v.items() if n != name} if k in given else v for k, v in data.items()}
-            data.setdefault(name, values.pop())
+            data.setdefault(name, next(iter(values.values())))
         return data
 
     @classmethod
@@ -133,6 +151,21 @@ def _robots(names: set[str]) -> set[str]:
     return {n for n in names if n not in models} or names
 
 
+# settings a section held that are the pipeline's now, under another name: {(section, old key): the pipeline's}
+_RENAMED = {("head_view", "photo_joints"): "head_photo_joints"}
+
+
+def _kind(name: str) -> type:
+    """The type of the pipeline's setting ``name`` (str, list): what a section's value must be to move to the top."""
+    tp = typing.get_type_hints(PipelineSettings)[name]
+    tp = next((a for a in typing.get_args(tp) if a is not type(None)), tp)  # X | None -> X
+    return typing.get_origin(tp) or tp
+
+
+def _hashable(value: Any) -> Any:
+    return tuple(value) if isinstance(value, list) else value
+
+
 def _shared(cfg: PipelineSettings) -> dict[str, Any]:
     return {f.name: getattr(cfg, f.name) for f in dataclasses.fields(PipelineSettings)}
 
@@ -151,8 +184,8 @@ PipelineConfig = dataclasses.make_dataclass(
     bases=(_Pipeline,),
     namespace={
         "__module__": __name__,
-        "__doc__": "Every stage's settings (``m2m.yaml``): the pipeline's own (the robot), then one section per "
-        "stage.\n\n"
+        "__doc__": "Every stage's settings (``m2m.yaml``): the pipeline's own (the robot, the head photo's joint "
+        "state), then one section per stage.\n\n"
         + "\n".join(
             f"{s.name:<13} {s.help}" + ("" if s.pipeline else f" (run on its own: ``m2m {s.command}``)") for s in STAGES
         ),  # fmt: skip
@@ -182,7 +215,10 @@ class SettingsFile:
         for n in range(len(keys), 0, -1):
             if keys[:n] in self.lines:
                 return self.lines[keys[:n]]
-        return None
+        # the pipeline's setting that the file names in a section (moved to the top when read), or by its old name
+        at = [(s, keys[0]) for s in _sharing(keys[0])] if keys and isinstance(keys[0], str) else []
+        at += [key for key, new in _RENAMED.items() if keys[:1] == (new,)]
+        return next((self.lines[key] for key in at if key in self.lines), None)
 
     def at(self, name: str | None) -> str:
         """``<file>, line N``: where a message about the field ``name`` points."""
@@ -299,9 +335,14 @@ def _check_required(cfg: PipelineConfig, where: SettingsFile, names: list[str]) 
     at = where.at
     if cfg.robot.lower() != "none":
         try:
-            get_robot(cfg.robot)
+            spec = get_robot(cfg.robot)
         except M2MError as e:
             raise ConfigError(f"{at('robot')}: robot: {e}", "robot") from None
+        if cfg.head_photo_joints is not None:  # before a scene trains for minutes on it
+            try:
+                check_capture_joints(spec, cfg.head_photo_joints, "head_photo_joints")
+            except M2MError as e:
+                raise ConfigError(f"{at('head_photo_joints')}: {e}", "head_photo_joints") from None
     elif "world" in names:
         raise ConfigError(f"{at('robot')}: robot: none, but the world needs one; name the robot at the base (`m2m "
                           "init --robot NAME`), or run --until an earlier stage", "robot")  # fmt: skip

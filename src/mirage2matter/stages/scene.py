@@ -26,11 +26,15 @@ from ..atomic import atomic_write
 from ..configs import ranged, to_dict
 from ..fingerprint import fingerprint
 from ..gaussians.config import FILTER_3D_VARIANCE, TrainConfig
+from ..geometry.camera import Camera
+from ..geometry.sim3 import invert_rigid
 from ..inputs import read_image_rgb
+from ..robots import get_robot
+from ..robots.surface import robot_surface
 from ..workspace import Workspace, WorkspaceError
 from . import get_stage
-from .base import ADDED_LATER, Input, Log, stage_fingerprint
-from .head_view import head_camera
+from .base import ADDED_LATER, SHARED, Input, Log, stage_fingerprint, used_with
+from .head_view import head_camera, photo_joint_state
 
 __all__ = ["Config", "inputs", "outputs", "run"]
 
@@ -54,7 +58,13 @@ class Config:
                     policy looks through is fitted rather than extrapolated from the capture's viewpoints. The
                     head-view check against the same photo then measures a training view
     head_photo_mask  white where the head photo shows the scene, black where it shows what is not (the robot, a
-                    person): those pixels are not trained on (default: every pixel)
+                    person): those pixels are not trained on (default: every pixel). Where the keyframes show the
+                    robot, its silhouette in the photo is masked out too, whether or not a mask is given
+    head_photo_joints  the robot's joint state when the head photo was taken (the arm's joint angles in radians, or
+                    every joint's with the fingers): where the keyframes show the robot, its silhouette at this
+                    state through the head camera, grown by robot_margin_px, is not trained on. Default: the
+                    capture joints. The pipeline's (m2m.yaml's top-level head_photo_joints, head-view's too):
+                    giving it here changes it for every stage
     head_photo_repeat  times the head photo is trained on per pass over the keyframes (1: as one keyframe)
     robot_margin_px  where align-scene found the robot in the keyframes, its silhouette at the capture joint state,
                     grown by this many pixels, is not trained on (nor measured), and the Gaussians only those pixels
@@ -80,6 +90,10 @@ class Config:
     head_photo: Path | None = field(default=None, metadata=ADDED_LATER)
     head_photo_mask: Path | None = field(default=None, metadata=ADDED_LATER)
     head_photo_repeat: int = ranged(4, ge=1, le=1000, metadata=ADDED_LATER)
+    # wide: degrees given for radians are the robot's check to name (check_capture_joints), not a bare range; in the
+    # fingerprint only with a head photo (head-view's photo shares it: setting it there retrains no scene without one)
+    head_photo_joints: list[float] | None = ranged(None, ge=-1000, le=1000, metadata={
+        **SHARED, **ADDED_LATER, **used_with("head_photo"), "metavar": "RAD"})  # fmt: skip
     # bench train's too; in every fingerprint: scenes trained before it retrain
     filter_3d: float = ranged(FILTER_3D_VARIANCE, ge=0, le=4)
     # pixels the robot's silhouette grows by before it is masked out of the keyframes (calib/robot.json): the link
@@ -142,8 +156,15 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
     return out
 
 
-def head_photo_view(ws: Workspace, cfg: Config, frame: str):
-    """The head photo as a training view (``gaussians.train.View``) from the calibrated head camera."""
+def head_photo_view(ws: Workspace, cfg: Config, frame: str, seen=None) -> tuple[Any, dict[str, Any] | None]:
+    """(the head photo as a training view (``gaussians.train.View``) from the calibrated head camera, what of it was
+    masked out as the robot: None when nothing was). ``seen``: the robot as the keyframes showed it
+    (``calib.robot_view.SeenRobot``, None when they do not): the photo shows it too, at ``head_photo_joints``
+    (default: the capture joints), and its silhouette there, grown by ``robot_margin_px`` as the keyframes' is, is
+    not trained on, so no scene Gaussian learns the robot from the photo (a ghost in the head camera's view)."""
+    import torch
+
+    from ..calib.robot_view import grow_mask, robot_silhouette
     from ..gaussians.dataset import DatasetError, photo_view
 
     if frame != "base":
@@ -155,9 +176,35 @@ def head_photo_view(ws: Workspace, cfg: Config, frame: str):
     if cfg.head_photo_mask is not None:
         keep = read_image_rgb(cfg.head_photo_mask, "scene head photo mask").mean(axis=2) > 127
     try:
-        return photo_view(cam, photo, cfg.downscale, keep)
+        view = photo_view(cam, photo, cfg.downscale, keep)
     except DatasetError as e:
         raise WorkspaceError(f"train-scene --head-photo {cfg.head_photo}: {e}") from None
+    if seen is None:
+        return view, None
+    spec = get_robot(seen.record["robot"])
+    q, where = photo_joint_state(spec, cfg.head_photo_joints, seen.record["capture_joints"], ws.robot_capture_file)
+    links = seen.links if cfg.head_photo_joints is None else robot_surface(spec, q)
+    # the view is the photo undistorted to the pinhole with the training-size camera's K (photo_view): the silhouette
+    # is drawn in that pixel grid, through the view's own K and pose, as the keyframes' are (_robot_masks)
+    h, w = view.image.shape[:2]
+    pinhole = Camera(K=view.K.numpy().astype(np.float64), width=w, height=h, name="head photo",
+                     T_world_cam=invert_rigid(view.viewmat.numpy().astype(np.float64)))  # fmt: skip
+    robot = grow_mask(robot_silhouette(pinhole, links), cfg.robot_margin_px)
+    # with a user's mask both apply (the pixels either marks are left out), not the user's alone: a mask drawn for
+    # a person or a cable misses the robot, one drawn by hand around the arm its edges; the silhouette costs only
+    # pixels the keyframes see too. A silhouette in the wrong place (a wrong joint state) is head_photo_joints' to fix
+    valid = view.mask.numpy() if view.mask is not None else np.ones((h, w), bool)
+    if not (valid & ~robot).any():
+        raise WorkspaceError(f"train-scene --head-photo {cfg.head_photo}: the robot (at {where}) covers every "
+                             "pixel of the photo left to train on; check head_photo_joints")  # fmt: skip
+    view.mask = torch.from_numpy(valid & ~robot)
+    frac = float(robot.mean())
+    also = ", and its mask" if cfg.head_photo_mask is not None else ""
+    line = (f"the robot masked out of the head photo ({100 * frac:.1f} % of its pixels, {cfg.robot_margin_px} px "
+            f"margin{also}) at {where}")  # fmt: skip
+    given = "head_photo_joints" if cfg.head_photo_joints is not None else "capture_joints"
+    return view, {"masked_fraction": frac, "joints": q.tolist(), "joints_from": given,
+                  "user_mask": cfg.head_photo_mask is not None, "line": line}  # fmt: skip
 
 
 def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
@@ -186,10 +233,8 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
     t0 = time.perf_counter()
     views_train, views_eval = build_views(posed.cameras, posed.image_dir, config.downscale, config.holdout_every)
     robot = _robot_masks(ws, views_train + views_eval, posed.frame, config.robot_margin_px, log)  # keyframes only
-    photo_key = None
-    if config.head_photo is not None:
-        views_train = views_train + [head_photo_view(ws, config, posed.frame)] * config.head_photo_repeat
-        photo_key = fingerprint(Path(config.head_photo))
+    photo_views, photo_key, photo_robot = _head_photo(ws, config, posed.frame, robot, log)
+    views_train = views_train + photo_views
     init = init_gaussians_from_points(posed.points, posed.colors.astype(np.float64) / 255.0, config.sh_degree)
     base = TrainConfig(
         sh_degree=config.sh_degree, max_gaussians=config.max_gaussians, backend=backend, seed=config.seed,
@@ -243,6 +288,8 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
         # head-view reads it to tell a fit from a new view (survives a moved or deleted photo)
         "head_photo_fingerprint": photo_key,
         "robot": _robot_summary(robot),
+        # what of the head photo was masked out as the robot (None: nothing, or no head photo)
+        "head_photo_robot": photo_robot,
     }
     with atomic_write(ws.scene_metrics, "w", encoding="utf-8") as f:
         json.dump(result, f, indent=1)
@@ -253,12 +300,25 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
     coverage = scene_coverage(posed.cameras, posed.points)
     return {
         **{k: result[k] for k in keys}, "coverage": coverage.to_json(), "unaligned": bool(frame_note),
-        "robot": result["robot"],
+        "robot": result["robot"], "head_photo_robot": photo_robot,
         "line": f"held-out PSNR {result['psnr_heldout']:.2f} dB / SSIM {result['ssim_heldout']:.3f} over "
         f"{len(views_eval)} keyframes, {result['iterations']} iterations, {result['gaussians']:,} Gaussians "
         f"({result['train_minutes']:.1f} min, {frame_label} frame){'; ' + frame_note if frame_note else ''}; "
-        f"{coverage.line}{'' if robot is None else '; ' + result['robot']['line']}",
+        f"{coverage.line}{'' if robot is None else '; ' + result['robot']['line']}"
+        f"{'' if photo_robot is None else '; ' + photo_robot['line']}",
     }  # fmt: skip
+
+
+def _head_photo(ws: Workspace, config: Config, frame: str, robot: dict[str, Any] | None,
+                log: Log) -> tuple[list, str | None, dict[str, Any] | None]:  # fmt: skip
+    """(the head photo's training views (head_photo_repeat of it; none without a head photo), its content's
+    fingerprint, what of it was masked out as the robot (:func:`head_photo_view`))."""
+    if config.head_photo is None:
+        return [], None, None
+    view, masked = head_photo_view(ws, config, frame, None if robot is None else robot["seen"])
+    if masked is not None:
+        log(f"scene: {masked['line']}")
+    return [view] * config.head_photo_repeat, fingerprint(Path(config.head_photo)), masked
 
 
 def _robot_summary(robot: dict[str, Any] | None) -> dict[str, Any] | None:
@@ -276,7 +336,7 @@ def _robot_masks(ws: Workspace, views: list, frame: str, margin_px: int, log: Lo
     keyframe saw (the capture joints, or a move's), grown by ``margin_px``, taken out of every view's valid pixels
     (training and held-out), so no Gaussian is fitted to the robot and the held-out figures measure the scene alone.
     None when the keyframes do not show it.
-    ``views``: the keyframes' (a head photo shows the robot at another joint state; its own mask: head_photo_mask)."""
+    ``views``: the keyframes' (a head photo shows the robot at its own joint state: head_photo_view masks it)."""
     from ..calib.robot_view import grow_mask, robot_silhouette, seen_robot
 
     robot = seen_robot(ws.robot_capture_file) if frame == "base" else None
