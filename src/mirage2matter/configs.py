@@ -455,13 +455,17 @@ def _fixed_tuple_parser(args: tuple, where: str):
     return parse
 
 
-def _key_value_parser(tp: Any, where: str):
-    def parse(text: str) -> tuple[str, Any]:
+def _key_value_parser(key_tp: Any, tp: Any, where: str):
+    """NAME=VALUE; a list value is comma-separated (``360=0.1,0.2``)."""
+    many = typing.get_origin(tp) in (list, tuple)
+
+    def parse(text: str) -> tuple[Any, Any]:
         name, sep, value = text.partition("=")
         if not sep or not name or not value:
             raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
         try:
-            return name, _scalar(tp, value, where)
+            return _scalar(key_tp, name, where), (_coerce(tp, value.split(","), where) if many else
+                                                  _scalar(tp, value, where))  # fmt: skip
         except ConfigError as e:
             raise argparse.ArgumentTypeError(str(e).split(": ", 1)[-1]) from None
 
@@ -552,7 +556,7 @@ def add_flags(
         elif origin is tuple:
             kw.update(type=_fixed_tuple_parser(args, where), metavar=",".join("V" * len(args)))
         elif origin is dict:
-            kw.update(action="append", type=_key_value_parser(args[1], where), metavar="NAME=VALUE")
+            kw.update(action="append", type=_key_value_parser(args[0], args[1], where), metavar="NAME=VALUE")
         else:
             kw.update(type=_word_parser(tp, where), metavar=f.name.upper())
         if "metavar" in f.metadata:

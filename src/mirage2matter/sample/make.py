@@ -214,8 +214,9 @@ def _write_settings(path: Path, config: SampleConfig, objects: list[str], captur
         if capture_moves:
             data["align"]["capture_moves"] = {int(n): [round(float(v), 6) for v in q]
                                               for n, q in sorted(capture_moves.items())}  # fmt: skip
-            notes.append(f"The robot moves while filmed: from video frame {', '.join(map(str, sorted(capture_moves)))}"
-                         " on it stands at align.capture_moves (`m2m sample make --second-pose`).")  # fmt: skip
+            frames = ", ".join(map(str, sorted(capture_moves)))
+            notes.append(f"The robot moves while filmed: from video frame {frames} on it stands at align.capture_moves "
+                         "(`m2m sample make --one-pose` keeps it still).")  # fmt: skip
     else:
         data.get("align", {}).pop("capture_joints", None)
         notes.append("The table is filmed without the robot (`m2m sample make --empty-table`): it appears only in "

@@ -61,7 +61,8 @@ class Config:
     unaligned: bool = False
     # wide: degrees given for radians are the robot's check to name (check_capture_joints), not a bare range
     capture_joints: list[float] | None = ranged(None, ge=-1000, le=1000, metadata=ADDED_LATER)
-    capture_moves: dict[int, list[float]] | None = ranged(None, ge=-1000, le=1000, metadata=ADDED_LATER)
+    capture_moves: dict[int, list[float]] | None = ranged(None, ge=-1000, le=1000,
+                                                          metadata={**ADDED_LATER, "metavar": "FRAME=RAD,..."})
     robot_fit: Literal["auto", "off"] = field(default="auto", metadata=ADDED_LATER)
 
     def validate(self) -> None:

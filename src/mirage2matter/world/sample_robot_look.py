@@ -39,10 +39,10 @@ def capture_joints_for(spec: RobotSpec) -> np.ndarray:
     return q
 
 
-# The pose the robot moves to half-way through the video (`m2m sample make --second-pose`). The orbit's second half
-# films the robot from its front and left (+y), 0.5-0.85 m up, looking down at the table; at the first pose the upper
-# arm, wrist and hand stand above its view. The second pose brings the hand down, low over the free table left of the
-# banana and the button, its approach axis tilted from straight down (toward the base by ``tilt`` rad, in the
+# The pose the robot moves to half-way through the video (`m2m sample make`; `--one-pose` keeps it still). The orbit's
+# second half films the robot from its front and left (+y), 0.5-0.85 m up, looking down at the table; at the first pose
+# the upper arm, wrist and hand stand above its view. The second pose brings the hand down, low over the free table left
+# of the banana and the button, its approach axis tilted from straight down (toward the base by ``tilt`` rad, in the
 # vertical plane through the base and the hand), so that the faces the head camera sees at the first pose face the
 # orbit's cameras, and the room the first pose hid is in view again. Checked for the bundled robots
 # (tests/sample/test_sample_second_pose.py): clear of the table, the objects, the board and the robot itself.
