@@ -105,3 +105,25 @@ def test_yaml_mappings_are_strict_and_paths_resolve_against_the_file(tmp_path):
     for data, message in bad:
         with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)")):
             from_dict(Outer, data)
+
+
+@dataclass
+class Moves:
+    """moves.
+
+    moves  from frame N on, these joints
+    """
+
+    moves: dict[int, list[float]] | None = None
+
+
+def test_a_mapping_of_lists_takes_comma_separated_values_under_typed_keys(capsys):
+    p = argparse.ArgumentParser()
+    add_flags(p, Moves)
+    got = from_flags(Moves, p.parse_args(["--moves", "360=0.1,-0.5", "--moves", "12=3"]))
+    assert got.moves == {360: [0.1, -0.5], 12: [3.0]}
+    assert from_dict(Moves, to_dict(got)) == got  # YAML writes the keys as text; they come back as numbers
+    for bad in (["--moves", "x=1,2"], ["--moves", "3=1,y"]):
+        with pytest.raises(SystemExit):
+            p.parse_args(bad)
+        assert "error:" in capsys.readouterr().err
