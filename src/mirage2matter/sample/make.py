@@ -216,7 +216,7 @@ def _write_settings(path: Path, config: SampleConfig, objects: list[str], captur
                                               for n, q in sorted(capture_moves.items())}  # fmt: skip
             frames = ", ".join(map(str, sorted(capture_moves)))
             notes.append(f"The robot moves while filmed: from video frame {frames} on it stands at align.capture_moves "
-                         "(`m2m sample make --one-pose` keeps it still).")  # fmt: skip
+                         "(`m2m sample make --second-pose`).")  # fmt: skip
     else:
         data.get("align", {}).pop("capture_joints", None)
         notes.append("The table is filmed without the robot (`m2m sample make --empty-table`): it appears only in "
