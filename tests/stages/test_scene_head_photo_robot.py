@@ -23,6 +23,10 @@ from mirage2matter.stages.scene import Config as SceneConfig
 from mirage2matter.stages.scene import head_photo_view
 from mirage2matter.workspace import Workspace
 
+# the references are ray-cast by trimesh through embree (a dev dependency): its Python fallback would take minutes and
+# gigabytes for these 77k rays
+pytest.importorskip("embreex", reason="embreex (pip install -e '.[dev]'): trimesh's ray caster for the references")
+
 Q_PHOTO = [-0.35, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785]  # the sample's capture joints (the arm's)
 BACKGROUND_G = 0.8  # the background's green; the robot is magenta (no green): a pixel's green says its robot share
 
