@@ -187,9 +187,7 @@ def head_photo_view(ws: Workspace, cfg: Config, frame: str, seen=None) -> tuple[
     # the view is the photo undistorted to the pinhole with the training-size camera's K (photo_view): the silhouette
     # is drawn in that pixel grid, through the view's own K and pose, as the keyframes' are (_robot_masks)
     h, w = view.image.shape[:2]
-    pinhole = Camera(K=view.K.numpy().astype(np.float64), width=w, height=h, name="head photo",
-                     T_world_cam=invert_rigid(view.viewmat.numpy().astype(np.float64)))  # fmt: skip
-    robot = grow_mask(robot_silhouette(pinhole, links), cfg.robot_margin_px)
+    robot = grow_mask(robot_silhouette(_view_camera(view), links), cfg.robot_margin_px)
     # with a user's mask both apply (the pixels either marks are left out), not the user's alone: a mask drawn for
     # a person or a cable misses the robot, one drawn by hand around the arm its edges; the silhouette costs only
     # pixels the keyframes see too. A silhouette in the wrong place (a wrong joint state) is head_photo_joints' to fix
@@ -309,6 +307,14 @@ def run(ws: Workspace, config: Config, log: Log) -> dict[str, Any]:
     }  # fmt: skip
 
 
+def _view_camera(view) -> Camera:
+    """The pinhole camera of a training view (``gaussians.train.View``: already undistorted, at the training size):
+    the robot's silhouette is drawn in the view's own pixel grid."""
+    h, w = view.image.shape[:2]
+    T_world_cam = invert_rigid(view.viewmat.numpy().astype(np.float64))
+    return Camera(K=view.K.numpy().astype(np.float64), T_world_cam=T_world_cam, width=w, height=h, name=view.name)
+
+
 def _head_photo(ws: Workspace, config: Config, frame: str, robot: dict[str, Any] | None,
                 log: Log) -> tuple[list, str | None, dict[str, Any] | None]:  # fmt: skip
     """(the head photo's training views (head_photo_repeat of it; none without a head photo), its content's
@@ -344,14 +350,9 @@ def _robot_masks(ws: Workspace, views: list, frame: str, margin_px: int, log: Lo
         return None
     import torch
 
-    from ..geometry.camera import Camera
-    from ..geometry.sim3 import invert_rigid
-
     cameras, silhouettes, exacts, valid, masked = [], [], [], [], []
     for v in views:
-        h, w = v.image.shape[:2]
-        cam = Camera(K=v.K.numpy().astype(np.float64), T_world_cam=invert_rigid(v.viewmat.numpy().astype(np.float64)),
-                     width=w, height=h, name=v.name)  # fmt: skip
+        cam = _view_camera(v)
         # rasterized once: grown for the mask, exact for the robot's own fit
         exact = robot_silhouette(cam, robot.links_for(v.name))
         sil = grow_mask(exact, margin_px)
