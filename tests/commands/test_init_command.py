@@ -51,12 +51,13 @@ def test_inputs_inside_the_workspace_are_written_relative_to_it(tmp_path, capsys
                  "--robot", "panda"]) == 0  # fmt: skip
     out = capsys.readouterr().out
     text = (ws / "m2m.yaml").read_text()
-    assert "  board: inputs/board.json\n" in text
+    assert "\nboard: inputs/board.json\n" in text  # the pipeline's: at the top
     moved = tmp_path / "moved"
     (ws / "capture").mkdir()
     shutil.move(ws, moved)  # a workspace moved with its inputs still reads them
     cfg = PipelineConfig.load(moved / "m2m.yaml")
-    assert cfg.align.board == moved / "inputs" / "board.json" and cfg.world.robot == cfg.align.robot == "panda"
+    assert cfg.board == cfg.align.board == moved / "inputs" / "board.json"
+    assert cfg.world.robot == cfg.align.robot == "panda"
     # no hand-eye images, no tasks: the run skips what needs them, and says so now
     for line in ("and skip handeye   no hand-eye images", "and skip head_view no head-camera calibration",
                  "and skip world     no head-camera calibration", "and skip generate  no world"):  # fmt: skip
@@ -74,7 +75,7 @@ def test_inputs_inside_the_workspace_are_written_relative_to_it(tmp_path, capsys
         (["--board", f"{S}/board.json"], "no capture: give --video FILE or --images DIR"),
         (["--video", f"{S}/scene.mp4"], "no calibration target: give --board FILE"),
         (["--video", f"{S}/scene.mp4", "--board", f"{S}/ground_truth.json"],
-         "--board / --align.board: .*ground_truth.json: BoardSpec JSON has unknown keys"),
+         "--board: .*ground_truth.json: BoardSpec JSON has unknown keys"),
         (["--video", f"{S}/scene.mp4", "--board", f"{S}/board.json", "--handeye-images", f"{S}/handeye/images"],
          "the hand-eye calibration also needs --handeye-poses / --handeye.joints, --handeye-intrinsics"),
         (["--video", f"{S}/scene.mp4", "--board", f"{S}/board.json", "--intrinsics", f"{S}/board.json"],
@@ -98,7 +99,8 @@ def test_bad_inputs_are_named_by_their_flag_and_nothing_is_written(tmp_path, cap
 
 
 def test_init_takes_the_robots_joint_state_while_filming(tmp_path, capsys):
-    """--capture-joints lands in align.capture_joints and the summary says it; without it, the home pose is said."""
+    """--capture-joints lands in the pipeline's capture_joints and the summary says it; without it, the home pose is
+    said."""
     from fixtures import SAMPLE
     from mirage2matter.cli import main
     from mirage2matter.stages.pipeline import PipelineConfig
@@ -107,7 +109,7 @@ def test_init_takes_the_robots_joint_state_while_filming(tmp_path, capsys):
     ws = tmp_path / "ws"
     args = ["init", "-w", str(ws), "--video", str(SAMPLE / "scene.mp4"), "--board", str(SAMPLE / "board.json")]
     assert main([*args, "--capture-joints", *q]) == 0
-    assert PipelineConfig.load(ws / "m2m.yaml").align.capture_joints == [float(v) for v in q]
+    assert PipelineConfig.load(ws / "m2m.yaml").capture_joints == [float(v) for v in q]
     assert "while filming: [0.1," in capsys.readouterr().out
     assert main([*args, "--force"]) == 0
     assert "its home pose (give --capture-joints" in capsys.readouterr().out
@@ -116,7 +118,8 @@ def test_init_takes_the_robots_joint_state_while_filming(tmp_path, capsys):
     # a move while filming: from frame 360 on, the base turned by 1.2 rad
     moved = ["1.2", *q[1:]]
     assert main([*args, "--force", "--capture-joints", *q, "--capture-move", "360", *moved]) == 0
-    assert PipelineConfig.load(ws / "m2m.yaml").align.capture_moves == {360: [float(v) for v in moved]}
+    cfg = PipelineConfig.load(ws / "m2m.yaml")
+    assert cfg.capture_moves == cfg.align.capture_moves == cfg.sfm.capture_moves == {360: [float(v) for v in moved]}
     assert "moved at frame 360 to [1.2," in capsys.readouterr().out
     for bad, words in ((["360.5", *moved], "the video frame (a whole number)"), (["0", *moved], "frame 0"),
                        (["360", "0", "1"], "capture_moves[360]: 2 values given")):  # fmt: skip

@@ -82,9 +82,9 @@ def test_run_is_killed_in_a_stage_and_resumes_there(tmp_path, capsys, sample_dir
     marker = tmp_path / "marker.json"
     marker.write_text(json.dumps({"type": "aruco", "size": 0.15, "id": 7, "dictionary": "DICT_6X6_250"}))
     text = ws.config_file.read_text()
-    board_line = f"  board: {(SAMPLE / 'board.json').resolve()}\n"
+    board_line = f"\nboard: {(SAMPLE / 'board.json').resolve()}\n"  # the pipeline's: at the top
     assert text.count(board_line) == 1
-    ws.config_file.write_text(text.replace(board_line, f"  board: {marker}\n"))
+    ws.config_file.write_text(text.replace(board_line, f"\nboard: {marker}\n"))
     assert main(["run", "-w", str(ws.root), "--until", "align"]) == 2
     err = capsys.readouterr().err
     assert "m2m: error: align (stage 3 of 3, `m2m align-scene`): the target (ArUco marker id 7" in err

@@ -122,14 +122,14 @@ def test_a_default_samples_settings_and_ground_truth_record_no_new_fields(tmp_pa
     settings = read_yaml(tmp_path / "m2m.yaml")
     assert "intrinsics" not in settings.get("sfm", {}) and settings["handeye"]["intrinsics"] == "ground_truth.json"
     assert settings["objects"]["names"] == ["croissant", "button", "banana"]
-    assert settings["robot"] == "ur5e" and "robot" not in settings["align"]  # one robot for the whole pipeline
-    assert settings["align"]["capture_joints"] == list(ur5e_q)
+    assert settings["robot"] == "ur5e" and "align" not in settings  # one robot for the whole pipeline
+    assert settings["capture_joints"] == list(ur5e_q)  # the pipeline's, at the top as well
     text = (tmp_path / "m2m.yaml").read_text()
     assert "SfM calibrates the camera itself" in text and text.count("The robot stands in the video") == 1
 
     _write_settings(tmp_path / "empty.yaml", SampleConfig(), ["banana", "croissant", "button"])
     empty = (tmp_path / "empty.yaml").read_text()
-    assert "capture_joints" not in read_yaml(tmp_path / "empty.yaml")["align"]
+    assert "capture_joints" not in read_yaml(tmp_path / "empty.yaml")
     assert "--empty-table" in empty and "The robot stands in the video" not in empty
     (tmp_path / "board.json").write_text("{}")  # the stages' inputs need not exist to parse the settings
     assert PipelineConfig.load(tmp_path / "m2m.yaml").sfm.intrinsics is None

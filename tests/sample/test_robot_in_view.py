@@ -68,7 +68,7 @@ def test_the_robot_in_the_capture_is_found_aligned_to_and_kept_out_of_the_scene(
     spec = get_robot("panda")
     q = np.asarray(gt["robot"]["capture_joints"])
     settings = read_yaml(sample / "m2m.yaml")
-    np.testing.assert_allclose(settings["align"]["capture_joints"], q[: spec.n_arm], atol=1e-6)
+    np.testing.assert_allclose(settings["capture_joints"], q[: spec.n_arm], atol=1e-6)
     assert not np.allclose(q[: spec.n_arm], spec.home)  # the default (home) is not the truth
     T_board = np.asarray(gt["board"]["T_base_board"])
     assert np.hypot(*T_board[:2, 3]) > 0.2  # the board lies beside the base, not under it

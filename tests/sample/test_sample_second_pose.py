@@ -86,10 +86,10 @@ def test_the_sample_records_the_move_where_the_pipeline_reads_it(moved_sample):
     assert np.allclose(gt["robot"]["capture_joints"][: spec.n_arm], capture_joints_for(spec))
     assert gt["config"]["capture_moves"] == {mid: q2.tolist()}
     settings = read_yaml(sample / "m2m.yaml")
-    assert settings["align"]["capture_moves"] == {int(mid): np.round(q2, 6).tolist()}
+    assert settings["capture_moves"] == {int(mid): np.round(q2, 6).tolist()}
     assert "--second-pose" in (sample / "m2m.yaml").read_text()
     pipeline = PipelineConfig.load(sample / "m2m.yaml")
-    assert {int(n): list(q) for n, q in pipeline.align.capture_moves.items()} == {int(mid): np.round(q2, 6).tolist()}
+    assert {int(n): list(q) for n, q in pipeline.capture_moves.items()} == {int(mid): np.round(q2, 6).tolist()}
     # the head photo shows the robot at its first pose: the bundled sample's, byte for byte
     assert (sample / "head_view.png").read_bytes() == (SAMPLE / "head_view.png").read_bytes()
 

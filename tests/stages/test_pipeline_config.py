@@ -140,8 +140,7 @@ def test_missing_files_are_named_with_their_lines_before_anything_runs(tmp_path,
 def _plain(tmp_path: Path, **sections) -> PipelineConfig:
     """A capture and a board, nothing optional; ``sections``: {section: {field: value}} on top."""
     cfg = PipelineConfig()
-    cfg = replace(cfg, capture=replace(cfg.capture, source=SAMPLE / "scene.mp4"),
-                  align=replace(cfg.align, board=SAMPLE / "board.json"))  # fmt: skip
+    cfg = replace(cfg, capture=replace(cfg.capture, source=SAMPLE / "scene.mp4"), board=SAMPLE / "board.json")
     for name, changes in sections.items():
         cfg = replace(cfg, **{name: replace(getattr(cfg, name), **changes) if isinstance(changes, dict) else changes})
     return cfg
@@ -183,7 +182,7 @@ def test_stages_whose_optional_inputs_are_absent_are_skipped_with_the_reason(tmp
     ("sections", "field", "message"),
     [
         ({"capture": {"source": None}}, "capture.source", r"capture\.source: no video or image folder; give"),
-        ({"align": {"board": None}}, "align.board", r"align\.board: no calibration target; .*align\.unaligned: true"),
+        ({"board": None}, "board", r"board: no calibration target; .*align\.unaligned: true"),
         (
             {"handeye": {"images": SAMPLE / "handeye/images"}},
             "handeye",

@@ -12,7 +12,9 @@ only where the SfM saw that surface near the base. Points map as ``x' = s R x + 
 from __future__ import annotations
 
 import dataclasses
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -35,6 +37,21 @@ def default_T_base_board(spec: BoardSpec) -> np.ndarray:
     T = np.eye(4)
     T[:3, :3] = np.diag([1.0, -1.0, -1.0])
     T[:3, 3] = [-w / 2, h / 2, 0.0]
+    return T
+
+
+def board_in_base(spec, pose_file: Path | None) -> np.ndarray:
+    """T_base_board [4,4]: from ``pose_file`` (a JSON with T_base_board, at the top level or under "board"; the
+    pipeline's board_pose), or :func:`default_T_base_board` without one."""
+    if pose_file is None:
+        return default_T_base_board(spec)
+    data = json.loads(Path(pose_file).read_text(encoding="utf-8"))
+    T = data.get("T_base_board") if isinstance(data, dict) else None
+    if T is None and isinstance(data, dict) and isinstance(data.get("board"), dict):
+        T = data["board"].get("T_base_board")
+    T = np.asarray(T, dtype=np.float64) if T is not None else None
+    if T is None or T.shape != (4, 4) or not np.isfinite(T).all():
+        raise AlignError(f"{pose_file}: need T_base_board (4x4 numbers), at the top level or under 'board'")
     return T
 
 

@@ -32,12 +32,14 @@ __all__ = ["register"]
 
 # the short flags, and the m2m.yaml field each sets (a field's own --<stage>.<field> flag overrides it)
 SHORT = {
-    "video": "capture.source", "images": "capture.source", "intrinsics": "sfm.intrinsics", "board": "align.board",
-    "board_pose": "align.board_pose", "handeye_images": "handeye.images", "handeye_poses": "handeye.joints",
+    "video": "capture.source", "images": "capture.source", "intrinsics": "sfm.intrinsics", "board": "board",
+    "board_pose": "board_pose", "handeye_images": "handeye.images", "handeye_poses": "handeye.joints",
     "handeye_board": "handeye.board", "handeye_intrinsics": "handeye.intrinsics", "head_photo": "head_view.photo",
     "objects": "objects.names", "task": "generate.task", "episodes": "generate.episodes",
-    "capture_joints": "align.capture_joints",
+    "capture_joints": "capture_joints",
 }  # fmt: skip
+
+OWN_FLAGS = ("board", "board_pose", "capture_joints", "capture_moves")  # the pipeline's settings with init's own flags
 
 EXAMPLE = """example:
   m2m init -w ws --video table.mp4 --board board.json --intrinsics phone.json \\
@@ -68,10 +70,11 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     source.add_argument("--video", type=Path, metavar="FILE", help="the capture: a video orbiting the table "
                         "(mp4/mov/mkv)")  # fmt: skip
     source.add_argument("--images", type=Path, metavar="DIR", help="the capture as a folder of images instead")
-    g.add_argument("--board", type=Path, metavar="FILE", help="spec JSON of the calibration target at the robot base "
-                   "(from `m2m board`)")  # fmt: skip
-    g.add_argument("--board-pose", type=Path, metavar="FILE", help="a JSON with T_base_board when the target is not "
-                   "centred on the base with its x along base x")  # fmt: skip
+    # the pipeline's settings, read by init itself (absent unless given: not the Config's flags' None)
+    g.add_argument("--board", type=Path, default=argparse.SUPPRESS, metavar="FILE",
+                   help="spec JSON of the calibration target at the robot base (from `m2m board`)")
+    g.add_argument("--board-pose", type=Path, default=argparse.SUPPRESS, metavar="FILE",
+                   help="a JSON with T_base_board when the target is not centred on the base with its x along base x")
     g.add_argument("--intrinsics", type=Path, metavar="FILE", help="the capture camera's calibration (`m2m "
                    "intrinsics FILE` reads it); without it SfM estimates one")  # fmt: skip
     g.add_argument("--handeye-images", type=Path, metavar="DIR", help="the head camera's images of a board the robot "
@@ -86,11 +89,15 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     g.add_argument("--task", nargs="+", action="extend", metavar="TEXT", help='task instructions, e.g. "grasp banana" '
                    '"press button" (without them: no demonstrations)')  # fmt: skip
     g.add_argument("--episodes", type=int_at_least(1), metavar="N", help="successful episodes per task")
-    add_flags(g, PipelineSettings)  # the whole pipeline's settings (the robot), written once at the top of m2m.yaml
-    g.add_argument("--capture-joints", nargs="+", type=float, metavar="RAD", help="the robot's joint angles while "
-                   "you filmed (radians, as it logged them; default: its home pose)")  # fmt: skip
-    g.add_argument("--capture-move", nargs="+", type=float, action="append", metavar="FRAME RAD", help="you moved the "
-                   "robot while filming: the video frame from which on it stood at these joint angles; repeatable")
+    # the whole pipeline's settings (the robot, ...), written once at the top of m2m.yaml; the board and the capture's
+    # joint states have their own flags above and below
+    add_flags(g, PipelineSettings, skip=OWN_FLAGS)
+    g.add_argument("--capture-joints", nargs="+", type=float, default=argparse.SUPPRESS, metavar="RAD",
+                   help="the robot's joint angles while you filmed (radians, as it logged them; default: its home "
+                   "pose)")  # fmt: skip
+    g.add_argument("--capture-move", nargs="+", type=float, action="append", dest="capture_moves",
+                   default=argparse.SUPPRESS, metavar="FRAME RAD", help="you moved the robot while filming: the video "
+                   "frame from which on it stood at these joint angles; repeatable")  # fmt: skip
 
     p.add_argument("--force", action="store_true", help="replace the workspace's m2m.yaml if it has one")
     add_settings(p, full)  # every field as --<stage>.<field> (when full: imports every stage's libraries)
@@ -98,8 +105,8 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
 
 
 def _flag(field: str) -> str:
-    """The flags that set the m2m.yaml field ``field`` (``align.board`` -> ``--board / --align.board``; a section:
-    ``--scene.*``)."""
+    """The flags that set the m2m.yaml field ``field`` (``handeye.board`` -> ``--handeye-board / --handeye.board``;
+    a section: ``--scene.*``; the pipeline's ``board`` -> ``--board``)."""
     field = field.split("[")[0]
     if "." not in field and field in {f.name for f in dataclasses.fields(PipelineSettings)}:
         return f"--{field.replace('_', '-')}"  # the pipeline's own setting
@@ -118,25 +125,28 @@ def _settings(args: argparse.Namespace) -> Any:
         value = getattr(args, name, None)
         if value is not None:
             given[field] = value.resolve() if isinstance(value, Path) else value
-    if args.capture_joints is not None:
-        given["align.capture_joints"] = list(args.capture_joints)
-    if args.capture_move:
+    if getattr(args, "capture_joints", None) is not None:
+        given["capture_joints"] = list(args.capture_joints)
+    if getattr(args, "capture_moves", None):
         moves = {}
-        for move in args.capture_move:
+        for move in args.capture_moves:
             if len(move) < 2 or move[0] != int(move[0]):
                 raise CliError(f"--capture-move {' '.join(f'{v:g}' for v in move)}: give the video frame (a whole "
                                      "number) and then the joint angles in radians")  # fmt: skip
             moves[int(move[0])] = list(move[1:])
-        given["align.capture_moves"] = moves
-    if args.handeye_images is not None and args.handeye_board is None and args.board is not None:
+        given["capture_moves"] = moves
+    if args.handeye_images is not None and args.handeye_board is None and getattr(args, "board", None) is not None:
         given["handeye.board"] = args.board.resolve()  # one board for both, unless a second is named
     sections: dict[str, dict[str, Any]] = {}
     for field, value in given.items():
-        section, key = field.split(".")
+        section, _, key = field.rpartition(".")  # no section: the pipeline's own setting
         sections.setdefault(section, {})[key] = tuple(value) if key == "task" else value
+    cfg = dataclasses.replace(cfg, **sections.pop("", {}))  # the pipeline's: every stage that reads it gets it
     for section, changes in sections.items():
         cfg = dataclasses.replace(cfg, **{section: dataclasses.replace(getattr(cfg, section), **changes)})
-    return from_flags(PipelineConfig, args, cfg, check=False)  # its numbers' ranges: among the problems listed
+    # init's own flags for the pipeline's board and joint states are read above (paths resolved, moves parsed)
+    rest = argparse.Namespace(**{k: v for k, v in vars(args).items() if k not in OWN_FLAGS})
+    return from_flags(PipelineConfig, rest, cfg, check=False)  # its numbers' ranges: among the problems listed
 
 
 def _problems(cfg: Any, args: argparse.Namespace) -> list[tuple[str, str]]:
@@ -160,8 +170,8 @@ def _problems(cfg: Any, args: argparse.Namespace) -> list[tuple[str, str]]:
     if cfg.capture.source is None and cfg.sfm.from_transforms is None and cfg.sfm.from_colmap is None:
         out.append(("capture.source", "no capture: give --video FILE or --images DIR (or --sfm.from-transforms FILE "
                                       "to import poses)"))  # fmt: skip
-    if cfg.align.board is None and not cfg.align.unaligned:
-        out.append(("align.board", "no calibration target: give --board FILE (its spec JSON, from `m2m board`), or "
+    if cfg.board is None and not cfg.align.unaligned:
+        out.append(("board", "no calibration target: give --board FILE (its spec JSON, from `m2m board`), or "
                                    "--align.unaligned for a scene-only workspace (no robot twin)"))  # fmt: skip
     he = cfg.handeye
     lacking = [n for n in ("images", "joints", "board", "intrinsics") if getattr(he, n) is None]
@@ -191,11 +201,12 @@ def _reads(cfg: Any) -> list[tuple[str, Any]]:
         return lambda: [check_image_file(p, what) for p in files]
 
     checks: list[tuple[str, Any]] = []
-    for field, read in (("align.board", load_target), ("handeye.board", load_target),
+    for field, read in (("board", load_target), ("handeye.board", load_target),
                         ("sfm.intrinsics", load_intrinsics), ("handeye.joints", check_poses_file),
                         ("handeye.intrinsics", lambda p: load_intrinsics(p, keys=("head_camera",))),
                         ("head_view.photo", lambda p: check_image_file(p, "head photo"))):  # fmt: skip
-        path = getattr(getattr(cfg, field.split(".")[0]), field.split(".")[1])
+        section, _, name = field.rpartition(".")
+        path = getattr(getattr(cfg, section) if section else cfg, name)
         if exists(path):
             checks.append((field, lambda read=read, path=path: read(path)))
     for field, folder in (("capture.source", cfg.capture.source), ("handeye.images", cfg.handeye.images)):
@@ -238,10 +249,10 @@ def run(args: argparse.Namespace) -> int:
              f"  m2m run will run  {', '.join(runs)}"]  # fmt: skip
     lines += [f"  and skip {name:<9} {why}" for name, why in plan.items() if why is not None]
     if not cfg.align.unaligned and cfg.robot.lower() != "none":
-        joints = cfg.align.capture_joints
+        joints = cfg.capture_joints
         lines.append(f"  the robot ({cfg.robot}) while filming: " + (
             f"{list(joints)} rad" if joints else "its home pose (give --capture-joints if it stood elsewhere)"))
-        for frame, q in sorted((cfg.align.capture_moves or {}).items()):
+        for frame, q in sorted((cfg.capture_moves or {}).items()):
             lines.append(f"  moved at frame {frame} to {list(q)} rad")
     lines.append(f"next: m2m run -w {show(ws.root)}")
     print("\n".join(lines))

@@ -71,7 +71,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="film the table without the robot (it appears only in the hand-eye images; the board lies "
         "where its base would stand). By default the robot stands in the video at a logged joint state "
-        "(ground_truth.json robot.capture_joints, align.capture_joints in the sample's m2m.yaml), as on "
+        "(ground_truth.json robot.capture_joints, capture_joints in the sample's m2m.yaml), as on "
         "every real capture",
     )
     sm.add_argument(
@@ -80,7 +80,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="the robot moves once while filmed: from the video's middle frame on it stands at a second pose "
         "that shows the orbit what the first hid (its upper arm, wrist and hand from above, the room behind "
         "it), as if the user paused the recording, moved the arm and resumed (ground_truth.json "
-        "robot.capture_moves, align.capture_moves in the sample's m2m.yaml); the head photo and the hand-eye "
+        "robot.capture_moves, capture_moves in the sample's m2m.yaml); the head photo and the hand-eye "
         "images show the first pose. Off by default: SfM of few keyframes loses the second half (see "
         "docs/results/robot-in-capture.md)",
     )

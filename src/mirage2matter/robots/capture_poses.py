@@ -1,7 +1,7 @@
 """The robot's joint states while a capture was filmed: one from the first frame on, and one more per move.
 
-A user who films the table, moves the arm half-way and films on (``align.capture_joints`` then
-``align.capture_moves``) gives the keyframes two robots: each keyframe is compared with, masked by and fitted to the
+A user who films the table, moves the arm half-way and films on (the pipeline's ``capture_joints``
+then ``capture_moves``) gives the keyframes two robots: each keyframe is compared with, masked by and fitted to the
 robot at the joint state of the video frame it came from. A second pose shows what the first hid: the upper arm and
 hand from another side, and the table behind the first pose.
 """
@@ -53,7 +53,7 @@ def capture_poses(
     capture_moves: Mapping[int, Sequence[float]] | None = None,
     what: str = "align",
 ) -> CapturePoses:
-    """The poses ``align.capture_joints`` and ``align.capture_moves`` give, each checked by
+    """The poses ``capture_joints`` and ``capture_moves`` (the pipeline's) give, each checked by
     :func:`check_capture_joints` (length, limits, degrees: an error naming the setting); a move at frame 0 or below
     is refused (frame 0 is ``capture_joints``')."""
     joints, frames = [check_capture_joints(spec, capture_joints, f"{what} capture_joints")], [0]

@@ -210,15 +210,19 @@ def _write_settings(path: Path, config: SampleConfig, objects: list[str], captur
         notes.append(f"The video's lens ({config.lens.name}) is not given: SfM calibrates the camera itself "
                      "(ground_truth.json holds the true one under \"camera\").")  # fmt: skip
     if config.robot_in_view:  # the bundled sample's header says so already
-        data.setdefault("align", {})["capture_joints"] = [round(float(v), 6) for v in capture_joints]
+        joints = {"capture_joints": [round(float(v), 6) for v in capture_joints]}
         if capture_moves:
-            data["align"]["capture_moves"] = {int(n): [round(float(v), 6) for v in q]
-                                              for n, q in sorted(capture_moves.items())}  # fmt: skip
+            joints["capture_moves"] = {int(n): [round(float(v), 6) for v in q]
+                                       for n, q in sorted(capture_moves.items())}  # fmt: skip
             frames = ", ".join(map(str, sorted(capture_moves)))
-            notes.append(f"The robot moves while filmed: from video frame {frames} on it stands at align.capture_moves "
+            notes.append(f"The robot moves while filmed: from video frame {frames} on it stands at capture_moves "
                          "(`m2m sample make --second-pose`).")  # fmt: skip
+        # the pipeline's settings (the top of the file), after the board's
+        data = {k: v for k, v in data.items() if k != "capture_joints"}
+        at = list(data).index("board_pose") + 1
+        data = dict([*list(data.items())[:at], *joints.items(), *list(data.items())[at:]])
     else:
-        data.get("align", {}).pop("capture_joints", None)
+        data.pop("capture_joints", None)
         notes.append("The table is filmed without the robot (`m2m sample make --empty-table`): it appears only in "
                      "the hand-eye images; the board lies where its base would stand.")  # fmt: skip
     if config.layout != "nominal":

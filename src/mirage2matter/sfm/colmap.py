@@ -70,6 +70,8 @@ class SfMConfig:
                     reprojection error (:func:`robust_bundle_adjustment`): "auto" when the camera is self-calibrated
                     (``refine_intrinsics``), "always", or "never"
     verbose             keep COLMAP's INFO log (thousands of lines); otherwise warnings and up only
+    mask_dir        a folder of masks, ``<image name>.png``: no features where a mask is black (the moved robot,
+                    sfm.robot_mask); an image without one keeps all its features
     """
 
     camera_model: str = "OPENCV"
@@ -104,6 +106,7 @@ class SfMConfig:
     num_threads: int = 1
     seed: int = 0
     verbose: bool = False
+    mask_dir: str | None = None
 
     def validate(self) -> None:
         if not self.refine_intrinsics and self.camera_params is None:
@@ -240,6 +243,8 @@ def extract_features(
     eo.max_image_size = max(16, round(max_side * config.downscale))
     mode = pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.PER_IMAGE
     ro = _reader_options(config) if single_camera else pycolmap.ImageReaderOptions()  # pycolmap's default
+    if config.mask_dir is not None:
+        ro.mask_path = str(config.mask_dir)
     # The images enter the database in name order first: extraction's threads would number them in the order
     # they finish, and matching, triangulation and mapping follow the ids (same input, different points).
     pycolmap.Database.open(str(db)).close()
@@ -320,7 +325,7 @@ def _reader_options(config: SfMConfig) -> Any:
     return ro
 
 
-def _list_images(image_dir: Path) -> list[str]:
+def list_images(image_dir: Path) -> list[str]:
     if not image_dir.is_dir():
         raise SfMError(f"{image_dir}: image folder not found; run the capture stage first")
     names = sorted(p.name for p in image_dir.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
@@ -359,7 +364,7 @@ def run_sfm(
     config = config or SfMConfig()
     config.validate()
     image_dir, out_dir = Path(image_dir).resolve(), Path(out_dir)
-    names = _list_images(image_dir)
+    names = list_images(image_dir)
     sizes = {n: _image_size(image_dir / n) for n in names}
     width, height = sizes[names[0]]
     odd = [n for n in names if sizes[n] != (width, height)]

@@ -13,7 +13,7 @@ from typing import Any, Literal
 import numpy as np
 
 from ..atomic import atomic_write
-from ..calib.align import AlignError, align_scene, default_T_base_board, draw_base_overlay
+from ..calib.align import AlignError, align_scene, board_in_base, draw_base_overlay
 from ..calib.board import load_target
 from ..capture import load_keyframes
 from ..configs import ranged
@@ -29,9 +29,10 @@ from .base import ADDED_LATER, SHARED, Input, Log
 class Config:
     """align settings.
 
-    board        the calibration target's spec JSON (from `m2m board`: ChArUco, ArUco marker, AprilTag, ArUco grid)
+    board        the calibration target's spec JSON (from `m2m board`: ChArUco, ArUco marker, AprilTag, ArUco grid).
+                 The pipeline's (m2m.yaml's top-level board; sfm reads it too, below)
     board_pose   a JSON with T_base_board (4x4, or under "board") when the target is not centred on the base
-                 with its x along base x
+                 with its x along base x. The pipeline's
     icp          also fit the SfM points around the target onto the robot-base surface (scaled ICP), where the SfM
                  saw that surface near the base. Off by default: on the sample it made every target's alignment
                  worse (ChArUco, 48 keyframes: 1.20 -> 1.51 mm, 0.035 -> 0.060 deg; 16: 0.94 -> 2.40 mm), and on
@@ -44,25 +45,26 @@ class Config:
                  the model's units), as the robot logged them; default: the robot's home. Where the keyframes show
                  the robot, its links at this state are found in them: their SfM points are kept out of the scene
                  and the objects, the scene is not trained on their pixels, and their surface is a second target
-                 that checks (and may refine) the board's alignment
+                 that checks (and may refine) the board's alignment. The pipeline's
     capture_moves  the robot moved while filming: {N: joints} says that from the video's frame N on (an image
                  folder's image N, in name order) it stood at these joints (as capture_joints: arm joints in
                  radians); capture_joints holds before the first move. Each keyframe is then taken out of the scene,
-                 and fitted to the robot's look, at its own joint state: a second pose shows what the first hid
+                 and fitted to the robot's look, at its own joint state: a second pose shows what the first hid;
+                 sfm keeps the moved robot out of its features. The pipeline's
     robot_fit    "auto": refine the alignment with the robot's surface (board corners held) when that lowers the
                  robot's residual by a quarter or more and keeps the corners within 1.5x (+0.5 mm) of the board's
                  fit; "off": the board alone, the robot's residual reported
     """
 
-    board: Path | None = None
-    board_pose: Path | None = None
+    board: Path | None = field(default=None, metadata=SHARED)
+    board_pose: Path | None = field(default=None, metadata=SHARED)
     icp: bool = False
     robot: str = field(default=DEFAULT_ROBOT, metadata=SHARED)
     unaligned: bool = False
     # wide: degrees given for radians are the robot's check to name (check_capture_joints), not a bare range
-    capture_joints: list[float] | None = ranged(None, ge=-1000, le=1000, metadata=ADDED_LATER)
-    capture_moves: dict[int, list[float]] | None = ranged(None, ge=-1000, le=1000,
-                                                          metadata={**ADDED_LATER, "metavar": "FRAME=RAD,..."})
+    capture_joints: list[float] | None = ranged(None, ge=-1000, le=1000, metadata={**SHARED, **ADDED_LATER})
+    capture_moves: dict[int, list[float]] | None = ranged(None, ge=-1000, le=1000, metadata={
+        **SHARED, **ADDED_LATER, "metavar": "FRAME=RAD,..."})
     robot_fit: Literal["auto", "off"] = field(default="auto", metadata=ADDED_LATER)
 
     def validate(self) -> None:
@@ -79,17 +81,6 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
     if is_spec_file(cfg.robot):  # a user's robot spec: its content counts
         out.append(Input(Path(cfg.robot), field="align robot"))
     return out
-
-
-def _board_pose(path: Path) -> np.ndarray:
-    data = json.loads(path.read_text(encoding="utf-8"))
-    T = data.get("T_base_board") if isinstance(data, dict) else None
-    if T is None and isinstance(data, dict) and isinstance(data.get("board"), dict):
-        T = data["board"].get("T_base_board")
-    T = np.asarray(T, dtype=np.float64) if T is not None else None
-    if T is None or T.shape != (4, 4) or not np.isfinite(T).all():
-        raise AlignError(f"{path}: need T_base_board (4x4 numbers), at the top level or under 'board'")
-    return T
 
 
 def _footprint(robot: str) -> np.ndarray | None:
@@ -117,7 +108,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         return {"method": "unaligned", "scale": 1.0, "line": "UNALIGNED: the scene stays in the SfM frame (not "
                 "metric, not the robot's base); fine for viewing the scene, not for a robot twin"}  # fmt: skip
     board = load_target(cfg.board)
-    T_base_board = _board_pose(cfg.board_pose) if cfg.board_pose is not None else default_T_base_board(board)
+    T_base_board = board_in_base(board, cfg.board_pose)
     images = [np.asarray(Image.open(posed.image_dir / c.name).convert("RGB")) for c in posed.cameras]
     footprint = _footprint(cfg.robot)
     result = align_scene(posed.cameras, images, posed.points, board, T_base_board, icp=cfg.icp,
@@ -160,7 +151,7 @@ def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarra
 
     spec = get_robot(cfg.robot)
     poses = capture_poses(spec, cfg.capture_joints, cfg.capture_moves)
-    given = "given" if cfg.capture_joints is not None else "the robot's home: align.capture_joints not given"
+    given = "given" if cfg.capture_joints is not None else "the robot's home: capture_joints not given"
     if len(poses) > 1:
         given += f", {len(poses) - 1} move(s) while filming"
     pose_links = [robot_surface(spec, q) for q in poses.joints]
@@ -174,6 +165,14 @@ def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarra
                               "keyframe_pose": keyframe_pose, "seen": found.seen,
                               "points_on_surface": found.on_surface, "on_fraction": found.on_fraction,
                               "seen_fraction": found.seen_fraction, "per_link": found.per_link}  # fmt: skip
+    if not found.seen and len(poses) > 1:
+        # sfm kept the moved robot out of its features, so only the first pose's keyframes add points on it; the
+        # logged move is the user's word that the robot was filmed: it counts as seen where the keyframes frame it
+        small = [c.scaled(0.25) for c in cameras]
+        framed = sum(float(sil.mean()) >= 0.01 for sil in
+                     (robot_silhouettes([c], pose_links[keyframe_pose[c.name]])[0] for c in small))  # fmt: skip
+        record.update(seen=framed >= 2, seen_by="capture_moves", keyframes_framing=int(framed))
+        found.seen = framed >= 2
     if not found.seen:
         record["line"] = (f"robot: not in the keyframes ({found.on_surface} SfM points on its surface at "
                           f"{given.split(':')[0]}); nothing removed")  # fmt: skip
@@ -190,9 +189,11 @@ def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarra
     fit = fit_to_robot(points[near], links, anchors=(sim.apply(tri.points), corners_base)) if near.sum() >= 30 \
         else None  # fmt: skip
     record.update(points_removed=int(on.sum()), points_total=len(points))
-    line = (f"robot: in the keyframes ({found.on_surface} SfM points on its surface, {100 * found.seen_fraction:.0f} "
-            f"% of it reconstructed; capture joints {given.split(':')[0]}), {int(on.sum())} of {len(points)} SfM "
-            "points are its own and kept out of the scene")  # fmt: skip
+    seen_by = (f"framed by {record['keyframes_framing']} keyframes, moved while filmed: " if "seen_by" in record
+               else "")  # fmt: skip
+    line = (f"robot: in the keyframes ({seen_by}{found.on_surface} SfM points on its surface, "
+            f"{100 * found.seen_fraction:.0f} % of it reconstructed; capture joints {given.split(':')[0]}), "
+            f"{int(on.sum())} of {len(points)} SfM points are its own and kept out of the scene")  # fmt: skip
     if fit is not None:
         record["fit"] = fit.to_json()
         better = (fit.rms_after_mm <= 0.75 * fit.rms_before_mm
@@ -210,7 +211,7 @@ def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarra
             record["warning"] = (
                 f"the robot's surface disagrees with the board's alignment ({residual:.1f} mm RMS, the fit moves it "
                 f"{fit.translation_mm:.1f} mm / {fit.rotation_deg:.2f} deg; of the SfM points around the robot "
-                f"{100 * found.on_fraction:.0f} % lie on it): check align.capture_joints (the joint state while "
+                f"{100 * found.on_fraction:.0f} % lie on it): check capture_joints (the joint state while "
                 f"filming, {given.split(':')[0]}) and that the board did not move while filming"
             )
             log(f"align-scene: WARNING: {record['warning']}")

@@ -145,17 +145,31 @@ def used_with(name: str) -> dict[str, str]:
 @dataclass
 class PipelineSettings:
     """The settings of the whole pipeline (at the top of ``m2m.yaml``), read by the stages whose Config has a
-    field of the same name marked :data:`SHARED` (the robot: align-scene, calibrate-handeye and compose; the head
-    photo's joint state: train-scene and head-view).
+    field of the same name marked :data:`SHARED` (the robot: align-scene, calibrate-handeye and compose; what
+    was filmed, the board and the robot's joint states: sfm and align-scene; the head photo's joint state:
+    train-scene and head-view).
 
     robot   the robot at the base: a registered name (panda, ur5e) or a robot spec file ("none": a scene-only
             workspace)
+    board   the calibration target beside the robot in the capture: its spec JSON (from `m2m board`: ChArUco,
+            ArUco marker, AprilTag, ArUco grid)
+    board_pose  a JSON with T_base_board (4x4, or under "board") when the target is not centred on the base with
+            its x along base x
+    capture_joints  the robot's joint state while the capture was filmed: its arm joints in radians (and fingers,
+            in the model's units), as the robot logged them; default: the robot's home
+    capture_moves  the robot moved while filming: {N: joints} says that from the video's frame N on (an image
+            folder's image N, in name order) it stood at these joints; capture_joints holds before the first move
     head_photo_joints  the robot's arm joints (radians) in the head camera's photo, where train-scene masks it
             out and head-view draws it. Default: the capture joints
     """
 
     robot: str = DEFAULT_ROBOT
+    board: Path | None = None
+    board_pose: Path | None = None
     # wide: degrees given for radians are the robot's check to name (check_capture_joints), not a bare range
+    capture_joints: list[float] | None = ranged(None, ge=-1000, le=1000)
+    capture_moves: dict[int, list[float]] | None = ranged(None, ge=-1000, le=1000,
+                                                          metadata={"metavar": "FRAME=RAD,..."})
     head_photo_joints: list[float] | None = ranged(None, ge=-1000, le=1000, metadata={"metavar": "RAD"})
 
 

@@ -159,11 +159,13 @@ def _kind(name: str) -> type:
     """The type of the pipeline's setting ``name`` (str, list): what a section's value must be to move to the top."""
     tp = typing.get_type_hints(PipelineSettings)[name]
     tp = next((a for a in typing.get_args(tp) if a is not type(None)), tp)  # X | None -> X
-    return typing.get_origin(tp) or tp
+    return str if tp is Path else typing.get_origin(tp) or tp  # a path: a text in the file
 
 
 def _hashable(value: Any) -> Any:
-    return tuple(value) if isinstance(value, list) else value
+    if isinstance(value, dict):  # capture_moves {frame: joints}
+        return tuple(sorted((str(k), _hashable(v)) for k, v in value.items()))
+    return tuple(_hashable(v) for v in value) if isinstance(value, list) else value
 
 
 def _shared(cfg: PipelineSettings) -> dict[str, Any]:
@@ -351,10 +353,10 @@ def _check_required(cfg: PipelineConfig, where: SettingsFile, names: list[str]) 
         raise ConfigError(f"{at('capture.source')}: capture.source: no video or image folder; give the capture (`m2m "
                           "init --video FILE` or `--images DIR`), or import posed images with sfm.from_transforms or "
                           "sfm.from_colmap", "capture.source")  # fmt: skip
-    if "align" in names and cfg.align.board is None and not cfg.align.unaligned:
-        raise ConfigError(f"{at('align.board')}: align.board: no calibration target; give the spec JSON of the board "
+    if "align" in names and cfg.board is None and not cfg.align.unaligned:
+        raise ConfigError(f"{at('board')}: board: no calibration target; give the spec JSON of the board "
                           "at the robot base (from `m2m board`; `m2m init --board FILE`), or set align.unaligned: true "
-                          "for a scene-only workspace (no robot twin)", "align.board")  # fmt: skip
+                          "for a scene-only workspace (no robot twin)", "board")  # fmt: skip
     he = cfg.handeye
     lacking = [n for n in ("images", "joints", "board", "intrinsics") if getattr(he, n) is None]
     if "handeye" in names and (he.images is not None or he.joints is not None) and lacking:

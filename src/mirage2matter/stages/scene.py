@@ -424,7 +424,7 @@ def _robot_gaussians(
         warning = (
             f"WARNING: the robot in keyframe(s) {', '.join(fit.disagreeing)} disagrees with the rest (its "
             "colours there are explained far worse): did the robot move while filming? Its joint state must "
-            "be the one align.capture_joints / capture_moves give for that keyframe's frame; log the moves, remove "
+            "be the one capture_joints / capture_moves give for that keyframe's frame; log the moves, remove "
             "those keyframes or film again"
         )
         robot["gaussians_line"] += f"; {warning}"

@@ -3,7 +3,8 @@ from a transforms.json or a COLMAP model (their images copied into ``capture/``)
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
@@ -12,9 +13,10 @@ import numpy as np
 from ..capture import load_keyframes
 from ..configs import ranged
 from ..geometry.camera import load_intrinsics
+from ..robots import DEFAULT_ROBOT, is_spec_file
 from ..sfm import SfMConfig, SfMError, compare_poses, run_sfm
 from ..workspace import Workspace
-from .base import Input, Log
+from .base import ADDED_LATER, SHARED, Input, Log, used_with
 
 
 @dataclass
@@ -31,6 +33,16 @@ class Config:
                      into capture/, triangulates points with the given poses; keeps its world frame)
     from_colmap      import a COLMAP sparse model instead (needs images)
     images           with from_colmap: the folder the model's image names are relative to
+    capture_moves    the robot moved while filming (the pipeline's; align-scene's doc says how to give it): its
+                     features would match across the move (a rigid body moving against the room) and pull the
+                     cameras off, so SfM runs twice: once as it is, to place the keyframes' cameras by the board,
+                     then with the moved robot's silhouette (its joint state then, through that camera) masked out
+                     of every keyframe filmed after a move. The first pose keeps its features: align-scene checks
+                     capture_joints with them
+    robot            the pipeline's robot, drawn into the masks (with capture_moves only)
+    board            the pipeline's calibration target, which places the first run's cameras (with capture_moves)
+    board_pose       the pipeline's T_base_board file (with capture_moves)
+    capture_joints   the pipeline's joint state before the first move (with capture_moves)
     """
 
     # where the cameras' intrinsics come from, one at a time (an import brings its own): given one on the command
@@ -43,6 +55,14 @@ class Config:
     from_transforms: Path | None = None
     from_colmap: Path | None = None
     images: Path | None = None
+    # the pipeline's: what was filmed (sfm masks the moved robot's features)
+    robot: str = field(default=DEFAULT_ROBOT, metadata={**SHARED, **used_with("capture_moves")})
+    board: Path | None = field(default=None, metadata={**SHARED, **used_with("capture_moves")})
+    board_pose: Path | None = field(default=None, metadata={**SHARED, **used_with("capture_moves")})
+    capture_joints: list[float] | None = ranged(None, ge=-1000, le=1000, metadata={
+        **SHARED, **used_with("capture_moves")})
+    capture_moves: dict[int, list[float]] | None = ranged(None, ge=-1000, le=1000, metadata={
+        **SHARED, **ADDED_LATER, "metavar": "FRAME=RAD,..."})
 
     def validate(self) -> None:
         if not self.downscale > 0:
@@ -53,6 +73,11 @@ class Config:
                            "from_colmap) brings its cameras' own intrinsics, intrinsics is for SfM on keyframes")
         if self.from_colmap is not None and self.images is None:
             raise SfMError("sfm: from_colmap needs images (the folder the model's image names are relative to)")
+        if self.capture_moves and self.robot.lower() != "none":  # the moved robot's masks need its poses
+            from ..robots import get_robot
+            from ..robots.capture_poses import capture_poses
+
+            capture_poses(get_robot(self.robot), self.capture_joints, self.capture_moves, what="sfm")
 
 
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
@@ -61,6 +86,10 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
     out = [Input(Path(p), field=f"sfm {name}") for p, name in given if p is not None]
     if cfg.from_transforms is None and cfg.from_colmap is None:
         out.append(Input(ws.keyframes_file, made_by="capture"))
+        if cfg.capture_moves:  # the moved robot's masks: the board places it, the robot's model draws it
+            out += [Input(Path(p), field=n) for p, n in ((cfg.board, "board"), (cfg.board_pose, "board_pose")) if p]
+            if is_spec_file(cfg.robot):
+                out.append(Input(Path(cfg.robot), field="robot"))
     return out
 
 
@@ -77,6 +106,8 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     elif cfg.from_colmap is not None:
         result = import_colmap_model(cfg.from_colmap, cfg.images, ws.capture_dir, ws.sfm_dir)
         how = f"imported the COLMAP model {cfg.from_colmap}"
+    elif cfg.capture_moves:
+        result, how = _sfm_without_moved_robot(ws, cfg, config, log)
     else:
         result = run_sfm(ws.capture_dir, ws.sfm_dir, config)
         how = f"registered {result.registered}/{result.total} keyframes"
@@ -89,6 +120,62 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         "line": f"{how}, {len(result.points):,} points, reprojection {result.mean_reprojection_error:.2f} px (mean); "
         f"{coverage.line}",
     }  # fmt: skip
+
+
+def _sfm_without_moved_robot(ws: Workspace, cfg: Config, config: SfMConfig, log: Log) -> tuple[Any, str]:
+    """SfM with the robot masked out of the keyframes filmed after a move (sfm/robot_mask.py): a first run places
+    the cameras, the board puts them in the base frame, the second run (the result) extracts no features on the
+    moved robot. The masks are kept in sfm/masks/, what was done in sfm/robot_masks.json."""
+    import json
+    import shutil
+    import tempfile
+
+    from PIL import Image
+
+    from ..atomic import atomic_write
+    from ..calib.align import AlignError, align_scene, apply_to_cameras, board_in_base
+    from ..calib.board import load_target
+    from ..robots import get_robot
+    from ..robots.capture_poses import capture_poses
+    from ..sfm.colmap import list_images
+    from ..sfm.robot_mask import moved_keyframes, write_robot_masks
+
+    def plain(why: str) -> tuple[Any, str]:
+        result = run_sfm(ws.capture_dir, ws.sfm_dir, config)
+        return result, (f"registered {result.registered}/{result.total} keyframes (the moved robot's features kept: "
+                        f"{why})")  # fmt: skip
+
+    if cfg.robot.lower() == "none":
+        return plain("no robot (the pipeline's robot is none) to draw")
+    spec = get_robot(cfg.robot)
+    poses = capture_poses(spec, cfg.capture_joints, cfg.capture_moves, what="sfm")
+    moved = moved_keyframes(load_keyframes(ws.capture_dir)["keyframes"], poses)
+    if not moved:
+        return plain("no keyframe was filmed after capture_moves' first frame")
+    if cfg.board is None:
+        return plain("no board (the pipeline's board) to place the cameras by")
+    board = load_target(cfg.board)
+    T_base_board = board_in_base(board, cfg.board_pose)
+    with tempfile.TemporaryDirectory(prefix=".sfm-first-", dir=ws.sfm_dir.parent) as tmp:
+        log(f"sfm: the robot moved while filming ({len(moved)} keyframes after the move): a first SfM run places "
+            "the cameras for its masks")  # fmt: skip
+        first = run_sfm(ws.capture_dir, Path(tmp) / "first", config)
+        images = [np.asarray(Image.open(ws.capture_dir / c.name).convert("RGB")) for c in first.cameras]
+        try:
+            aligned = align_scene(first.cameras, images, first.points, board, T_base_board)
+        except AlignError as e:
+            return plain(f"the board did not place the first run's cameras: {e}")
+        del images
+        cameras_base = apply_to_cameras(aligned.sim3_sfm_to_base, first.cameras)
+        masks = write_robot_masks(Path(tmp) / "masks", ws.capture_dir, list_images(ws.capture_dir), moved,
+                                  cameras_base, spec, poses, board, T_base_board)  # fmt: skip
+        result = run_sfm(ws.capture_dir, ws.sfm_dir, dataclasses.replace(config, mask_dir=str(Path(tmp) / "masks")))
+        shutil.copytree(Path(tmp) / "masks", ws.sfm_dir / "masks")
+    record = {**masks.to_json(), "first_run": {"registered": first.registered, "total": first.total,
+              "corner_rms_mm": aligned.corner_rms_mm}}  # fmt: skip
+    with atomic_write(ws.sfm_dir / "robot_masks.json", "w", encoding="utf-8") as f:
+        json.dump(record, f, indent=1)
+    return result, f"registered {result.registered}/{result.total} keyframes; {masks.line}"
 
 
 def compare(ws: Workspace, cfg: Config, gt: dict) -> dict[str, Any]:

@@ -1,0 +1,169 @@
+"""The moved robot kept out of SfM's features.
+
+A robot that moves while the capture is filmed (``capture_moves``) is a rigid body moving against the room, and
+SfM's matcher pairs its features across the move: an epipolar check lets a point slide along its line. On the
+two-pose sample, 16 keyframes gave board corners 2.54 mm RMS (one pose: < 1 mm) and cameras 10.6 mm / 0.54 deg
+from the truth. So the sfm stage runs SfM twice. The first run, as it is, places the cameras well enough for a mask
+(those 10.6 mm and 0.54 deg are ~5 px at the robot); the board aligns it to the robot's base. Each keyframe filmed
+after a move then gets a mask (COLMAP extracts no features where it is black): the robot's silhouette at the joint
+state of its video frame, through that camera and its lens, grown by 2 % of the image. The second run, with the
+masks, is the stage's result (that sample: corners 0.29 mm, cameras 2.1 mm / 0.09 deg). The first pose keeps its
+features: they are static until the first move, and align-scene's robot points (its check of the board's
+alignment and of ``capture_joints``) come from them.
+
+A keyframe the first run left unregistered is placed by the board's corners alone (PnP through the first run's
+lens); one that shows too little of the board keeps its features, and the stage line says so.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..atomic import atomic_dir
+from ..calib.robot_view import grow_mask, robot_silhouette
+from ..geometry.camera import Camera
+from ..robots.capture_poses import CapturePoses
+from ..robots.spec import RobotSpec
+from ..robots.surface import robot_surface
+
+__all__ = ["GROW_FRACTION", "MIN_CORNERS", "RobotMasks", "board_camera", "lens_silhouette", "moved_keyframes",
+           "write_robot_masks"]  # fmt: skip
+
+MIN_CORNERS = 8  # a board pose from fewer corners (a corner of the board at the image's edge) is not trusted
+# The mask is grown by this fraction of the image's longer side: the board's PnP is a few pixels off at the robot
+# (1-2 m beyond a 5 cm square), the model's meshes a few millimetres off the real casting, and SIFT's descriptor
+# window (~6 x the keypoint's scale) reaches past a keypoint's own pixel.
+GROW_FRACTION = 0.02
+
+
+def _detect(board, image_path: Path) -> tuple[np.ndarray, np.ndarray]:
+    import cv2
+
+    gray = cv2.imread(str(image_path), cv2.IMREAD_GRAYSCALE)
+    if gray is None:
+        return np.zeros(0, np.int64), np.zeros((0, 2))
+    return board.detect(gray)
+
+
+def board_camera(image_path: Path, board, T_base_board: np.ndarray, lens: Camera) -> Camera | None:
+    """The keyframe's camera (base frame) from the board's corners it shows, by PnP through ``lens`` (its K and
+    lens model; its pose ignored); None when it shows fewer than :data:`MIN_CORNERS`."""
+    import cv2
+
+    ids, uv = _detect(board, image_path)
+    if len(ids) < MIN_CORNERS:
+        return None
+    # through the lens to an ideal pinhole of the same K (any lens model; ours: centres at +0.5, OpenCV's: 0)
+    ideal = lens.undistort_pixels(uv + 0.5) - 0.5
+    ok = np.isfinite(ideal).all(axis=1)
+    if ok.sum() < MIN_CORNERS:
+        return None
+    good, rvec, tvec = cv2.solvePnP(board.points_board(ids)[ok].astype(np.float64), ideal[ok], lens.K, None)
+    if not good:
+        return None
+    T_cam_board = np.eye(4)
+    T_cam_board[:3, :3] = cv2.Rodrigues(rvec)[0]
+    T_cam_board[:3, 3] = tvec.ravel()
+    return dataclasses.replace(lens, T_world_cam=T_base_board @ np.linalg.inv(T_cam_board), name=image_path.name,
+                               distortion=dict(lens.distortion))  # fmt: skip
+
+
+def lens_silhouette(camera: Camera, links, grow_px: int) -> np.ndarray:
+    """bool [H,W]: the robot's links as ``camera`` sees them through its lens, grown by ``grow_px``: drawn by an
+    ideal pinhole on a canvas wide enough for the lens's extent, then looked up where each pixel's ray lands."""
+    if not camera.has_distortion:
+        return robot_silhouette(camera, links, grow_px)
+    h, w = camera.height, camera.width
+    step = max(1, round(max(w, h) / 960))  # a lookup per step x step pixels (1 up to ~1280 px wide, then 2, ...)
+    v, u = np.mgrid[0:h:step, 0:w:step]
+    ideal = camera.undistort_pixels(np.c_[u.ravel() + 0.5, v.ravel() + 0.5])
+    ok = np.isfinite(ideal).all(axis=1)
+    lo = np.floor(np.nanmin(ideal[ok], axis=0)).astype(int) - 1
+    hi = np.ceil(np.nanmax(ideal[ok], axis=0)).astype(int) + 1
+    lo, hi = np.maximum(lo, [-2 * w, -2 * h]), np.minimum(hi, [3 * w, 3 * h])  # a lens's far rim: not the robot's
+    K = camera.K.copy()
+    K[0, 2] -= lo[0]
+    K[1, 2] -= lo[1]
+    canvas = Camera(K, camera.T_world_cam, int(hi[0] - lo[0]), int(hi[1] - lo[1]))
+    sil = robot_silhouette(canvas, links)
+    iu, iv = np.floor(ideal[:, 0] - lo[0]).astype(np.int64), np.floor(ideal[:, 1] - lo[1]).astype(np.int64)
+    ok &= (iu >= 0) & (iv >= 0) & (iu < canvas.width) & (iv < canvas.height)
+    hit = np.zeros(len(ideal), bool)
+    hit[ok] = sil[iv[ok], iu[ok]]
+    small = hit.reshape(u.shape).astype(np.uint8)
+    full = np.repeat(np.repeat(small, step, axis=0), step, axis=1)[:h, :w]
+    return grow_mask(full, grow_px + step - 1)
+
+
+@dataclass
+class RobotMasks:
+    """What :func:`write_robot_masks` did.
+
+    masked       keyframes filmed after a move whose robot was masked
+    by_board     of those, the ones the first run left unregistered, placed by the board's corners alone
+    unplaced     keyframes filmed after a move that could not be placed: their features kept
+    robot_px     per masked keyframe, the fraction of its pixels masked
+    """
+
+    masked: list[str] = field(default_factory=list)
+    by_board: list[str] = field(default_factory=list)
+    unplaced: list[str] = field(default_factory=list)
+    robot_px: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def line(self) -> str:
+        line = f"the moved robot masked out of {len(self.masked)} keyframes' features"
+        if self.by_board:
+            line += f" ({len(self.by_board)} placed by the board alone)"
+        if self.unplaced:
+            line += (f"; {len(self.unplaced)} filmed after a move neither registered nor showing the board: their "
+                     f"features kept ({', '.join(self.unplaced[:3])})")  # fmt: skip
+        return line
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def moved_keyframes(keyframes: Sequence[dict], poses: CapturePoses) -> dict[str, int]:
+    """{keyframe: pose} of capture/keyframes.json's keyframes filmed after a move (pose >= 1)."""
+    at = {k["file"]: poses.index_at(int(k["frame_index"])) for k in keyframes}
+    return {n: p for n, p in at.items() if p > 0}
+
+
+def write_robot_masks(out_dir: Path, image_dir: Path, names: Sequence[str], moved: dict[str, int],
+                      cameras_base: Sequence[Camera], spec: RobotSpec, poses: CapturePoses, board,
+                      T_base_board: np.ndarray) -> RobotMasks:
+    """COLMAP's masks (``out_dir/<keyframe>.png``: 0 where no feature may be, 255 elsewhere) for every keyframe in
+    ``names``: the robot's silhouette at its pose for those ``moved`` ({keyframe: pose}), through its camera in
+    ``cameras_base`` (the first run's, in the base frame) or else the board's; white for the rest (COLMAP extracts
+    no features from an image whose mask is missing). Written whole or not at all."""
+    import cv2
+
+    result = RobotMasks()
+    by_name = {c.name: c for c in cameras_base}
+    lens = cameras_base[0]
+    some = cv2.imread(str(image_dir / names[0]), cv2.IMREAD_GRAYSCALE)
+    h, w = some.shape[:2]
+    grow = max(4, round(GROW_FRACTION * max(w, h)))
+    links = {p: robot_surface(spec, poses.joints[p]) for p in sorted(set(moved.values()))}
+    with atomic_dir(out_dir) as tmp:
+        for name in sorted(names):
+            cam = None
+            if name in moved:
+                cam = by_name.get(name)
+                if cam is None:
+                    cam = board_camera(image_dir / name, board, T_base_board, lens)
+                    (result.by_board if cam is not None else result.unplaced).append(name)
+            if cam is None:
+                cv2.imwrite(str(tmp / f"{name}.png"), np.full((h, w), 255, np.uint8))
+                continue
+            sil = lens_silhouette(cam, links[moved[name]], grow)
+            cv2.imwrite(str(tmp / f"{name}.png"), np.where(sil, 0, 255).astype(np.uint8))
+            result.masked.append(name)
+            result.robot_px[name] = round(float(sil.mean()), 4)
+    return result
