@@ -268,7 +268,11 @@ def test_demo_first_stages_and_resume(tmp_path: Path, capsys: pytest.CaptureFixt
     st = s["stages"]
     assert st["capture"]["keyframes"] == 16 and st["sfm"]["registered"] >= 14
     assert st["sfm"]["rotation_deg"] < 0.5  # vs the sample's ground truth
-    assert st["align"]["translation_mm"] < 15.0 and abs(st["align"]["scale"]) > 0
+    # the sample's robot moves half-way: SfM keeps it out of the features after the move (unmasked, on these 16
+    # keyframes: 4.2 deg, the cameras 10.6 mm off after the alignment; masked 0.13 deg, 2.1 mm)
+    masks = json.loads((ws / "sfm" / "robot_masks.json").read_text())
+    assert len(masks["masked"]) >= 6 and "the moved robot masked out of" in st["sfm"]["line"]
+    assert st["align"]["translation_mm"] < 5.0 and abs(st["align"]["scale"]) > 0
     assert st["handeye"]["rotation_deg"] < 0.1 and st["handeye"]["translation_mm"] < 1.0
     assert "[4/4] handeye:" in err and "m2m demo finished" in out
     for rel in ("capture/keyframes.json", "sfm/sfm.json", "calib/sim3_sfm_to_base.json", "calib/handeye.json"):

@@ -225,14 +225,15 @@ def test_intrinsics_genesis_cannot_render_are_refused_or_approximated_as_the_twi
 def test_renders_at_the_videos_camera_poses_are_the_video(
     renderer: GroundTruthRenderer, gt: dict, video_frames: dict[int, np.ndarray]
 ) -> None:
-    """The robot at the joint state each frame was filmed at (ground_truth.json robot.capture_joints, then any move
-    while filmed: capture_moves) in the sample's own look, objects at their ground-truth poses. RGB PSNR against the
+    """The robot at the joint state each frame was filmed at (ground_truth.json robot.capture_joints, then its move
+    half-way: capture_moves) in the sample's own look, objects at their ground-truth poses. RGB PSNR against the
     decoded H.264 (CRF 23, yuv420p) frames is what
     the codec leaves of the source frames (the slow test shows the renders ARE the source frames); on luma and at
     half resolution every frame is >= 35 dB."""
     from mirage2matter.robots.capture_poses import CapturePoses
 
     poses = CapturePoses.from_json(gt["robot"])
+    assert len(poses) == 2 and {poses.index_at(i) for i in video_frames} == {0, 1}  # both poses among the frames
     rows = []
     try:
         for i, frame in sorted(video_frames.items()):

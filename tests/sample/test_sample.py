@@ -170,14 +170,19 @@ def _digest(sample_dir: Path) -> tuple[str, str]:
 
 def test_regenerated_short_sample_is_deterministic_and_follows_the_shipped_conventions(tmp_path, gt):
     a, b = tmp_path / "a", tmp_path / "b"
-    short_config = with_robot_in_view(SampleConfig.short(seed=0))  # the bundled sample, shorter
+    short_config = with_robot_in_view(SampleConfig.short(seed=0), second_pose=True)  # the bundled sample, shorter
     make_sample(a, short_config, log=lambda _msg: None)
     make_sample(b, short_config, log=lambda _msg: None)
     assert _digest(a) == _digest(b)
     short = json.loads((a / "ground_truth.json").read_text())
     assert set(short) == set(gt)
-    for key in ("camera", "board", "head_camera", "units", "frame", "camera_convention", "robot"):
+    for key in ("camera", "board", "head_camera", "units", "frame", "camera_convention"):
         assert short[key] == gt[key], key
+    # the same robot and poses; it moves half-way through its own, shorter, video
+    (frame, moved), (full_frame, full_moved) = short["robot"].pop("capture_moves").popitem(), \
+        gt["robot"]["capture_moves"].copy().popitem()  # fmt: skip
+    assert moved == full_moved and int(frame) == len(short["frames"]) // 2 and int(full_frame) == len(gt["frames"]) // 2
+    assert short["robot"] == {k: v for k, v in gt["robot"].items() if k != "capture_moves"}
     assert [o["name"] for o in short["objects"]] == [o["name"] for o in gt["objects"]]
     # same seed, same scene: the first frame of the short orbit starts where the full one starts
     assert np.allclose(short["frames"][0]["T_base_cam"], gt["frames"][0]["T_base_cam"])

@@ -1,4 +1,4 @@
-"""`m2m sample make --second-pose`: the robot moves once, half-way through the video, to a pose
+"""`m2m sample make` (`--one-pose` keeps the robot still): the robot moves once, half-way through the video, to a pose
 that shows the orbit what the first hid. The second pose of each robot is within its limits and clear of the table,
 the objects, the board and itself; the sample records the move (ground truth, m2m.yaml, config) and the video shows
 each pose in its own frames (~1 minute on 2 cores)."""
@@ -66,7 +66,7 @@ def test_the_second_pose_is_clear_of_the_sample_and_brings_the_hand_down_into_vi
 @pytest.fixture(scope="module")
 def moved_sample(tmp_path_factory):
     sample = tmp_path_factory.mktemp("second_pose") / "sample"
-    assert main(["sample", "make", str(sample), "--short", "--second-pose"]) == 0
+    assert main(["sample", "make", str(sample), "--short"]) == 0
     return sample, json.loads((sample / "ground_truth.json").read_text())
 
 
@@ -87,7 +87,7 @@ def test_the_sample_records_the_move_where_the_pipeline_reads_it(moved_sample):
     assert gt["config"]["capture_moves"] == {mid: q2.tolist()}
     settings = read_yaml(sample / "m2m.yaml")
     assert settings["capture_moves"] == {int(mid): np.round(q2, 6).tolist()}
-    assert "--second-pose" in (sample / "m2m.yaml").read_text()
+    assert "--one-pose" in (sample / "m2m.yaml").read_text()
     pipeline = PipelineConfig.load(sample / "m2m.yaml")
     assert {int(n): list(q) for n, q in pipeline.capture_moves.items()} == {int(mid): np.round(q2, 6).tolist()}
     # the head photo shows the robot at its first pose: the bundled sample's, byte for byte
@@ -119,5 +119,5 @@ def test_the_frames_before_and_after_the_move_show_the_robot_at_their_own_pose(m
 
 
 def test_the_second_pose_needs_the_robot_in_the_video(tmp_path, capsys):
-    assert main(["sample", "make", str(tmp_path / "s"), "--short", "--second-pose", "--empty-table"]) != 0
-    assert "--second-pose" in capsys.readouterr().err and not (tmp_path / "s").exists()
+    assert main(["sample", "make", str(tmp_path / "s"), "--short", "--one-pose", "--empty-table"]) != 0
+    assert "--one-pose" in capsys.readouterr().err and not (tmp_path / "s").exists()

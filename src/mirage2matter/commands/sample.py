@@ -75,14 +75,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "every real capture",
     )
     sm.add_argument(
-        "--second-pose",
+        "--one-pose",
         action="store_true",
-        help="the robot moves once while filmed: from the video's middle frame on it stands at a second pose "
-        "that shows the orbit what the first hid (its upper arm, wrist and hand from above, the room behind "
-        "it), as if the user paused the recording, moved the arm and resumed (ground_truth.json "
-        "robot.capture_moves, capture_moves in the sample's m2m.yaml); the head photo and the hand-eye "
-        "images show the first pose. Off by default: SfM of few keyframes loses the second half (see "
-        "docs/results/robot-in-capture.md)",
+        help="the robot stands still while filmed. By default it moves once: from the video's middle frame on "
+        "it stands at a second pose that shows the orbit what the first hid (its upper arm, wrist and hand "
+        "from above, the room behind it), as if the user paused the recording, moved the arm and resumed "
+        "(ground_truth.json robot.capture_moves, capture_moves in the sample's m2m.yaml); the head "
+        "photo and the hand-eye images show the first pose",
     )
     sm.set_defaults(func=run)
     he = sample_sub.add_parser(
@@ -111,10 +110,11 @@ def run(args: argparse.Namespace) -> int:
         with_robot_in_view,
     )
 
-    short, empty_table, second_pose = args.short, args.empty_table, args.second_pose
+    short, empty_table, one_pose = args.short, args.empty_table, args.one_pose
     out_dir, args = args.dir, from_flags(SampleMakeConfig, args)
-    if empty_table and second_pose:
-        raise SampleError("--second-pose moves the robot in the video; --empty-table films none: give one of them")
+    if empty_table and one_pose:
+        raise SampleError("--one-pose is the pose of the robot in the video; --empty-table films none: give one of "
+                          "them")  # fmt: skip
     config = SampleConfig.short(args.seed) if short else SampleConfig(seed=args.seed)
     config = with_layout(with_lens(with_marker(config, args.marker), args.lens), args.layout)
     if args.robot != config.robot:
@@ -122,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
         get_robot(robot)  # an unknown robot or a bad spec file fails before anything renders
         config = replace(config, robot=robot)
     if not empty_table:  # after the robot is chosen: its second pose is its own
-        config = with_robot_in_view(config, second_pose=second_pose)
+        config = with_robot_in_view(config, second_pose=not one_pose)
     make_sample(out_dir, config, log=info)
     print(f"wrote the sample to {out_dir} (ground_truth.json, scene.mp4, handeye/, gt/, contact_sheet.jpg)")
     return 0

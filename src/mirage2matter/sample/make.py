@@ -216,9 +216,9 @@ def _write_settings(path: Path, config: SampleConfig, objects: list[str], captur
                                        for n, q in sorted(capture_moves.items())}  # fmt: skip
             frames = ", ".join(map(str, sorted(capture_moves)))
             notes.append(f"The robot moves while filmed: from video frame {frames} on it stands at capture_moves "
-                         "(`m2m sample make --second-pose`).")  # fmt: skip
+                         "(`m2m sample make --one-pose` keeps it still).")  # fmt: skip
         # the pipeline's settings (the top of the file), after the board's
-        data = {k: v for k, v in data.items() if k != "capture_joints"}
+        data = {k: v for k, v in data.items() if k not in joints and k != "capture_moves"}
         at = list(data).index("board_pose") + 1
         data = dict([*list(data.items())[:at], *joints.items(), *list(data.items())[at:]])
     else:
@@ -229,8 +229,8 @@ def _write_settings(path: Path, config: SampleConfig, objects: list[str], captur
         data.setdefault("objects", {})["names"] = list(objects)
         notes.append(f"Objects placed by layout {config.layout!r}, named nearest the robot base first.")
     lines = (BUNDLED_SAMPLE / "m2m.yaml").read_text().splitlines()
-    robot_note = "# The robot stands in the video"
-    head = "".join(line + "\n" for line in lines if line.startswith("#")
+    robot_note, moves_note = "# The robot stands in the video", "# The robot moves while filmed"
+    head = "".join(line + "\n" for line in lines if line.startswith("#") and not line.startswith(moves_note)
                    and (config.robot_in_view or not line.startswith(robot_note)))  # fmt: skip
     path.write_text(head + "".join(f"# {note}\n" for note in notes)
                     + yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120))  # fmt: skip

@@ -39,7 +39,7 @@ def capture_joints_for(spec: RobotSpec) -> np.ndarray:
     return q
 
 
-# The pose the robot moves to half-way through the video (`m2m sample make --second-pose`). The orbit's
+# The pose the robot moves to half-way through the video (`m2m sample make`; `--one-pose` keeps it still). The orbit's
 # second half films the robot from its front and left (+y), 0.5-0.85 m up, looking down at the table; at the first pose
 # the upper arm, wrist and hand stand above its view. The second pose brings the hand down, low over the free table left
 # of the banana and the button, its approach axis tilted from straight down (toward the base by ``tilt`` rad, in the
