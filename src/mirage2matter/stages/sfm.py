@@ -33,9 +33,9 @@ class Config:
                      into capture/, triangulates points with the given poses; keeps its world frame)
     from_colmap      import a COLMAP sparse model instead (needs images)
     images           with from_colmap: the folder the model's image names are relative to
-    capture_moves    the robot moved while filming (the pipeline's; align-scene's doc says how to give it): its
-                     features would match across the move (a rigid body moving against the room) and pull the
-                     cameras off, so SfM runs twice: once as it is, to place the keyframes' cameras by the board,
+    capture_moves    the robot moved while filming (the pipeline's): {N: joints}, from video frame N on it stood at
+                     these joints (radians; `--capture-moves 360=q1,q2,...`). Its features would match across the
+                     move (a rigid body moving against the room) and pull the cameras off, so SfM runs twice: once as it is, to place the keyframes' cameras by the board,
                      then with the moved robot's silhouette (its joint state then, through that camera) masked out
                      of every keyframe filmed after a move. The first pose keeps its features: align-scene checks
                      capture_joints with them
