@@ -21,6 +21,7 @@ SAMPLE_FLAGS = [
     "--task", "push croissant --direction 0,1 --distance 0.1", "--episodes", "3",
     "--capture.max-keyframes", "40", "--scene.minutes", "6", "--generate.workers", "2",
     "--capture-joints", "-0.35", "-0.785", "0", "-2.356", "0", "1.571", "0.785",
+    "--capture-move", "360", "0.7266", "0.7754", "0", "-1.5499", "0", "1.5268", "0.785",  # the sample's move half-way
 ]  # fmt: skip
 
 

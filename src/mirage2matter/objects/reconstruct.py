@@ -477,14 +477,15 @@ def target_fingerprint(config: ObjectsConfig, target: Target) -> str:
 
 
 def _masks_where_seen(provider: MaskProvider, target: Target, cameras: list[Camera], images: list[np.ndarray],
-                      log: Callable[[str], None]) -> MaskResult:
+                      log: _StepClock) -> MaskResult:
     """The provider's masks on the keyframes not in ``target.hidden``; None (not seen) in those, so neither the
     matting, the object's 3DGS, the carving nor the outlines ever read the robot's pixels as the object's."""
     if not target.hidden:
         return provider.masks(target, cameras, images)
     keep = [i for i in range(len(cameras)) if i not in set(target.hidden)]
     names = ", ".join(Path(cameras[i].name).stem for i in target.hidden)
-    log(f"{target.name}: {len(target.hidden)} keyframe(s) with the robot in front of it left out ({names})")
+    log(f"{target.name}: {len(target.hidden)} keyframe(s) with the robot in front of it left out ({names})",
+        step="masks")  # still the masks step (the step clock would time this line as a step of its own)
     if isinstance(provider, FolderMasks) and provider.lens is not None:  # one lens per camera it gets
         provider = replace(provider, lens=[provider.lens[i] for i in keep])
     result = provider.masks(target, [cameras[i] for i in keep], [images[i] for i in keep])

@@ -18,21 +18,26 @@ lens); one that shows too little of the board keeps its features, and the stage 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+import json
+import shutil
+import tempfile
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_dir
+from ..atomic import atomic_dir, atomic_write
+from ..calib.align import AlignError, align_scene, apply_to_cameras
 from ..calib.robot_view import grow_mask, robot_silhouette
 from ..geometry.camera import Camera
 from ..robots.capture_poses import CapturePoses
 from ..robots.spec import RobotSpec
 from ..robots.surface import robot_surface
+from .colmap import SfMConfig, SfMResult, list_images, run_sfm
 
 __all__ = ["GROW_FRACTION", "MIN_CORNERS", "RobotMasks", "board_camera", "lens_silhouette", "moved_keyframes",
-           "write_robot_masks"]  # fmt: skip
+           "run_sfm_without_moved_robot", "write_robot_masks"]  # fmt: skip
 
 # A board pose from fewer corners is not trusted: on the bundled sample's video, 16-24 corners placed every frame within
 # 3.6 mm of the truth, 13 corners 12 mm off, 10 (a strip at the image's edge) 46 mm.
@@ -169,3 +174,48 @@ def write_robot_masks(out_dir: Path, image_dir: Path, names: Sequence[str], move
             result.masked.append(name)
             result.robot_px[name] = round(float(sil.mean()), 4)
     return result
+
+
+def run_sfm_without_moved_robot(
+    image_dir: Path,
+    out_dir: Path,
+    config: SfMConfig,
+    keyframes: Sequence[dict],
+    spec: RobotSpec,
+    poses: CapturePoses,
+    board,
+    T_base_board: np.ndarray,
+    log: Callable[[str], None] = lambda _: None,
+) -> tuple[SfMResult, RobotMasks | None, str]:
+    """:func:`~.colmap.run_sfm` of ``image_dir`` into ``out_dir`` with the robot masked out of the keyframes
+    (capture/keyframes.json's records) filmed after a move of ``poses``: a first run, aligned by ``board`` at
+    ``T_base_board``, places the cameras for the masks; the second run is the result. Returns (result, the masks,
+    ""), or (the first run as the result, None, why not) when no keyframe follows a move or the board did not place
+    the first run. The masks are kept in ``out_dir/masks/``, what was done in ``out_dir/robot_masks.json``."""
+    from PIL import Image
+
+    moved = moved_keyframes(keyframes, poses)
+    if not moved:
+        return run_sfm(image_dir, out_dir, config), None, "no keyframe was filmed after the first move's frame"
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f".{out_dir.name}-first-", dir=out_dir.parent) as tmp:
+        log(f"sfm: the robot moved while filming ({len(moved)} keyframes after the move): a first SfM run places "
+            "the cameras for its masks")  # fmt: skip
+        first = run_sfm(image_dir, Path(tmp) / "first", config)
+        images = [np.asarray(Image.open(Path(image_dir) / c.name).convert("RGB")) for c in first.cameras]
+        try:
+            aligned = align_scene(first.cameras, images, first.points, board, T_base_board)
+        except AlignError as e:
+            return run_sfm(image_dir, out_dir, config), None, f"the board did not place the first run's cameras: {e}"
+        del images
+        cameras_base = apply_to_cameras(aligned.sim3_sfm_to_base, first.cameras)
+        masks = write_robot_masks(Path(tmp) / "masks", Path(image_dir), list_images(Path(image_dir)), moved,
+                                  cameras_base, spec, poses, board, T_base_board)  # fmt: skip
+        result = run_sfm(image_dir, out_dir, dataclasses.replace(config, mask_dir=str(Path(tmp) / "masks")))
+        shutil.copytree(Path(tmp) / "masks", out_dir / "masks")
+    record = {**masks.to_json(), "first_run": {"registered": first.registered, "total": first.total,
+              "corner_rms_mm": aligned.corner_rms_mm}}  # fmt: skip
+    with atomic_write(out_dir / "robot_masks.json", "w", encoding="utf-8") as f:
+        json.dump(record, f, indent=1)
+    return result, masks, ""

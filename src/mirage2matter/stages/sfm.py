@@ -3,17 +3,19 @@ from a transforms.json or a COLMAP model (their images copied into ``capture/``)
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 import numpy as np
 
+from ..calib.align import board_in_base
+from ..calib.board import load_target
 from ..capture import load_keyframes
 from ..configs import ranged
 from ..geometry.camera import load_intrinsics
-from ..robots import DEFAULT_ROBOT, is_spec_file
+from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
+from ..robots.capture_poses import capture_poses
 from ..sfm import SfMConfig, SfMError, compare_poses, run_sfm
 from ..workspace import Workspace
 from .base import ADDED_LATER, SHARED, Input, Log, used_with
@@ -35,9 +37,10 @@ class Config:
     images           with from_colmap: the folder the model's image names are relative to
     capture_moves    the robot moved while filming (the pipeline's): {N: joints}, from video frame N on it stood at
                      these joints (radians; `--capture-moves 360=q1,q2,...`). Its features would match across the
-                     move (a rigid body moving against the room) and pull the cameras off, so SfM runs twice: once as it is, to place the keyframes' cameras by the board,
-                     then with the moved robot's silhouette (its joint state then, through that camera) masked out
-                     of every keyframe filmed after a move. The first pose keeps its features: align-scene checks
+                     move (a rigid body moving against the room) and pull the cameras off, so SfM runs twice:
+                     once as it is, to place the keyframes' cameras by the board, then with the moved robot's
+                     silhouette (its joint state then, through that camera) masked out of every keyframe filmed
+                     after a move. The first pose keeps its features: align-scene checks
                      capture_joints with them
     robot            the pipeline's robot, drawn into the masks (with capture_moves only)
     board            the pipeline's calibration target, which places the first run's cameras (with capture_moves)
@@ -74,9 +77,6 @@ class Config:
         if self.from_colmap is not None and self.images is None:
             raise SfMError("sfm: from_colmap needs images (the folder the model's image names are relative to)")
         if self.capture_moves and self.robot.lower() != "none":  # the moved robot's masks need its poses
-            from ..robots import get_robot
-            from ..robots.capture_poses import capture_poses
-
             capture_poses(get_robot(self.robot), self.capture_joints, self.capture_moves, what="sfm")
 
 
@@ -123,59 +123,27 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
 
 
 def _sfm_without_moved_robot(ws: Workspace, cfg: Config, config: SfMConfig, log: Log) -> tuple[Any, str]:
-    """SfM with the robot masked out of the keyframes filmed after a move (sfm/robot_mask.py): a first run places
-    the cameras, the board puts them in the base frame, the second run (the result) extracts no features on the
-    moved robot. The masks are kept in sfm/masks/, what was done in sfm/robot_masks.json."""
-    import json
-    import shutil
-    import tempfile
+    """SfM with the robot masked out of the keyframes filmed after a move (sfm/robot_mask.py); the masks are kept in
+    sfm/masks/, what was done in sfm/robot_masks.json."""
+    from ..sfm.robot_mask import run_sfm_without_moved_robot
 
-    from PIL import Image
-
-    from ..atomic import atomic_write
-    from ..calib.align import AlignError, align_scene, apply_to_cameras, board_in_base
-    from ..calib.board import load_target
-    from ..robots import get_robot
-    from ..robots.capture_poses import capture_poses
-    from ..sfm.colmap import list_images
-    from ..sfm.robot_mask import moved_keyframes, write_robot_masks
-
-    def plain(why: str) -> tuple[Any, str]:
-        result = run_sfm(ws.capture_dir, ws.sfm_dir, config)
-        return result, (f"registered {result.registered}/{result.total} keyframes (the moved robot's features kept: "
-                        f"{why})")  # fmt: skip
-
+    masks = None
     if cfg.robot.lower() == "none":
-        return plain("no robot (the pipeline's robot is none) to draw")
-    spec = get_robot(cfg.robot)
-    poses = capture_poses(spec, cfg.capture_joints, cfg.capture_moves, what="sfm")
-    moved = moved_keyframes(load_keyframes(ws.capture_dir)["keyframes"], poses)
-    if not moved:
-        return plain("no keyframe was filmed after capture_moves' first frame")
-    if cfg.board is None:
-        return plain("no board (the pipeline's board) to place the cameras by")
-    board = load_target(cfg.board)
-    T_base_board = board_in_base(board, cfg.board_pose)
-    with tempfile.TemporaryDirectory(prefix=".sfm-first-", dir=ws.sfm_dir.parent) as tmp:
-        log(f"sfm: the robot moved while filming ({len(moved)} keyframes after the move): a first SfM run places "
-            "the cameras for its masks")  # fmt: skip
-        first = run_sfm(ws.capture_dir, Path(tmp) / "first", config)
-        images = [np.asarray(Image.open(ws.capture_dir / c.name).convert("RGB")) for c in first.cameras]
-        try:
-            aligned = align_scene(first.cameras, images, first.points, board, T_base_board)
-        except AlignError as e:
-            return plain(f"the board did not place the first run's cameras: {e}")
-        del images
-        cameras_base = apply_to_cameras(aligned.sim3_sfm_to_base, first.cameras)
-        masks = write_robot_masks(Path(tmp) / "masks", ws.capture_dir, list_images(ws.capture_dir), moved,
-                                  cameras_base, spec, poses, board, T_base_board)  # fmt: skip
-        result = run_sfm(ws.capture_dir, ws.sfm_dir, dataclasses.replace(config, mask_dir=str(Path(tmp) / "masks")))
-        shutil.copytree(Path(tmp) / "masks", ws.sfm_dir / "masks")
-    record = {**masks.to_json(), "first_run": {"registered": first.registered, "total": first.total,
-              "corner_rms_mm": aligned.corner_rms_mm}}  # fmt: skip
-    with atomic_write(ws.sfm_dir / "robot_masks.json", "w", encoding="utf-8") as f:
-        json.dump(record, f, indent=1)
-    return result, f"registered {result.registered}/{result.total} keyframes; {masks.line}"
+        kept = "no robot (the pipeline's robot is none) to draw"
+    elif cfg.board is None:
+        kept = "no board (the pipeline's board) to place the cameras by"
+    else:
+        spec, board = get_robot(cfg.robot), load_target(cfg.board)
+        poses = capture_poses(spec, cfg.capture_joints, cfg.capture_moves, what="sfm")
+        result, masks, kept = run_sfm_without_moved_robot(
+            ws.capture_dir, ws.sfm_dir, config, load_keyframes(ws.capture_dir)["keyframes"], spec, poses, board,
+            board_in_base(board, cfg.board_pose), log)  # fmt: skip
+    if masks is not None:
+        return result, f"registered {result.registered}/{result.total} keyframes; {masks.line}"
+    if cfg.robot.lower() == "none" or cfg.board is None:
+        result = run_sfm(ws.capture_dir, ws.sfm_dir, config)
+    return result, (f"registered {result.registered}/{result.total} keyframes (the moved robot's features kept: "
+                    f"{kept})")  # fmt: skip
 
 
 def compare(ws: Workspace, cfg: Config, gt: dict) -> dict[str, Any]:
