@@ -272,6 +272,8 @@ def test_demo_first_stages_and_resume(tmp_path: Path, capsys: pytest.CaptureFixt
     # keyframes: 4.2 deg, the cameras 10.6 mm off after the alignment; masked 0.13 deg, 2.1 mm)
     masks = json.loads((ws / "sfm" / "robot_masks.json").read_text())
     assert len(masks["masked"]) >= 6 and "the moved robot masked out of" in st["sfm"]["line"]
+    # its points then come from the first pose alone (10 of them on these keyframes): the logged move counts it seen
+    assert st["align"]["robot"]["seen"] and "in the keyframes" in st["align"]["line"]
     assert st["align"]["translation_mm"] < 5.0 and abs(st["align"]["scale"]) > 0
     assert st["handeye"]["rotation_deg"] < 0.1 and st["handeye"]["translation_mm"] < 1.0
     assert "[4/4] handeye:" in err and "m2m demo finished" in out

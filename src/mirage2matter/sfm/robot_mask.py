@@ -42,9 +42,9 @@ __all__ = ["GROW_FRACTION", "MIN_CORNERS", "RobotMasks", "board_camera", "lens_s
 # A board pose from fewer corners is not trusted: on the bundled sample's video, 16-24 corners placed every frame within
 # 3.6 mm of the truth, 13 corners 12 mm off, 10 (a strip at the image's edge) 46 mm.
 MIN_CORNERS = 16
-# The mask is grown by this fraction of the image's longer side: the board's PnP is a few pixels off at the robot
-# (1-2 m beyond a 5 cm square), the model's meshes a few millimetres off the real casting, and SIFT's descriptor
-# window (~6 x the keypoint's scale) reaches past a keypoint's own pixel.
+# The mask is grown by this fraction of the image's longer side (13 px at 640): the first run's cameras are a few
+# pixels off at the robot (~5 px on the two-pose sample's 16 keyframes), the model's meshes a few millimetres off the
+# real casting, and SIFT's descriptor window (~6 x the keypoint's scale) reaches past a keypoint's own pixel.
 GROW_FRACTION = 0.02
 
 
