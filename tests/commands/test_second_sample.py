@@ -98,7 +98,7 @@ def test_second_sample_init_and_run_self_calibrated_with_the_ur5e(tmp_path, caps
     settings = read_yaml(sample / "m2m.yaml")
     names = settings["objects"]["names"]  # nearest the base first, as init takes them
     capture_joints = [str(q) for q in settings["capture_joints"]]  # the UR5e stands in the video
-    moves = [w for frame, q in settings["capture_moves"].items()  # and its move half-way
+    moves = [w for frame, q in (settings.get("capture_moves") or {}).items()  # any move while filmed
              for w in ("--capture-move", str(frame), *map(str, q))]  # fmt: skip
     assert sorted(names) == ["banana", "button", "croissant"]
 
