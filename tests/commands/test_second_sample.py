@@ -70,9 +70,7 @@ from mirage2matter.stages.pipeline import PipelineConfig
 from mirage2matter.workspace import Workspace
 
 ROBOT = "ur5e"
-# one pose: moved half-way (the default since 2026-12-05), the UR5e's second pose stood in front of the button in 10
-# of 60 keyframes and the matting found it in 5 (needs 6); the objects stage failed there
-SAMPLE_OPTIONS = ["--seed", "8", "--layout", "random", "--lens", "phone", "--robot", ROBOT, "--one-pose"]
+SAMPLE_OPTIONS = ["--seed", "8", "--layout", "random", "--lens", "phone", "--robot", ROBOT]
 # the keyframes at their default, 40: with the UR5e in the video, 32 left the self-calibrated lens 0.34 % off in fy and
 # the cameras 2.74 mm from the truth (0.2 px corners: the board cannot see a focal length error along the view
 # axis); 40 gave 1.93 mm. The scene only feeds the world's look and the head-view check here, so 3 minutes; the
@@ -86,6 +84,11 @@ EPISODES = 20
 
 
 @pytest.mark.slow
+# 2026-12-05, with the UR5e standing in the video: SfM, align-scene (corners 0.18-0.21 mm), hand-eye and the scene go
+# through, but the UR5e stands in front of the button in 10-11 of 60 keyframes, which the objects stage leaves out of
+# its masks, and the button's matting then fails (moved half-way: found in 5 keyframes, 6 needed; filmed at one
+# pose: "the initial Gaussians are all transparent")
+@pytest.mark.xfail(strict=True, reason="the objects stage loses the button behind the UR5e (issue 62)")
 def test_second_sample_init_and_run_self_calibrated_with_the_ur5e(tmp_path, capsys):
     times = {}
     t0 = time.perf_counter()
