@@ -114,3 +114,24 @@ def test_masks_are_written_for_every_keyframe_and_only_the_moved_robot_is_black(
     assert black[second].mean() == 1.0 and beyond.sum() > 500 and not black[beyond].any()
     assert "1 filmed after a move neither registered nor showing the board" in masks.line
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".masks")]  # no half-written folder left
+
+
+@needs_sample
+def test_without_the_board_in_view_the_first_run_is_the_result(tmp_path):
+    """A target the capture never shows cannot place the first run's cameras: that run, unmasked, is the result (in
+    place, its model where it says), and the reason is given; no staging folder is left."""
+    from mirage2matter.calib.board import MarkerSpec
+    from mirage2matter.capture import CaptureConfig, extract_keyframes
+    from mirage2matter.sfm import SfMConfig, load_sfm_summary
+    from mirage2matter.sfm.robot_mask import run_sfm_without_moved_robot
+
+    keyframes = extract_keyframes(SAMPLE / "scene.mp4", tmp_path / "capture", CaptureConfig(max_keyframes=12))
+    marker = MarkerSpec(kind="aruco", size_m=0.15, id=7, dictionary="DICT_6X6_250")  # not in the video
+    out = tmp_path / "sfm"
+    result, masks, why = run_sfm_without_moved_robot(
+        tmp_path / "capture", out, SfMConfig(max_num_features=2048, downscale=0.5), keyframes, get_robot("panda"),
+        CapturePoses.from_json({"capture_joints": Q_HOME, "capture_moves": {"360": Q_HOME}}), marker, np.eye(4))
+    assert masks is None and "the board did not place the first run's cameras" in why
+    assert result.model_dir == out / "model" and (out / "model" / "images.bin").is_file()
+    assert [c.name for c in load_sfm_summary(out)[1]] == [c.name for c in result.cameras] and result.registered >= 6
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["capture", "sfm"]

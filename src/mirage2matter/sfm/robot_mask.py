@@ -27,10 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_dir, atomic_write
+from ..atomic import atomic_dir, atomic_write, replace_dir
 from ..calib.align import AlignError, align_scene, apply_to_cameras
+from ..calib.handeye import detect_board_pose
 from ..calib.robot_view import grow_mask, robot_silhouette
 from ..geometry.camera import Camera
+from ..geometry.sim3 import invert_rigid
 from ..robots.capture_poses import CapturePoses
 from ..robots.spec import RobotSpec
 from ..robots.surface import robot_surface
@@ -48,35 +50,16 @@ MIN_CORNERS = 16
 GROW_FRACTION = 0.02
 
 
-def _detect(board, image_path: Path) -> tuple[np.ndarray, np.ndarray]:
+def board_camera(image_path: Path, board, T_base_board: np.ndarray, lens: Camera) -> Camera | None:
+    """The keyframe's camera (base frame) from the board's corners it shows, by the hand-eye calibration's PnP
+    through ``lens`` (its K and lens model; its pose ignored); None when it shows fewer than :data:`MIN_CORNERS`."""
     import cv2
 
     gray = cv2.imread(str(image_path), cv2.IMREAD_GRAYSCALE)
-    if gray is None:
-        return np.zeros(0, np.int64), np.zeros((0, 2))
-    return board.detect(gray)
-
-
-def board_camera(image_path: Path, board, T_base_board: np.ndarray, lens: Camera) -> Camera | None:
-    """The keyframe's camera (base frame) from the board's corners it shows, by PnP through ``lens`` (its K and
-    lens model; its pose ignored); None when it shows fewer than :data:`MIN_CORNERS`."""
-    import cv2
-
-    ids, uv = _detect(board, image_path)
-    if len(ids) < MIN_CORNERS:
+    seen = None if gray is None else detect_board_pose(gray, board, lens, min_corners=MIN_CORNERS)
+    if seen is None:
         return None
-    # through the lens to an ideal pinhole of the same K (any lens model; ours: centres at +0.5, OpenCV's: 0)
-    ideal = lens.undistort_pixels(uv + 0.5) - 0.5
-    ok = np.isfinite(ideal).all(axis=1)
-    if ok.sum() < MIN_CORNERS:
-        return None
-    good, rvec, tvec = cv2.solvePnP(board.points_board(ids)[ok].astype(np.float64), ideal[ok], lens.K, None)
-    if not good:
-        return None
-    T_cam_board = np.eye(4)
-    T_cam_board[:3, :3] = cv2.Rodrigues(rvec)[0]
-    T_cam_board[:3, 3] = tvec.ravel()
-    return dataclasses.replace(lens, T_world_cam=T_base_board @ np.linalg.inv(T_cam_board), name=image_path.name,
+    return dataclasses.replace(lens, T_world_cam=T_base_board @ invert_rigid(seen.T_cam_board), name=image_path.name,
                                distortion=dict(lens.distortion))  # fmt: skip
 
 
@@ -190,8 +173,8 @@ def run_sfm_without_moved_robot(
     """:func:`~.colmap.run_sfm` of ``image_dir`` into ``out_dir`` with the robot masked out of the keyframes
     (capture/keyframes.json's records) filmed after a move of ``poses``: a first run, aligned by ``board`` at
     ``T_base_board``, places the cameras for the masks; the second run is the result. Returns (result, the masks,
-    ""), or (the first run as the result, None, why not) when no keyframe follows a move or the board did not place
-    the first run. The masks are kept in ``out_dir/masks/``, what was done in ``out_dir/robot_masks.json``."""
+    ""), or (the one run, unmasked, None, why not) when no keyframe follows a move or the board did not place the
+    first run. The masks are kept in ``out_dir/masks/``, what was done in ``out_dir/robot_masks.json``."""
     from PIL import Image
 
     moved = moved_keyframes(keyframes, poses)
@@ -206,8 +189,10 @@ def run_sfm_without_moved_robot(
         images = [np.asarray(Image.open(Path(image_dir) / c.name).convert("RGB")) for c in first.cameras]
         try:
             aligned = align_scene(first.cameras, images, first.points, board, T_base_board)
-        except AlignError as e:
-            return run_sfm(image_dir, out_dir, config), None, f"the board did not place the first run's cameras: {e}"
+        except AlignError as e:  # the first run is what SfM without masks gives: it is the result
+            replace_dir(Path(tmp) / "first", out_dir)
+            first = dataclasses.replace(first, model_dir=out_dir / "model")
+            return first, None, f"the board did not place the first run's cameras: {e}"
         del images
         cameras_base = apply_to_cameras(aligned.sim3_sfm_to_base, first.cameras)
         masks = write_robot_masks(Path(tmp) / "masks", Path(image_dir), list_images(Path(image_dir)), moved,

@@ -163,7 +163,7 @@ def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarra
     found = robot_points(points, links, cameras)
     if len(poses) > 1:
         # sfm kept the moved robot out of its features: its points are the first pose's, and so is the check of the
-        # joint state (the second pose's hand low over the table put object points "around" it: 81 % on the robot)
+        # joint state
         found.on_fraction = robot_points(points, pose_links[0], cameras).on_fraction
     record: dict[str, Any] = {"robot": spec.name, **poses.to_json(), "capture_joints_source": given,
                               "keyframe_pose": keyframe_pose, "seen": found.seen,

@@ -127,11 +127,13 @@ def _sfm_without_moved_robot(ws: Workspace, cfg: Config, config: SfMConfig, log:
     sfm/masks/, what was done in sfm/robot_masks.json."""
     from ..sfm.robot_mask import run_sfm_without_moved_robot
 
-    masks = None
+    masks, kept = None, ""
     if cfg.robot.lower() == "none":
         kept = "no robot (the pipeline's robot is none) to draw"
     elif cfg.board is None:
         kept = "no board (the pipeline's board) to place the cameras by"
+    if kept:
+        result = run_sfm(ws.capture_dir, ws.sfm_dir, config)
     else:
         spec, board = get_robot(cfg.robot), load_target(cfg.board)
         poses = capture_poses(spec, cfg.capture_joints, cfg.capture_moves, what="sfm")
@@ -140,8 +142,6 @@ def _sfm_without_moved_robot(ws: Workspace, cfg: Config, config: SfMConfig, log:
             board_in_base(board, cfg.board_pose), log)  # fmt: skip
     if masks is not None:
         return result, f"registered {result.registered}/{result.total} keyframes; {masks.line}"
-    if cfg.robot.lower() == "none" or cfg.board is None:
-        result = run_sfm(ws.capture_dir, ws.sfm_dir, config)
     return result, (f"registered {result.registered}/{result.total} keyframes (the moved robot's features kept: "
                     f"{kept})")  # fmt: skip
 
