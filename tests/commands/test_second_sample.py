@@ -71,11 +71,10 @@ from mirage2matter.workspace import Workspace
 
 ROBOT = "ur5e"
 SAMPLE_OPTIONS = ["--seed", "8", "--layout", "random", "--lens", "phone", "--robot", ROBOT]
-# the keyframes at their default, 40: with the UR5e in the video, 32 left the self-calibrated lens 0.34 % off in fy and
-# the cameras 2.74 mm from the truth (0.2 px corners: the board cannot see a focal length error along the view
-# axis); 40 gave 1.93 mm. The scene only feeds the world's look and the head-view check here, so 3 minutes; the
-# objects at their defaults (issue 6)
-KEYFRAMES = 40
+# the keyframes at their default (60; with the UR5e in the video, 32 left the self-calibrated lens 0.34 % off in fy and
+# the cameras 2.74 mm from the truth: 0.2 px corners cannot see a focal length error along the view axis; 40 gave
+# 1.93 mm, 60 0.10 deg / 0.7 mm). The scene only feeds the world's look and the head-view check here, so 3 minutes;
+# the objects at their defaults (issue 6)
 BUDGET = ["--scene.minutes", "3", "--generate.workers", "1"]
 GENERATED = ("grasp banana", "press button", "push croissant --direction 0,1 --distance 0.1")
 RATES = {"grasp banana": 0.90, "grasp croissant": 0.90, "press button": 0.95,
@@ -84,11 +83,14 @@ EPISODES = 20
 
 
 @pytest.mark.slow
-# 2026-12-05, with the UR5e standing in the video: SfM, align-scene (corners 0.18-0.21 mm), hand-eye and the scene go
-# through, but the UR5e stands in front of the button in 10-11 of 60 keyframes, which the objects stage leaves out of
-# its masks, and the button's matting then fails (moved half-way: found in 5 keyframes, 6 needed; filmed at one
-# pose: "the initial Gaussians are all transparent")
-@pytest.mark.xfail(strict=True, reason="the objects stage loses the button behind the UR5e (issue 62)")
+# 2026-12-05, the UR5e standing in the video, moved half-way (stage by stage on one run): SfM 60/60, the lens found
+# (fx 498.0 / fy 496.8 against 497.3 / 497.8), but the cameras 4.10 mm from the truth after the board's alignment (bar
+# 2.0): the SfM cameras lie within 0.94 mm of the truth after a best-fit similarity, so it is the board's alignment
+# that is 0.13 deg off (the robot's fit, not used, takes them to 3.59 mm). Past it, with a noise cluster no longer
+# taking the button's name, the objects stage goes through: banana passes every bar, the croissant's masks are ~15 %
+# small against the wood (volume 0.887) and the button's volume is 1.117 (bar 10 %)
+@pytest.mark.xfail(strict=True, reason="cameras 4.1 mm from the truth (board alignment 0.13 deg off); croissant and "
+                   "button volumes outside 10 % (issue 62)")  # fmt: skip
 def test_second_sample_init_and_run_self_calibrated_with_the_ur5e(tmp_path, capsys):
     times = {}
     t0 = time.perf_counter()
@@ -125,7 +127,7 @@ def test_second_sample_init_and_run_self_calibrated_with_the_ur5e(tmp_path, caps
     summary = json.loads(ws.run_summary.read_text())["stages"]
 
     # every keyframe registered; the lens SfM found, against the true one
-    assert summary["sfm"]["registered"] == summary["sfm"]["total"] == KEYFRAMES, summary["sfm"]
+    assert summary["sfm"]["registered"] == summary["sfm"]["total"] == cfg.capture.max_keyframes, summary["sfm"]
     found = json.loads(ws.sfm_file.read_text())["cameras"][0]
     print("lens: true", {k: lens[k] for k in ("K", "distortion")})
     print("      SfM ", {k: found[k] for k in ("K", "distortion")})

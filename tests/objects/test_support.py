@@ -68,3 +68,21 @@ def test_sparse_low_specks_are_not_objects():
     assert len(with_pole) == 4
     _, kept = find_objects(np.concatenate([pts, speck]), speck_fraction=0.0)
     assert len(kept) == 4  # the rule is what drops it
+
+
+def test_names_pass_over_a_sparse_cluster_when_clusters_outnumber_them():
+    # the UR5e sample: SfM noise scattered up to 48 mm over the wood grain, nearer the base than the objects, took the
+    # first name (tall, so find_objects keeps it as a thin object could be)
+    pts, centres = _scene()
+    rng = np.random.default_rng(5)
+    noise = np.c_[np.array([0.05, 0.1]) + rng.normal(0, 0.01, (12, 2)), np.linspace(0.007, 0.048, 12)]
+    _, clusters = find_objects(np.concatenate([pts, noise]))
+    assert len(clusters) == 4 and len(clusters[0].points) == 12  # the noise is nearest the base
+    named = name_clusters(clusters, ["a", "b", "c"])
+    off = [np.linalg.norm(c.centroid[:2] - centre) for c, centre in zip(named, centres.values(), strict=True)]
+    assert max(off) < 0.01, off  # the three blobs, nearest the base first
+    _, clusters = find_objects(np.concatenate([pts, noise]))
+    assert len(name_clusters(clusters, ["a", "b", "c", "d"])) == 4  # as many names as clusters: every one named
+    _, clusters = find_objects(np.concatenate([pts, noise]))
+    named = name_clusters(clusters, ["a", "b", "c"], sparse_fraction=0.0)
+    assert np.linalg.norm(named[0].centroid[:2] - [0.05, 0.1]) < 0.02  # the rule is what passes it over
