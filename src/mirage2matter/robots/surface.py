@@ -37,6 +37,7 @@ class LinkSurface:
     faces          [F,3] vertex indices (triangles)
     T_base_link    [4,4] the link's pose at the joint state
     face_rgb       [F,3] the model's colour of each face (its geom's material or rgba, 0..1): the mesh look
+    fixed          no joint moves it (the base): its place says nothing about a joint state
     """
 
     link: str
@@ -44,6 +45,7 @@ class LinkSurface:
     faces: np.ndarray
     T_base_link: np.ndarray
     face_rgb: np.ndarray | None = None
+    fixed: bool = False
 
     @property
     def vertices(self) -> np.ndarray:
@@ -157,8 +159,9 @@ def robot_surface(spec: RobotSpec, q: Sequence[float]) -> list[LinkSurface]:
         T = np.eye(4)
         T[:3, :3] = data.xmat[body].reshape(3, 3)
         T[:3, 3] = data.xpos[body]
+        fixed = int(model.body_weldid[body]) == 0  # welded to the world body: no joint above it
         out.append(LinkSurface(model.body(body).name, np.concatenate(verts), np.concatenate(faces), T,
-                               np.concatenate(colours)))  # fmt: skip
+                               np.concatenate(colours), fixed))  # fmt: skip
     if not out:
         raise RobotSpecError(f"{spec.name}: its model {spec.model} has no geometry to draw the robot from")
     return out
