@@ -29,7 +29,7 @@ from mirage2matter.objects.matting import MattingConfig
 from mirage2matter.objects.reconstruct import ObjectsConfig, find_targets, pinhole_keyframes, target_fingerprint
 from mirage2matter.objects.splat import SplatConfig
 from mirage2matter.stages import get_stage, run_stage
-from mirage2matter.stages.objects import _hidden_by_robot
+from mirage2matter.stages.objects import robot_in_front
 from mirage2matter.workspace import Workspace, WorkspaceError
 
 GT = json.loads((SAMPLE / "ground_truth.json").read_text()) if (SAMPLE / "ground_truth.json").is_file() else None
@@ -231,7 +231,7 @@ def test_objects_side_by_side_in_worker_processes(small_ws, tmp_path):
     align = json.loads((ws / "objects" / "banana" / "align.json").read_text())
     cameras, points = _posed(ws)
     targets = find_targets(cfg, cameras, points)[1]
-    _hidden_by_robot(Workspace(ws), cameras, targets)  # the keyframes the robot stands in front of, as the stage
+    robot_in_front(Workspace(ws), cameras, targets)  # the keyframes and pixels the robot hides, as the stage's
     assert align["fingerprint"] == target_fingerprint(replace(cfg, workers=1), targets[0])
 
     bad = tmp_path / "croissant.obj"

@@ -51,12 +51,15 @@ __all__ = [
 @dataclass
 class Target:
     """The object to mask: its name, cluster (metric points) and the support plane; ``hidden``: indices of the
-    keyframes in which something stands in front of it (the robot at its capture pose), left out of its masks."""
+    keyframes in which something stands in front of most of it (the robot at its capture pose), left out of its
+    masks; ``unknown``: per keyframe (empty: none), bool [H,W] where something else may cover it (the robot's pixels):
+    neither its masks, nor its 3DGS, nor the carving read those pixels."""
 
     name: str
     cluster: ObjectCluster | None
     plane: Plane | None
     hidden: tuple[int, ...] = ()
+    unknown: tuple[np.ndarray | None, ...] = ()
 
 
 @dataclass
@@ -129,7 +132,8 @@ class GeometricMasks:
         for k in range(self.matting.passes):  # later passes: the table hidden by the last pass's masks only
             if k > 0:
                 hidden = [None if m is None else cv2.dilate(m.astype(np.uint8), grow) > 0 for m in masks]
-            matte = matte_object(target.cluster, target.plane, cameras, images, self.matting, self.progress, hidden)
+            matte = matte_object(target.cluster, target.plane, cameras, images, self.matting, self.progress, hidden,
+                                 target.unknown or None)  # fmt: skip
             masks = self._refined(matte, cameras, images)
             seconds += matte.metrics["seconds"]
         info = {"provider": "geometric", **matte.metrics, "seconds": seconds, "passes": self.matting.passes}

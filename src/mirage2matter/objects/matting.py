@@ -29,6 +29,8 @@ from .views import crop_camera, object_rois, proxy_mask, proxy_points
 
 __all__ = ["Matte", "MattingConfig", "matte_object", "render_alpha", "sample_in_hull"]
 
+MIN_VALID_FRACTION = 0.1  # of a view's crop, once the unknown pixels are out: below it the view teaches nothing
+
 
 @dataclass
 class MattingConfig:
@@ -128,11 +130,14 @@ def matte_object(
     config: MattingConfig | None = None,
     progress: bool = False,
     hidden: Sequence[np.ndarray | None] | None = None,
+    unknown: Sequence[np.ndarray | None] | None = None,
 ) -> Matte:
     """Masks of ``cluster`` in every keyframe (``images`` [H,W,3] float32 in [0,1]) by matting
     Gaussians against the table background. ``hidden`` [H,W] bool per keyframe: where the object may
-    stand between that keyframe and the table (None, or a None entry: the proxy's projection). Raises
-    ObjectsError when the object is seen in fewer than ``config.min_views`` keyframes."""
+    stand between that keyframe and the table (None, or a None entry: the proxy's projection). ``unknown`` [H,W]
+    bool per keyframe (or None): pixels that show something else (the robot), neither evidence for the object nor
+    for the table; the masks there are the Gaussians' (seen from the other keyframes). Raises ObjectsError when the
+    object is seen in fewer than ``config.min_views`` keyframes."""
     config = config or MattingConfig()
     rois = object_rois(cameras, cluster, plane, config.roi_margin)
     if len(rois) < config.min_views:
@@ -143,17 +148,24 @@ def matte_object(
     proxy = proxy_points(cluster.points, plane, config.proxy_margin)
     given = list(hidden) if hidden is not None else [None] * len(cameras)
     hidden = [proxy_mask(cam, proxy) if h is None else h for cam, h in zip(cameras, given, strict=True)]
+    unknown = list(unknown) if unknown is not None else [None] * len(cameras)
+    hidden = [h if u is None else h | u for h, u in zip(hidden, unknown, strict=True)]  # the robot is no table
     views = []
     for i, roi in rois.items():
         x0, y0, x1, y1 = roi
         cam = crop_camera(cameras[i], roi)
         bg = table_background(i, cameras, images, roi, plane, hidden=hidden)
+        valid = np.isfinite(bg[..., 0])  # unknown background: no evidence
+        if unknown[i] is not None:
+            valid &= ~unknown[i][y0:y1, x0:x1]
+            if valid.mean() < MIN_VALID_FRACTION:
+                continue  # (nearly) all of it unknown: nothing to learn from; its mask is rendered all the same
         views.append(
             View(
                 image=torch.from_numpy(np.ascontiguousarray(images[i][y0:y1, x0:x1], dtype=np.float32)),
                 viewmat=torch.as_tensor(cam.viewmat, dtype=torch.float32),
                 K=torch.as_tensor(cam.K, dtype=torch.float32),
-                mask=torch.from_numpy(np.isfinite(bg[..., 0])),  # unknown background: no evidence
+                mask=torch.from_numpy(valid),
                 name=cam.name,
                 background=torch.from_numpy(np.nan_to_num(bg)),
                 alpha_mask=torch.from_numpy(proxy_mask(cameras[i], proxy, roi)),

@@ -229,7 +229,7 @@ def _carved_mesh(target: Target, cameras, masks, g_base, config: ObjectsConfig):
         None if m is None else _solid_depth(g_base, cam, m, config.depth_opacity)
         for cam, m in zip(cameras, masks, strict=True)
     ]
-    return reconstruct_mesh(target.cluster, target.plane, cameras, masks, config.voxel,
+    return reconstruct_mesh(target.cluster, target.plane, cameras, _where_it_may_be(masks, target), config.voxel,
                             skip_fraction=config.skip_fraction, name=target.name, depths=depths,
                             depth_margin=config.depth_margin)  # fmt: skip
 
@@ -303,14 +303,16 @@ def process_object(
 
     if not user_mesh and (target.cluster is None or target.plane is None):
         raise ObjectsError(f"object {name!r}: no points in the cloud to reconstruct from; give --mesh {name}=FILE")
+    unknown = target.unknown or None
     init = result.gaussians
     if init is None:  # masks from a folder / SAM2: start the Gaussians inside the visual hull
-        hull = reconstruct_mesh(target.cluster, target.plane, cameras, masks, 2 * config.voxel, name=name)
+        hull = reconstruct_mesh(target.cluster, target.plane, cameras, _where_it_may_be(masks, target),
+                                2 * config.voxel, name=name)  # fmt: skip
         init = _init_from_mesh(hull, cameras, images)
 
     log(f"{name}: object 3DGS")
     g_base, splat_metrics = train_object_gaussians(
-        init, cameras, images, masks, config.splat, name, progress, plane=target.plane
+        init, cameras, images, masks, config.splat, name, progress, plane=target.plane, unknown=unknown
     )
 
     recon = None
@@ -337,7 +339,7 @@ def process_object(
             heal = replace(config.splat, iterations=max(1, config.splat.iterations // 4), min_opacity_init=0.0)
             g_base, splat_metrics = train_object_gaussians(
                 g_base.select(torch.from_numpy(~inside)), cameras, images, masks, heal, name, progress,
-                plane=target.plane,
+                plane=target.plane, unknown=unknown,
             )
             pruned += int(inside.sum())
         if pruned:
@@ -473,24 +475,43 @@ def target_fingerprint(config: ObjectsConfig, target: Target) -> str:
 
     pts = None if target.cluster is None else np.round(target.cluster.points, 4).tobytes()
     hidden = [list(target.hidden)] if target.hidden else []  # absent when none: earlier objects' keys hold
+    if target.unknown:
+        pixels = hashlib.sha256()
+        for u in target.unknown:
+            pixels.update(b"-" if u is None else np.packbits(u).tobytes())
+        hidden.append(pixels.hexdigest())
     return fingerprint(fingerprinted(config), target.name, hashlib.sha256(pts or b"").hexdigest(), *hidden)
 
 
 def _masks_where_seen(provider: MaskProvider, target: Target, cameras: list[Camera], images: list[np.ndarray],
                       log: _StepClock) -> MaskResult:
-    """The provider's masks on the keyframes not in ``target.hidden``; None (not seen) in those, so neither the
-    matting, the object's 3DGS, the carving nor the outlines ever read the robot's pixels as the object's."""
-    if not target.hidden:
+    """The provider's masks on the keyframes not in ``target.hidden``, less ``target.unknown`` (the robot's pixels);
+    None (not seen) in the hidden ones, so neither the matting, the object's 3DGS, the carving nor the outlines ever
+    read the robot's pixels as the object's."""
+    if not target.hidden and not target.unknown:
         return provider.masks(target, cameras, images)
     keep = [i for i in range(len(cameras)) if i not in set(target.hidden)]
-    names = ", ".join(Path(cameras[i].name).stem for i in target.hidden)
-    log(f"{target.name}: {len(target.hidden)} keyframe(s) with the robot in front of it left out ({names})",
-        step="masks")  # still the masks step (the step clock would time this line as a step of its own)
+    if target.hidden:
+        names = ", ".join(Path(cameras[i].name).stem for i in target.hidden)
+        # still the masks step (the step clock would time this line as a step of its own)
+        log(f"{target.name}: {len(target.hidden)} keyframe(s) with the robot in front of most of it left out "
+            f"({names})", step="masks")
     if isinstance(provider, FolderMasks) and provider.lens is not None:  # one lens per camera it gets
         provider = replace(provider, lens=[provider.lens[i] for i in keep])
-    result = provider.masks(target, [cameras[i] for i in keep], [images[i] for i in keep])
+    unknown = list(target.unknown) or [None] * len(cameras)
+    sub = replace(target, unknown=tuple(unknown[i] for i in keep) if target.unknown else ())
+    result = provider.masks(sub, [cameras[i] for i in keep], [images[i] for i in keep])
     masks: list[np.ndarray | None] = [None] * len(cameras)
     for i, m in zip(keep, result.masks, strict=True):
-        masks[i] = m
-    info = {**result.info, "hidden_by_robot": [Path(cameras[i].name).stem for i in target.hidden]}
+        masks[i] = m if m is None or unknown[i] is None else m & ~unknown[i]
+    partly = [i for i in keep if unknown[i] is not None and masks[i] is not None and (masks[i] | unknown[i]).any()]
+    info = {**result.info, "hidden_by_robot": [Path(cameras[i].name).stem for i in target.hidden],
+            "robot_pixels_left_out": len(partly)}  # fmt: skip
     return replace(result, masks=masks, info=info)
+
+
+def _where_it_may_be(masks: list[np.ndarray | None], target: Target) -> list[np.ndarray | None]:
+    """Per keyframe, the mask grown by the unknown pixels (the robot's): what the carving may not cut away."""
+    if not target.unknown:
+        return masks
+    return [m if m is None or u is None else m | u for m, u in zip(masks, target.unknown, strict=True)]

@@ -114,14 +114,18 @@ def _views(
     masks: Sequence[np.ndarray | None],
     config: SplatConfig,
     plane: Plane | None = None,
+    unknown: Sequence[np.ndarray | None] | None = None,
 ) -> list[tuple[int, View, tuple[int, int, int, int]]]:
     """(keyframe index, training view, roi) per keyframe with a usable mask; with ``plane`` (and
     ``config.table_background``) each view carries the bare table behind the object and its valid pixels are the
-    grown mask where that table is known (the mask itself always)."""
+    grown mask where that table is known (the mask itself always). ``unknown`` [H,W] bool per keyframe (or None):
+    pixels of something else (the robot), never valid, where the Gaussians' alpha is free."""
+    unknown = list(unknown) if unknown is not None else [None] * len(masks)
     # where each keyframe may see the object in front of the table: those pixels do not vote for the table
     hidden = None
     if plane is not None and config.table_background:
         hidden = [None if m is None else _dilate(m, 2 * config.dilate_px + 2) for m in masks]
+        hidden = [h if u is None else u if h is None else h | u for h, u in zip(hidden, unknown, strict=True)]
     out = []
     for i, (cam, img, m) in enumerate(zip(cameras, images, masks, strict=True)):
         if m is None or not m.any():
@@ -139,6 +143,9 @@ def _views(
             known = np.isfinite(bg[..., 0])
             valid = mk | (grown & known)
             background = torch.from_numpy(np.nan_to_num(bg).astype(np.float32))  # unknown: black, as without
+        if unknown[i] is not None:
+            valid = valid & ~unknown[i][y0:y1, x0:x1]
+            grown = grown | unknown[i][y0:y1, x0:x1]  # the object may go on behind the robot
         view = View(
             image=torch.from_numpy(np.ascontiguousarray(img[y0:y1, x0:x1], dtype=np.float32)),
             viewmat=torch.as_tensor(crop_cam.viewmat, dtype=torch.float32),
@@ -155,7 +162,8 @@ def _views(
 @torch.no_grad()
 def object_metrics(g: Gaussians, views: Sequence[View], dilate_px: int = 3) -> dict[str, Any]:
     """Masked PSNR (mask eroded by 1 px) and alpha outside the mask grown by ``dilate_px``, per view
-    and averaged; views as built for training (crops with ``mask`` = the object's mask)."""
+    and averaged; views as built for training (crops with ``mask`` = the object's mask); where a view's ``alpha_mask``
+    allows alpha is not outside."""
     from ..gaussians.losses import psnr
 
     per = []
@@ -166,6 +174,8 @@ def object_metrics(g: Gaussians, views: Sequence[View], dilate_px: int = 3) -> d
         m = v.mask.numpy()
         inner = _erode(m, 1)
         outside = ~_dilate(m, dilate_px)
+        if v.alpha_mask is not None:  # where the view allows alpha (the object behind the robot) is not outside
+            outside &= ~v.alpha_mask.numpy()
         per.append(
             {
                 "name": v.name,
@@ -204,11 +214,13 @@ def train_object_gaussians(
     name: str = "object",
     progress: bool = False,
     plane: Plane | None = None,
+    unknown: Sequence[np.ndarray | None] | None = None,
 ) -> tuple[Gaussians, dict[str, Any]]:
     """(object Gaussians in the cameras' frame, metrics) trained from ``init`` on the masked crops; ``plane``: the
-    support plane (cameras' frame), for the table behind the object (``SplatConfig.table_background``)."""
+    support plane (cameras' frame), for the table behind the object (``SplatConfig.table_background``); ``unknown``:
+    per keyframe, pixels that show something else (the robot), left out of the loss."""
     config = config or SplatConfig()
-    items = _views(cameras, images, masks, config, plane)
+    items = _views(cameras, images, masks, config, plane, unknown)
     if len(items) < 4:
         raise ObjectsError(f"object {name!r}: usable masks in only {len(items)} keyframe(s); need at least 4")
     keep = torch.sigmoid(init.logit_opacities) >= config.min_opacity_init
