@@ -52,7 +52,8 @@ SEEN_MIN_POINTS = 20
 NEAR_ROBOT_M = 0.08  # "around the robot" for RobotPoints.on_fraction
 # Below it, the robot's points lie beside its model: a wrong joint state. The right one gave 0.83-0.91 on the samples
 # (the Panda's at 40 and 48 keyframes, the UR5e's), a first or second joint 0.1 rad off 0.52-0.78 (on_fraction); 0.85
-# warned falsely (82 % at 48 keyframes) while the base's points counted. A third joint 0.1 rad off passes (0.81).
+# warned falsely (82 % at 48 keyframes) while the base's points counted. The Panda's third joint 0.1 rad off passes
+# (0.81-0.86).
 POSE_MIN_ON_FRACTION = 0.8
 SEEN_POINT_FRACTION = 0.01
 
