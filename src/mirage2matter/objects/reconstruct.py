@@ -502,11 +502,13 @@ def _masks_where_seen(provider: MaskProvider, target: Target, cameras: list[Came
     sub = replace(target, unknown=tuple(unknown[i] for i in keep) if target.unknown else ())
     result = provider.masks(sub, [cameras[i] for i in keep], [images[i] for i in keep])
     masks: list[np.ndarray | None] = [None] * len(cameras)
+    partly = 0  # keyframes in which the robot covers part of the object's mask
     for i, m in zip(keep, result.masks, strict=True):
-        masks[i] = m if m is None or unknown[i] is None else m & ~unknown[i]
-    partly = [i for i in keep if unknown[i] is not None and masks[i] is not None and (masks[i] | unknown[i]).any()]
+        cut = m is not None and unknown[i] is not None and bool((m & unknown[i]).any())
+        masks[i] = m & ~unknown[i] if cut else m  # type: ignore[operator]
+        partly += cut
     info = {**result.info, "hidden_by_robot": [Path(cameras[i].name).stem for i in target.hidden],
-            "robot_pixels_left_out": len(partly)}  # fmt: skip
+            "robot_pixels_left_out": partly}  # fmt: skip
     return replace(result, masks=masks, info=info)
 
 

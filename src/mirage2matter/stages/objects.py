@@ -125,7 +125,7 @@ def _hidden_words(s: dict[str, Any]) -> str:
     hidden = s.get("masks", {}).get("hidden_by_robot") or []
     partly = s.get("masks", {}).get("robot_pixels_left_out") or 0
     words = f"; {len(hidden)} keyframe(s) with the robot in front of most of it left out" if hidden else ""
-    return words + (f"; the robot's pixels left out of {partly} more" if partly else "")
+    return words + (f"; the robot's pixels left out of its masks in {partly} more" if partly else "")
 
 
 def outputs(ws: Workspace, cfg: Config) -> list[Path]:
