@@ -77,7 +77,7 @@ def _off_the_board(ws: Workspace, points_base: np.ndarray) -> np.ndarray:
 # masks: what is left of the object there teaches little. In the others only the robot's pixels are (Target.unknown).
 # On the bundled sample's 40 keyframes (volume vs truth banana / croissant / button): 5 %, keyframes left out whole,
 # 1.149 / 0.964 / 1.107; 50 % with the robot's pixels unknown 1.146 / 0.929 / 1.082; 90 % 1.125 / 0.966 / 1.118 (the
-# object training's run-to-run spread is a few %).
+# same inputs give the same meshes; a few keyframes more or less move a volume by a few %).
 HIDDEN_FRACTION = 0.5
 ROBOT_MARGIN_PX = 3  # the robot's drawn silhouette grown by this: its mesh and pose are a few pixels off the photo's
 
