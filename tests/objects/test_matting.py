@@ -8,8 +8,11 @@ import pytest
 
 from fixtures.box_scene import render_boxes
 from mirage2matter.geometry.camera import Camera, look_at_pose
+from mirage2matter.objects import ObjectsError
 from mirage2matter.objects.masks import GeometricMasks, Target
 from mirage2matter.objects.matting import MattingConfig
+from mirage2matter.objects.mesh import reconstruct_mesh
+from mirage2matter.objects.reconstruct import _where_it_may_be
 from mirage2matter.objects.support import ObjectCluster, Plane
 
 # a U standing on the table (metres): a bar along x and two arms along +y; the table between the arms is bare
@@ -81,8 +84,6 @@ def test_the_table_inside_a_concave_object_is_not_the_object(scene):
 @pytest.mark.parametrize("options", [{"passes": 0}, {"hidden_margin_px": -1}])
 def test_bad_matting_settings_are_named(scene, options):
     cams, rendered, target = scene
-    from mirage2matter.objects import ObjectsError
-
     with pytest.raises(ObjectsError, match="objects.matting: passes must be >= 1"):
         GeometricMasks(MattingConfig(**options)).masks(target, cams, [r[0] for r in rendered])
 
@@ -126,9 +127,6 @@ def test_the_robot_in_front_of_the_object_is_unknown_not_the_object(scene):
 def test_the_carving_cuts_nothing_where_the_robot_stands(scene):
     """The stage keeps an object's mask less the robot's pixels; carved from those alone, a third of the keyframes
     would cut away what stands behind the bar. Grown back by the unknown pixels, the hull keeps it."""
-    from mirage2matter.objects.mesh import reconstruct_mesh
-    from mirage2matter.objects.reconstruct import _where_it_may_be
-
     cams, rendered, target = scene
     _, _, bars = _barred(scene)
     seen = [truth & ~bar for (_, truth, _), bar in zip(rendered, bars, strict=True)]
@@ -140,3 +138,11 @@ def test_the_carving_cuts_nothing_where_the_robot_stands(scene):
     # measured: carved from the masks less the bar 0.067 of the unbarred hull, grown back 1.029
     assert cut < 0.8 * full, f"the test bed no longer shows the problem ({cut / full:.2f} of the hull kept)"
     assert abs(kept / full - 1) < 0.05, f"{kept / full:.3f} of the unbarred hull ({full / true_volume:.2f} of the U)"
+
+
+def test_an_object_the_robot_covers_everywhere_is_a_clear_error(scene):
+    cams, rendered, target = scene
+    everywhere = tuple(np.ones(r[0].shape[:2], bool) for r in rendered)
+    t = Target("u", target.cluster, PLANE, unknown=everywhere)
+    with pytest.raises(ObjectsError, match="'u': only 0 keyframe.*beside the robot"):
+        GeometricMasks(MattingConfig(iterations=10)).masks(t, cams, [r[0] for r in rendered])

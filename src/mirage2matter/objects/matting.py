@@ -171,6 +171,11 @@ def matte_object(
                 alpha_mask=torch.from_numpy(proxy_mask(cameras[i], proxy, roi)),
             )
         )
+    if len(views) < config.min_views:  # only where most of each crop was unknown (the robot in front)
+        raise ObjectsError(
+            f"object {cluster.name!r}: only {len(views)} keyframe(s) show enough of it beside the robot (need "
+            f"{config.min_views}); film it from more sides, or with the robot moved away from it"
+        )
     pts = sample_in_hull(proxy, config.init_gaussians, config.seed)
     init = init_gaussians_from_points(pts, np.full_like(pts, 0.5), sh_degree=config.sh_degree)
     train_cfg = TrainConfig(
