@@ -88,7 +88,6 @@ def test_bad_matting_settings_are_named(scene, options):
         GeometricMasks(MattingConfig(**options)).masks(target, cams, [r[0] for r in rendered])
 
 
-
 def _barred(scene) -> tuple[list[int], list[np.ndarray], list[np.ndarray]]:
     """A dark bar (the robot's arm) in front of the U in every third keyframe: (those keyframes, the images, the bar
     [H,W] per keyframe)."""

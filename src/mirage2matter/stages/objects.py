@@ -94,7 +94,7 @@ def robot_in_front(ws: Workspace, cameras: list, targets: list) -> None:
     if robot is None:
         return
     depths = robot.depths(cameras)  # each keyframe against the robot as it stood then
-    pixels = [grow_mask(np.isfinite(d), ROBOT_MARGIN_PX) if np.isfinite(d).any() else None for d in depths]
+    pixels = [grow_mask(on, ROBOT_MARGIN_PX) if on.any() else None for on in (np.isfinite(d) for d in depths)]
     for t in targets:
         if t.cluster is None:
             continue
