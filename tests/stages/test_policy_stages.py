@@ -298,6 +298,36 @@ def test_eval_supersamples_as_the_policys_datasets_were_generated(tmp_path: Path
     assert supersample_of(ws, Config(policy="my_pkg.glue:act")) == 1  # a user's callable
 
 
+def test_eval_draws_the_robot_as_the_policys_datasets_were_generated(tmp_path: Path) -> None:
+    """eval-policy's hybrid world draws the robot as the policy's demos drew it: a policy trained on ``generate
+    --robot-look mesh`` is evaluated with the mesh robot (its report named so, apart from the Gaussian robot's), one
+    trained on the default (no key in the fingerprint) with auto; an explicit setting wins; the ground_truth
+    renderer draws its own robot, and a look given to it is a clear error."""
+    from mirage2matter.policy.data import PolicyError
+    from mirage2matter.stages.eval_policy import Config, report_name, robot_look_of
+    from mirage2matter.workspace import Workspace
+
+    ws = Workspace(tmp_path / "ws")
+    for name, hybrid in [("mesh", {"robot_look": "mesh"}), ("default", {})]:
+        d = tmp_path / name
+        d.mkdir()
+        (d / "summary.json").write_text(json.dumps({"task": TASK, "fingerprint": {"source": {"hybrid": hybrid}}}))
+        p = tmp_path / "policies" / name
+        p.mkdir(parents=True)
+        (p / "policy.pt").write_bytes(b"")
+        (p / "summary.json").write_text(json.dumps({"datasets": [str(d)]}))
+    mesh, default = str(tmp_path / "policies" / "mesh"), str(tmp_path / "policies" / "default")
+    assert robot_look_of(ws, Config(policy=mesh)) == "mesh"
+    assert robot_look_of(ws, Config(policy=default)) == "auto"
+    assert robot_look_of(ws, Config(policy=mesh, robot_look="gaussians")) == "gaussians"
+    assert robot_look_of(ws, Config(policy=mesh, renderer="ground_truth")) == "auto"
+    assert report_name(ws, Config(policy=mesh)) == "mesh-hybrid-mesh_robot-grasp_banana"
+    assert report_name(ws, Config(policy=default)) == "default-hybrid-grasp_banana"  # the name it always had
+    assert report_name(ws, Config(policy=mesh, renderer="ground_truth")) == "mesh-ground_truth-grasp_banana"
+    with pytest.raises(PolicyError, match="robot_look=mesh is how the hybrid renderer draws the robot"):
+        Config(policy=mesh, renderer="ground_truth", robot_look="mesh").validate()
+
+
 def test_aimed_reports_are_named_by_their_boxes_with_signs(tmp_path: Path) -> None:
     from mirage2matter.stages.eval_policy import Config, report_name
     from mirage2matter.workspace import Workspace

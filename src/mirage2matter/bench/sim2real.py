@@ -13,6 +13,10 @@ generated in the reconstruction (hybrid frames) and evaluated closed-loop in the
   from their Gaussians) instead of their Gaussians, at one demo count; evaluated in the ground-truth world and
   (with ``hybrid``) in its own world, the hybrid one with mesh objects: whether it learnt the task at all (on the
   sample it did not: 1 of 10 there, so its ground-truth figure is not the visual gap alone);
+- **robot look**: the same grasp with the robot drawn from its model's meshes during generation (Genesis's render,
+  composited) instead of its captured Gaussians, at one demo count; evaluated in the ground-truth world, which draws
+  the robot as the capture filmed it, and (with ``hybrid``) in its own world: what drawing the robot as the camera saw
+  it is worth to a policy (run only when the world has the robot's Gaussians);
 - **data scale** (Table 4): the grasp policy from the first 50 / 150 / 300 demos of one generated set, one training
   seed each (the largest: the main policy's first seed), as is the ablation.
 
@@ -37,6 +41,7 @@ from .. import configure_threads
 from ..configs import ranged
 from ..datagen import task_slug
 from ..errors import M2MError
+from ..inputs import read_yaml
 from ..policy.config import PolicyTrainConfig
 from ..render.options import MAX_SUPERSAMPLE, supersample_problem
 from ..stages import eval_policy, generate, get_stage, train_policy
@@ -62,6 +67,8 @@ class Sim2RealConfig:
     press_task      the second main task (empty: none)
     press_demos     demos of press_task
     ablation_demos  demos of the mesh-objects ablation and of its Gaussian twin (0: no ablation)
+    robot_ablation_demos  demos of the mesh-robot ablation (`generate --robot-look mesh`) and of its Gaussian-robot
+                    twin (0: none; skipped, said so, when the world has no robot Gaussians)
     size            frame side of generation and evaluation (pixels)
     supersample     generation's splat layer drawn at s x the frame size and box-averaged down (`generate
                     --supersample`; the hybrid evaluations follow the datasets). 1 (off) by default: the recipe
@@ -88,6 +95,7 @@ class Sim2RealConfig:
     press_task: str = "press button"
     press_demos: int = ranged(150, ge=1, le=10**6)
     ablation_demos: int = ranged(150, ge=0, le=10**6)
+    robot_ablation_demos: int = ranged(150, ge=0, le=10**6)
     size: int = ranged(128, ge=16, le=4096)
     supersample: int = ranged(1, ge=1, le=MAX_SUPERSAMPLE)
     workers: int = ranged(2, ge=1, le=256)
@@ -107,6 +115,9 @@ class Sim2RealConfig:
             bad.append(f"demos must be positive counts, got {self.demos}")
         if self.ablation_demos and self.ablation_demos not in self.demos:
             bad.append(f"ablation_demos ({self.ablation_demos}) must be one of demos {self.demos} (its Gaussian twin)")
+        if self.robot_ablation_demos and self.robot_ablation_demos not in self.demos:
+            bad.append(f"robot_ablation_demos ({self.robot_ablation_demos}) must be one of demos {self.demos} (its "
+                       "Gaussian-robot twin)")  # fmt: skip
         if min(self.episodes, self.workers, self.seeds, self.parallel) < 1 or self.size < 16 or self.minutes <= 0:
             bad.append("episodes, workers, seeds and parallel must be >= 1, size >= 16, minutes > 0")
         if self.steps < 0:
@@ -185,11 +196,11 @@ def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[s
             "a grasp policy from 40 to 68 % of 50 ground-truth episodes (README)")
     seconds = {"generation": 0.0, "training": 0.0, "evaluation": 0.0}
     n_max, slug = max(cfg.demos), task_slug(cfg.task)
-    mesh_slug = f"{slug}_mesh_objects"
+    mesh_slug, mesh_robot_slug = f"{slug}_mesh_objects", f"{slug}_mesh_robot"
 
-    def gen(task: str, n: int, objects: str = "gaussians", out: str | None = None) -> dict:
+    def gen(task: str, n: int, objects: str = "gaussians", out: str | None = None, robot_look: str = "auto") -> dict:
         c = generate.Config(task=(task,), episodes=n, workers=cfg.workers, ray_address=cfg.ray_address, size=cfg.size,
-                            objects=objects, supersample=cfg.supersample,
+                            objects=objects, supersample=cfg.supersample, robot_look=robot_look,
                             out=ws.dataset_dir(out) if out else None)  # fmt: skip
         s, dt, _ = _run_stage("generate", ws, c, log)
         seconds["generation"] += dt
@@ -200,8 +211,9 @@ def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[s
                                   image_size=cfg.image_size, seed=seed) for seed, name in enumerate(names)]  # fmt: skip
         return side_by_side("train_policy", cs, "training")
 
-    def evaluate(task: str, runs: list[tuple[str, str, str, str]]) -> list[dict]:
-        """runs: (policy, report label, renderer, objects), side by side."""
+    def evaluate(task: str, runs: list[tuple[str, str, str, str]], robot_look: str = "auto") -> list[dict]:
+        """runs: (policy, report label, renderer, objects), side by side; the hybrid ones draw the robot as
+        ``robot_look``."""
         cs = []
         for policy, label, renderer, objects in runs:
             # absolute: the stage records it in m2m.yaml, where a relative path would mean the workspace's folder
@@ -210,6 +222,7 @@ def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[s
             cs.append(eval_policy.Config(policy=policy, task=task, renderer=renderer, episodes=cfg.episodes,
                                          seed=cfg.seed, size=cfg.size, ground_truth=sample, name=name,
                                          objects=objects, ray_address=cfg.ray_address,
+                                         robot_look=robot_look if renderer == "hybrid" else "auto",
                                          workers=cfg.workers if cfg.ray_address else 1))  # fmt: skip
         keys = ("successes", "episodes", "success_rate", "wilson95", "mean_steps")
         return [{k: s[k] for k in keys} for s in side_by_side("eval_policy", cs, "evaluation")]
@@ -226,7 +239,7 @@ def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[s
     rows: list[dict[str, Any]] = []
 
     def policy_row(kind: str, task: str, dataset: str, n: int, worlds: tuple[str, ...], objects: str = "gaussians",
-                   seeds: int = 1) -> dict:  # fmt: skip
+                   seeds: int = 1, robot_look: str = "auto") -> dict:  # fmt: skip
         # seed 0 keeps the single policy's name, so a bench of one seed and one of several share it
         names = [f"{dataset}_{n}" + (f"_s{k}" if k else "") for k in range(seeds)]
         trained = train(dataset, n, names)
@@ -238,7 +251,7 @@ def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[s
         runs = [(deployed, label, world, objects if world == "hybrid" else "gaussians") for world in worlds]
         if seeds > 1:  # the first seed alone: one policy's figure, and the data-scale curve's point
             runs.append((names[0], names[0], "ground_truth", "gaussians"))
-        results = evaluate(task, runs)
+        results = evaluate(task, runs, robot_look)
         row.update(zip(worlds, results[: len(worlds)], strict=True))
         if seeds > 1:
             row["ground_truth_single"] = results[-1]
@@ -258,6 +271,13 @@ def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[s
     if cfg.ablation_demos:
         datasets[mesh_slug] = gen(cfg.task, cfg.ablation_demos, objects="meshes", out=mesh_slug)
         policy_row("ablation", cfg.task, mesh_slug, cfg.ablation_demos, main_worlds, objects="meshes")
+    if cfg.robot_ablation_demos and not _has_robot_gaussians(ws):
+        log("bench sim2real: no robot-look ablation: the world has no robot Gaussians (its capture did not show the "
+            "robot), so every demo already draws the mesh robot")  # fmt: skip
+    elif cfg.robot_ablation_demos:
+        datasets[mesh_robot_slug] = gen(cfg.task, cfg.robot_ablation_demos, out=mesh_robot_slug, robot_look="mesh")
+        policy_row("robot_ablation", cfg.task, mesh_robot_slug, cfg.robot_ablation_demos, main_worlds,
+                   robot_look="mesh")  # fmt: skip
 
     result = {
         "bench": "sim2real",
@@ -271,6 +291,12 @@ def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[s
     }
     result["tables"] = markdown_tables(result, cfg)
     return result
+
+
+def _has_robot_gaussians(ws: Workspace) -> bool:
+    """Whether the workspace's world draws the robot from its captured Gaussians by default (``robot.gaussians``)."""
+    robot = (read_yaml(ws.world_yaml, "the world (world.yaml)") or {}).get("robot")
+    return isinstance(robot, dict) and bool(robot.get("gaussians"))
 
 
 def _scene_record(ws: Workspace) -> dict[str, Any]:
@@ -323,6 +349,17 @@ def markdown_tables(result: dict[str, Any], cfg: Sim2RealConfig) -> str:
                 "|---|---|---|",
                 f"| 3DGS (the method) | {_cell(gs.get('ground_truth'))} | {_cell(gs.get('hybrid'))} |",
                 f"| mesh only (vertex-coloured) | {_cell(mesh.get('ground_truth'))} | {_cell(mesh.get('hybrid'))} |"]
+    mesh_robot = next((r for r in rows if r["kind"] == "robot_ablation"), None)
+    if mesh_robot is not None:
+        gs = next((_single(r) for r in rows if r["kind"] in ("main", "data_scale") and r["task"] == cfg.task
+                   and r["demos"] == cfg.robot_ablation_demos), None) or {}  # fmt: skip
+        out += ["", f"Robot look: {cfg.task}, {cfg.robot_ablation_demos} demos, one training seed", "",
+                "| the robot in the demos | ground-truth world | its own world (hybrid, the robot drawn as in its "
+                "demos) |", "|---|---|---|",
+                f"| its captured Gaussians (the method) | {_cell(gs.get('ground_truth'))} | "
+                f"{_cell(gs.get('hybrid'))} |",
+                f"| the model's meshes (Genesis, composited) | {_cell(mesh_robot.get('ground_truth'))} | "
+                f"{_cell(mesh_robot.get('hybrid'))} |"]  # fmt: skip
     scale = sorted((_single(r) for r in rows if r["task"] == cfg.task and r["kind"] in ("main", "data_scale")),
                    key=lambda r: r["demos"])  # fmt: skip
     out += ["", f"Data scale (paper Table 4): {cfg.task}, ground-truth world, one training seed", "",

@@ -31,7 +31,7 @@ from ..policy.data import PolicyError, dataset_meta
 from ..render.options import MAX_SUPERSAMPLE
 from ..video import write_video
 from ..workspace import Workspace
-from .base import Input, Log
+from .base import ADDED_LATER, Input, Log
 
 __all__ = ["Config", "record_key", "inputs", "outputs", "run", "writes"]
 
@@ -68,6 +68,10 @@ class Config:
                     temporal ensembling (1 <= n <= its chunk length)
     objects         how the hybrid renderer draws objects: gaussians (the method) or meshes (the world a mesh-only
                     ablation policy was trained in, ``generate --objects meshes``)
+    robot_look      how the hybrid renderer draws the robot: gaussians (its per-link Gaussians as the capture saw it),
+                    mesh (Genesis's render of the model's meshes: the world a ``generate --robot-look mesh`` policy was
+                    trained in), auto (as the datasets the policy was trained on were generated, else gaussians when
+                    the world has them)
     supersample     the hybrid renderer's splat layer drawn at s x the frame size and box-averaged down (0: as the
                     datasets the policy was trained on were generated, ``generate --supersample``; 1 when unknown)
     start_region    boxes "object:x_min,x_max,y_min,y_max" (m, robot-base frame): every episode starts with that object
@@ -94,6 +98,7 @@ class Config:
     ensemble_combine: Literal["mean", "medoid"] = "mean"
     replan_every: int | None = ranged(None, ge=1, le=1000)
     objects: Literal["gaussians", "meshes"] = "gaussians"
+    robot_look: Literal["auto", "gaussians", "mesh"] = field(default="auto", metadata=ADDED_LATER)
     supersample: int = ranged(0, ge=0, le=MAX_SUPERSAMPLE)
     start_region: tuple[str, ...] = ()
     # how the episodes run, not what they are: a run resumes one made the other way
@@ -129,6 +134,9 @@ class Config:
             bad.append(f"objects={self.objects} is how the hybrid renderer draws them; the {self.renderer} renderer "
                        "draws its own world: add --objects gaussians (a setting given once stays in the workspace's "
                        "m2m.yaml)")  # fmt: skip
+        if self.robot_look != "auto" and self.renderer != "hybrid":
+            bad.append(f"robot_look={self.robot_look} is how the hybrid renderer draws the robot; the "
+                       f"{self.renderer} renderer draws its own world: add --robot-look auto")  # fmt: skip
 
         if not 0 <= self.supersample <= MAX_SUPERSAMPLE:
             bad.append(f"supersample must be from 0 (the datasets') or 1 (off) to {MAX_SUPERSAMPLE}, got "
@@ -235,6 +243,22 @@ def supersample_of(ws: Workspace, cfg: Config) -> int:
     return 1
 
 
+def robot_look_of(ws: Workspace, cfg: Config) -> str:
+    """How the hybrid renderer draws the robot: the config's, else as the policy's training datasets were generated
+    (their fingerprint: no key is auto), else auto; auto for the ground_truth renderer (it draws its own world)."""
+    if cfg.renderer != "hybrid":
+        return "auto"
+    if cfg.robot_look != "auto":
+        return cfg.robot_look
+    for d in _trained_on(policy_paths(ws, cfg)):
+        try:
+            return str(json.loads((d / "summary.json").read_text())["fingerprint"]["source"]["hybrid"]
+                       .get("robot_look", "auto"))  # fmt: skip
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            continue
+    return "auto"
+
+
 def ground_truth_dir(ws: Workspace, cfg: Config) -> Path:
     """The sample folder the ground_truth renderer draws; PolicyError when the workspace has none."""
     if cfg.ground_truth is not None:
@@ -266,6 +290,7 @@ def report_name(ws: Workspace, cfg: Config) -> str:
     who = "+".join(p.name for p in paths) if paths else task_slug(cfg.policy)
     who += "-medoid" if cfg.ensemble_combine == "medoid" else ""
     world = cfg.renderer + ("-mesh_objects" if cfg.objects == "meshes" else "")
+    world += "-mesh_robot" if robot_look_of(ws, cfg) == "mesh" else ""
     ss = supersample_of(ws, cfg)
     world += f"-ss{ss}" if ss != 1 else ""
     # minus signs kept as "m": boxes y [-0.2, 0.1] and [-0.2, -0.1] are different reports
@@ -314,11 +339,11 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
 
     task = task_of(ws, cfg)
     size = _size_of(ws, cfg)
-    supersample = supersample_of(ws, cfg)
+    supersample, robot_look = supersample_of(ws, cfg), robot_look_of(ws, cfg)
     gt = ground_truth_dir(ws, cfg) if cfg.renderer == "ground_truth" else None
     # every check (the task, the renderer's ground truth, the policy against the robot) before the twin's build
     env_cfg = make_config(ws.committed.world_dir, task, renderer=cfg.renderer, size=size, horizon=cfg.horizon,
-                          ground_truth=gt, hybrid=hybrid_options(cfg.objects, supersample),
+                          ground_truth=gt, hybrid=hybrid_options(cfg.objects, supersample, robot_look),
                           randomization=cfg.randomization())  # fmt: skip
     policy = open_policy(ws, cfg, env_cfg.world)
     out = ws.eval_dir(report_name(ws, cfg))
@@ -365,6 +390,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         "renderer": cfg.renderer,
         **({"objects": cfg.objects} if cfg.objects != "gaussians" else {}),
         **({"supersample": supersample} if supersample != 1 else {}),
+        **({"robot_look": robot_look} if robot_look != "auto" else {}),
         "policy": cfg.policy,
         "size": size,
         "seeds": [cfg.seed, cfg.seed + cfg.episodes - 1],
