@@ -77,8 +77,9 @@ def test_bench_sim2real_passes_the_ray_address_on(tmp_path, sample_dir, monkeypa
     monkeypatch.setattr(sim2real, "_side_by_side", lambda ws_, name, cs, parallel, log: (
         [fake_run(name, ws_, c, log) for c in cs] if parallel == 1 or name != "eval_policy"
         else pytest.fail("evaluations side by side in child processes")))  # fmt: skip
-    cfg = sim2real.Sim2RealConfig(sample=sample_dir, demos=(50,), ablation_demos=0, press_task="", seeds=1,
-                                  episodes=10, workers=6, parallel=2, ray_address="head:6379")  # fmt: skip
+    cfg = sim2real.Sim2RealConfig(sample=sample_dir, demos=(50,), ablation_demos=0, robot_ablation_demos=0,
+                                  press_task="", seeds=1, episodes=10, workers=6, parallel=2,
+                                  ray_address="head:6379")  # fmt: skip
     sim2real.run_sim2real(ws, cfg, log=lambda m: None)
     gens = [c for name, c in calls if name == "generate"]
     evals = [c for name, c in calls if name == "eval_policy"]
