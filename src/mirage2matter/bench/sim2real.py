@@ -322,6 +322,13 @@ def _single(r: dict[str, Any]) -> dict[str, Any]:
     return {**r, "ground_truth": r["ground_truth_single"], "hybrid": None}
 
 
+def _gaussian_twin(rows: list[dict[str, Any]], task: str, demos: int) -> dict[str, Any]:
+    """An ablation's twin: the policy row of ``task`` on ``demos`` of the method's demos, as one training seed's
+    (empty when the bench trained none)."""
+    return next((_single(r) for r in rows if r["kind"] in ("main", "data_scale") and r["task"] == task
+                 and r["demos"] == demos), {})  # fmt: skip
+
+
 def markdown_tables(result: dict[str, Any], cfg: Sim2RealConfig) -> str:
     """The paper's tables: success in the ground-truth ("real") world with its 95 % Wilson interval. The main
     policies as deployed (their seeds as one, and the first seed alone); the ablation and the data-scale curve
@@ -339,11 +346,9 @@ def markdown_tables(result: dict[str, Any], cfg: Sim2RealConfig) -> str:
             if seeds > 1:
                 out.append(f"| {r['task']} | {r['demos']} | the first seed alone | "
                            f"{_cell(r.get('ground_truth_single'))} | - |")  # fmt: skip
-    gs = next((_single(r) for r in rows if r["kind"] in ("main", "data_scale") and r["task"] == cfg.task
-               and r["demos"] == cfg.ablation_demos), None)  # fmt: skip
     mesh = next((r for r in rows if r["kind"] == "ablation"), None)
     if mesh is not None:
-        gs = gs or {}
+        gs = _gaussian_twin(rows, cfg.task, cfg.ablation_demos)
         out += ["", f"Ablation (paper Table 3): {cfg.task}, {cfg.ablation_demos} demos, one training seed", "",
                 "| objects in the demos | ground-truth world | its own world (hybrid, objects drawn as in its demos) |",
                 "|---|---|---|",
@@ -351,8 +356,7 @@ def markdown_tables(result: dict[str, Any], cfg: Sim2RealConfig) -> str:
                 f"| mesh only (vertex-coloured) | {_cell(mesh.get('ground_truth'))} | {_cell(mesh.get('hybrid'))} |"]
     mesh_robot = next((r for r in rows if r["kind"] == "robot_ablation"), None)
     if mesh_robot is not None:
-        gs = next((_single(r) for r in rows if r["kind"] in ("main", "data_scale") and r["task"] == cfg.task
-                   and r["demos"] == cfg.robot_ablation_demos), None) or {}  # fmt: skip
+        gs = _gaussian_twin(rows, cfg.task, cfg.robot_ablation_demos)
         out += ["", f"Robot look: {cfg.task}, {cfg.robot_ablation_demos} demos, one training seed", "",
                 "| the robot in the demos | ground-truth world | its own world (hybrid, the robot drawn as in its "
                 "demos) |", "|---|---|---|",

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -227,6 +228,17 @@ def _size_of(ws: Workspace, cfg: Config) -> int:
     return EpisodeSpec().size[0]
 
 
+def _as_generated(ws: Workspace, cfg: Config, read: Callable[[dict], Any], default: Any) -> Any:
+    """``read`` of the hybrid settings the policy's first readable training dataset was generated with (its
+    fingerprint's ``source.hybrid``), else ``default``."""
+    for d in _trained_on(policy_paths(ws, cfg)):
+        try:
+            return read(json.loads((d / "summary.json").read_text())["fingerprint"]["source"]["hybrid"])
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            continue
+    return default
+
+
 def supersample_of(ws: Workspace, cfg: Config) -> int:
     """The hybrid renderer's splat supersampling: the config's, else the one the policy's training datasets were
     generated with (their fingerprint), else 1; 1 for the ground_truth renderer (it draws its own world)."""
@@ -234,13 +246,7 @@ def supersample_of(ws: Workspace, cfg: Config) -> int:
         return 1
     if cfg.supersample:
         return cfg.supersample
-    for d in _trained_on(policy_paths(ws, cfg)):
-        try:
-            splat = json.loads((d / "summary.json").read_text())["fingerprint"]["source"]["hybrid"]["splat"]
-            return int(splat.get("supersample", 1))
-        except (OSError, ValueError, KeyError, TypeError, AttributeError):
-            continue
-    return 1
+    return _as_generated(ws, cfg, lambda hybrid: int(hybrid["splat"].get("supersample", 1)), 1)
 
 
 def robot_look_of(ws: Workspace, cfg: Config) -> str:
@@ -250,13 +256,7 @@ def robot_look_of(ws: Workspace, cfg: Config) -> str:
         return "auto"
     if cfg.robot_look != "auto":
         return cfg.robot_look
-    for d in _trained_on(policy_paths(ws, cfg)):
-        try:
-            return str(json.loads((d / "summary.json").read_text())["fingerprint"]["source"]["hybrid"]
-                       .get("robot_look", "auto"))  # fmt: skip
-        except (OSError, ValueError, KeyError, TypeError, AttributeError):
-            continue
-    return "auto"
+    return _as_generated(ws, cfg, lambda hybrid: str(hybrid.get("robot_look", "auto")), "auto")
 
 
 def ground_truth_dir(ws: Workspace, cfg: Config) -> Path:
