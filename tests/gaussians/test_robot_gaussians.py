@@ -42,8 +42,9 @@ def test_mesh_gaussians_lie_on_the_links_in_the_models_colours(robot):
 
 
 def test_fitted_colours_are_the_captures_where_seen_and_the_meshs_elsewhere(robot):
-    """Keyframes of a robot painted orange (its own Gaussians re-coloured, rendered): fitting from the mesh look
-    recovers the paint on the held-out views' robot pixels, and what no camera saw keeps the mesh colour."""
+    """Keyframes of a robot painted orange (its own Gaussians re-coloured, rendered): the baked colours recover the
+    paint on the held-out views' robot pixels, every Gaussian the keyframes saw is the paint (none drifts to another
+    colour), and what no camera saw keeps the mesh colour."""
     links, T = robot
     lg = mesh_gaussians(links, spacing=0.008)
     truth = {n: Gaussians(g.means, g.quats, g.log_scales, g.logit_opacities, g.sh.clone()) for n, g in lg.items()}
@@ -63,14 +64,24 @@ def test_fitted_colours_are_the_captures_where_seen_and_the_meshs_elsewhere(robo
         sils.append(robot_silhouette(cam, links))
     train, held = [0, 1, 2, 4, 6], [3, 5]
     fit = fit_robot_colours(lg, T, None, [views[i] for i in train], [sils[i] for i in train],
-                            [views[i] for i in held], [sils[i] for i in held], iterations=150)  # fmt: skip
+                            [views[i] for i in held], [sils[i] for i in held])  # fmt: skip
+    assert fit.iterations == 0  # the bake alone by default
     assert fit.psnr_captured > fit.psnr_mesh + 10.0, (fit.psnr_mesh, fit.psnr_captured)
     assert fit.psnr_captured > 25.0
+    paint = torch.tensor([0.87, 0.47, 0.16])
     for name, g in fit.link_gaussians.items():
+        rgb = g.sh[:, 0] * 0.28209479177387814 + 0.5
         changed = (g.sh[:, 0] != lg[name].sh[:, 0]).any(dim=1)
         assert 0.0 < fit.seen_fraction[name] <= 1.0 or name in ("left_finger", "right_finger")
-        assert abs(float(changed.float().mean()) - fit.seen_fraction[name]) < 1e-6
+        assert float(changed.float().mean()) >= fit.seen_fraction[name] - 1e-6  # seen ones took the capture's
+        # the seen part: the paint (a few edge Gaussians mix the silhouette's border)
+        seen = np.sort((rgb[changed] - paint).abs().max(dim=1).values.numpy())[: int(fit.seen_fraction[name] * len(g))]
+        assert len(seen) == 0 or np.percentile(seen, 95) < 0.1, (name, np.percentile(seen, 95))
+        assert torch.equal(g.sh[~changed, 0], lg[name].sh[~changed, 0])
     assert min(fit.seen_fraction.values()) < 0.9  # the back of the robot was not seen, and kept the mesh's colour
+    refined = fit_robot_colours(lg, T, None, [views[i] for i in train], [sils[i] for i in train],
+                                [views[i] for i in held], [sils[i] for i in held], iterations=40)  # fmt: skip
+    assert refined.iterations == 40 and refined.psnr_captured > 35.0  # the steps keep the paint
 
 
 def test_a_keyframe_where_the_robot_stood_elsewhere_is_named(robot):
@@ -93,7 +104,7 @@ def test_a_keyframe_where_the_robot_stood_elsewhere_is_named(robot):
                          torch.tensor(cam.K, dtype=torch.float32), 160, 120, torch.zeros(3), "cpu").rgb  # fmt: skip
         views.append(make_view(cam, img.numpy()))
         sils.append(robot_silhouette(cam, links))  # where the capture joints put the robot
-    fit = fit_robot_colours(lg, T, None, views, sils, iterations=60)
+    fit = fit_robot_colours(lg, T, None, views, sils)
     assert fit.disagreeing == ["k4"], fit.view_error
 
 
@@ -126,10 +137,10 @@ def test_a_second_pose_shows_the_links_from_another_side(robot):
         pose_of.append(p)
     # held out: a view of the second pose, showing the side the first pose turned away from every camera
     train = [i for i in range(14) if i != 10]
-    one = fit_robot_colours(lg, [T, turned], None, views[:7], sils[:7], [views[10]], [sils[10]], iterations=120,
+    one = fit_robot_colours(lg, [T, turned], None, views[:7], sils[:7], [views[10]], [sils[10]],
                             view_pose_train=pose_of[:7], view_pose_eval=[1])  # fmt: skip
     both = fit_robot_colours(lg, [T, turned], None, [views[i] for i in train], [sils[i] for i in train],
-                             [views[10]], [sils[10]], iterations=120, view_pose_train=[pose_of[i] for i in train],
+                             [views[10]], [sils[10]], view_pose_train=[pose_of[i] for i in train],
                              view_pose_eval=[1])  # fmt: skip
     assert both.psnr_captured > one.psnr_captured + 5.0, (one.psnr_captured, both.psnr_captured)
     assert both.psnr_captured > both.psnr_mesh + 10.0 and both.disagreeing == [], both.view_error

@@ -178,7 +178,9 @@ def test_bench_policy_gap_records_the_expert_once_and_scores_both_renderers(
     err = result["policies"]["tiny"]
     assert 0 < err["hybrid"] < 10 and 0 < err["ground_truth"] < 10
     assert err["gap"] == pytest.approx(err["ground_truth"] - err["hybrid"], abs=2e-5)
-    (folder,) = (ws / "evals" / "expert_pairs").glob("grasp_banana-48px-*")  # and the world's hash
+    assert (err["robot_look"], err["supersample"]) == ("auto", 1)  # as the policy's demos were drawn
+    # keyed on the world's hash and on the ground truth's (another sample folder records anew)
+    (folder,) = (ws / "evals" / "expert_pairs").glob("grasp_banana-48px-*-gt*")
     pair = np.load(folder / "pair_2000000.npz")
     n = len(pair["action"])
     for key in ("hybrid.head", "hybrid.wrist", "ground_truth.head", "ground_truth.wrist"):

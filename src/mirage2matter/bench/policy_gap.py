@@ -27,6 +27,7 @@ import numpy as np
 
 from ..configs import ranged
 from ..datagen import task_slug
+from ..env.config import hybrid_options
 from ..env.episode_cache import load_or_record_episodes
 from ..policy.data import IMAGE_PREFIX, STATE_KEY
 from ..stages import eval_policy
@@ -40,14 +41,15 @@ RENDERERS = ("hybrid", "ground_truth")
 
 
 def record_expert_pairs(
-    world: str | Path, task: str, sample_dir: str | Path, seeds: Sequence[int], size: int
+    world: str | Path, task: str, sample_dir: str | Path, seeds: Sequence[int], size: int, hybrid: Any = None
 ) -> list[dict[str, Any]]:
     """The scripted expert of ``task`` in the twin of ``world`` for each seed (the env's episode seed), every
-    observation rendered by the hybrid renderer (what generation writes) and by the sample's ground truth."""
+    observation rendered by the hybrid renderer (what generation writes; ``hybrid``: its ``HybridOptions``, default
+    the env's) and by the sample's ground truth."""
     from ..env.ground_truth import GroundTruthFrames
     from ..env.twin_env import TwinEnv
 
-    env = TwinEnv(world, task, size=size)
+    env = TwinEnv(world, task, size=size, **({} if hybrid is None else {"hybrid": hybrid}))
     gt = GroundTruthFrames(env.twin, Path(sample_dir), env.config.cameras, env.config.size)
     try:
         return [_record_one(env, gt, int(seed)) for seed in seeds]
@@ -86,11 +88,12 @@ def _record_one(env: Any, gt: Any, seed: int) -> dict[str, Any]:
 
 
 def load_or_record_pairs(
-    folder: Path, world: str | Path, task: str, sample_dir: str | Path, seeds: Sequence[int], size: int, log: Log
+    folder: Path, world: str | Path, task: str, sample_dir: str | Path, seeds: Sequence[int], size: int, log: Log,
+    hybrid: Any = None,
 ) -> list[dict[str, Any]]:
     """:func:`record_expert_pairs`, each episode cached as ``folder/pair_<seed>.npz`` (written atomically): a
     second call, or one with more seeds, records only what is missing."""
-    record = lambda missing: record_expert_pairs(world, task, sample_dir, missing, size)
+    record = lambda missing: record_expert_pairs(world, task, sample_dir, missing, size, hybrid)
     return load_or_record_episodes(folder, "pair", seeds, record, log, "expert episode(s) through both renderers")
 
 
@@ -151,21 +154,36 @@ def run_policy_gap(ws: Workspace, gap: PolicyGapConfig, policy_refs: list[str], 
                                           "error is in its action-std units)")  # fmt: skip
         policies[ref] = eval_policy.open_policy(ws, replace(cfg, policy=ref), world)
     seeds = list(range(gap.seed, gap.seed + gap.episodes))
-    # keyed on the world's description too: a world composed again (other objects, other placements) records anew
+    # the hybrid frames as each policy's demos drew them (the robot's look, the splats' supersampling): policies
+    # drawn alike share one recording
+    drawn: dict[tuple[int, str], list[str]] = {}
+    for ref in policy_refs:
+        as_drawn = replace(cfg, policy=ref, renderer="hybrid")
+        drawn.setdefault((eval_policy.supersample_of(ws, as_drawn), eval_policy.robot_look_of(ws, as_drawn)),
+                         []).append(ref)  # fmt: skip
+    # keyed on the world's description (a world composed again records anew) and on the ground truth drawn
     world_id = hashlib.sha256(ws.committed.world_yaml.read_bytes()).hexdigest()[:8]
-    folder = ws.evals_dir / "expert_pairs" / f"{task_slug(gap.task)}-{gap.size}px-{world_id}"
-    episodes = load_or_record_pairs(folder, ws.committed.world_dir, gap.task, gt, seeds, gap.size, log=log)
-    ok = sum(bool(e["success"]) for e in episodes)
-    log(f"expert: {ok}/{len(episodes)} episodes succeeded (only those are compared)")
-    if not ok:
-        raise eval_policy.PolicyError(f"bench policy-gap: the scripted expert failed all {len(episodes)} episodes of "
-                                      f"{gap.task!r} in this world ({folder}); check it with `m2m task -w "
-                                      f"{ws.root} {gap.task!r}`")  # fmt: skip
-    rows = {}
-    for ref, policy in policies.items():
-        err = open_loop_error(policy, episodes, stride=gap.stride)
-        rows[ref] = {**{k: round(v, 5) for k, v in err.items()}, "gap": round(err["ground_truth"] - err["hybrid"], 5)}
-        log(f"{ref}: open-loop error hybrid {err['hybrid']:.4f}, ground truth {err['ground_truth']:.4f}")
-    result = {"task": gap.task, "episodes": len(episodes), "expert_successes": ok, "size": gap.size,
+    gt_id = hashlib.sha256((gt / "ground_truth.json").read_bytes()).hexdigest()[:8]
+    rows, ok, n_episodes = {}, 0, 0
+    for (supersample, look), refs in drawn.items():
+        name = f"{task_slug(gap.task)}-{gap.size}px-{world_id}-gt{gt_id}"
+        name += ("-mesh_robot" if look == "mesh" else "") + (f"-ss{supersample}" if supersample > 1 else "")
+        folder = ws.evals_dir / "expert_pairs" / name
+        hybrid = hybrid_options(cfg.objects, supersample, look)
+        episodes = load_or_record_pairs(folder, ws.committed.world_dir, gap.task, gt, seeds, gap.size, log=log,
+                                        hybrid=hybrid)  # fmt: skip
+        ok, n_episodes = sum(bool(e["success"]) for e in episodes), len(episodes)
+        log(f"expert: {ok}/{n_episodes} episodes succeeded (only those are compared)")
+        if not ok:
+            raise eval_policy.PolicyError(f"bench policy-gap: the scripted expert failed all {n_episodes} episodes "
+                                          f"of {gap.task!r} in this world ({folder}); check it with `m2m task -w "
+                                          f"{ws.root} {gap.task!r}`")  # fmt: skip
+        for ref in refs:
+            err = open_loop_error(policies[ref], episodes, stride=gap.stride)
+            gap_ = round(err["ground_truth"] - err["hybrid"], 5)
+            rows[ref] = {**{k: round(v, 5) for k, v in err.items()}, "gap": gap_, "robot_look": look,
+                         "supersample": supersample}  # fmt: skip
+            log(f"{ref}: open-loop error hybrid {err['hybrid']:.4f}, ground truth {err['ground_truth']:.4f}")
+    result = {"task": gap.task, "episodes": n_episodes, "expert_successes": ok, "size": gap.size,
               "stride": gap.stride, "seeds": [seeds[0], seeds[-1]], "policies": rows}  # fmt: skip
     return result

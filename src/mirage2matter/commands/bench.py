@@ -130,8 +130,9 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
         "policy-gap", help="policies' open-loop action error on expert episodes, hybrid vs ground-truth frames; "
         "JSON line last",
         description="Record the scripted expert's episodes of a task in the sample's reconstructed world, every "
-        "observation rendered twice (hybrid, as generation writes it, and the sample's ground truth; cached in "
-        "<workspace>/evals/expert_pairs), then for each policy the mean |predicted chunk - expert's actions| in "
+        "observation rendered twice (hybrid, as the policy's demos were drawn: their robot look and supersampling; "
+        "and the sample's ground truth; cached in <workspace>/evals/expert_pairs), then for each policy the mean "
+        "|predicted chunk - expert's actions| in "
         "action-std units on each renderer's frames. Minutes where a closed-loop evaluation takes tens of minutes; "
         "on the sample the ground-truth error ranked nine grasp policies much as their closed-loop success did. "
         "It scores the expert's states only: compare policies of one training recipe with it, not recipes (a "

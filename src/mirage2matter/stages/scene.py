@@ -69,8 +69,10 @@ class Config:
     robot_margin_px  where align-scene found the robot in the keyframes, its silhouette at the capture joint state,
                     grown by this many pixels, is not trained on (nor measured), and the Gaussians only those pixels
                     saw are dropped: no frozen copy of the robot in the scene
-    robot_iterations  steps fitting the colours of the robot's own Gaussians (per link, on its meshes) to the
-                    keyframes' robot pixels, the scene in front: the robot drawn as the capture saw it (scene/robot/)
+    robot_iterations  the robot's own Gaussians (per link, on its meshes) take their colours from the keyframes'
+                    robot pixels, the scene in front (each Gaussian the weighted average of the pixels it was drawn
+                    into): the robot drawn as the capture saw it (scene/robot/); then this many gradient steps on
+                    the Gaussians seen (0: the average alone, best at the poses a task moves the robot to)
     filter_3d       Mip-Splatting's 3D smoothing filter, a variance in squared training pixels (0.2 as in the
                     paper; 0: off): no Gaussian is trained thinner than the finest pixel a keyframe saw it with, so
                     views closer or sharper than the keyframes (the head photo at full size, a wrist camera) do not
@@ -99,7 +101,9 @@ class Config:
     # pixels the robot's silhouette grows by before it is masked out of the keyframes (calib/robot.json): the link
     # meshes are the model's and the cameras a few tenths of a pixel off
     robot_margin_px: int = ranged(2, ge=0, le=100, metadata=ADDED_LATER)
-    robot_iterations: int = ranged(300, ge=0, le=10**6, metadata=ADDED_LATER)
+    # 300 before the colours were baked (gaussians.robot.MESH_PRIOR_PX); after the bake they lower the robot's pixels
+    # at a task's poses (gaussians.robot.fit_robot_colours)
+    robot_iterations: int = ranged(0, ge=0, le=10**6, metadata=ADDED_LATER)
 
     def validate(self) -> None:
         from ..gaussians.filter3d import check_variance
