@@ -78,7 +78,8 @@ def _drag(url: str, name: str, position, wxyz) -> None:
 
     async def run() -> None:
         ws_url = url.replace("http://", "ws://")
-        async with websockets.connect(ws_url, subprotocols=[f"viser-v{viser.__version__}"]) as conn:
+        # no size limit: the scene's splats arrive in one message, over the client library's 1 MiB default
+        async with websockets.connect(ws_url, subprotocols=[f"viser-v{viser.__version__}"], max_size=None) as conn:
             await asyncio.sleep(0.5)
             for msg in ({"type": "TransformControlsDragStartMessage", "name": name, "owner": ""},
                         {"type": "TransformControlsUpdateMessage", "name": name, "wxyz": [float(x) for x in wxyz],

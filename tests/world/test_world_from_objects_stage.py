@@ -51,7 +51,7 @@ def staged_ws(tmp_path_factory) -> Path:
         ),
         log=lambda s: None,
     )
-    scene = [_scene_stand_in(0, 8000.0)]
+    scene = [_scene_stand_in(0, 8000.0, gt)]
     for k, a in enumerate(x for x in build_assets(0) if x.name in ("banana", "croissant", "button_base", "button_cap")):
         scene.append(apply_sim3(surface_gaussians(a.mesh, 3000, 50 + k), Sim3.from_matrix(np.asarray(a.T_base_obj))))
     (ws / "scene").mkdir()

@@ -78,7 +78,7 @@ def recon_ws(tmp_path_factory) -> tuple[Path, dict[str, trimesh.Trimesh]]:
     poses = {n: np.asarray(assets[n if n != "button" else "button_base"].T_base_obj, float) for n in meshes}
     ws = tmp_path_factory.mktemp("recon_ws")
     truth = {}
-    scene = [_scene_stand_in(0, 8000.0)]
+    scene = [_scene_stand_in(0, 8000.0, gt)]
     for k, (name, mesh) in enumerate(meshes.items()):
         placement = Sim3.from_matrix(poses[name])
         scene.append(apply_sim3(surface_gaussians(mesh, 3000, 100 + k), placement))  # the splat holds the objects

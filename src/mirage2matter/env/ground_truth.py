@@ -3,7 +3,7 @@
 In the sim-to-real experiment on the sample (issue 16) the "real world" is the textured-mesh scene that
 rendered ``samples/tabletop/scene.mp4``: room, table, ChArUco board, banana, croissant and the press button,
 lit and shaded by the sample maker's Genesis rasterizer. :class:`GroundTruthRenderer` rebuilds that scene from
-``ground_truth.json`` (the same ``world.sample_assets.build_assets(seed, board)``, the same look and material
+``ground_truth.json`` (the same ``world.sample_assets.assets_of_sample``, the same look and material
 settings, the same scene builder, ``mirage2matter.sim.scene``), adds the robot, and renders it from any number of
 named cameras with the movable objects at the poses the physics twin reports and the robot at its joint state.
 
@@ -44,14 +44,13 @@ from typing import Any
 
 import numpy as np
 
-from ..calib.board import target_from_json
 from ..errors import M2MError
 from ..processes import TimedWorker, WorkerTimeout
 from ..robots import DEFAULT_ROBOT, RobotSpec, get_robot
 from ..robots.surface import robot_surface
 from ..sim.scene import RenderScene, SceneLook, pos_quat, pose_from
 from ..sim.twin import Twin, TwinOptions
-from ..world.sample_assets import build_assets
+from ..world.sample_assets import assets_of_sample
 from ..world.sample_robot_look import ROBOT_LOOK_PREFIX, robot_look_meshes
 from .config import EnvError
 
@@ -217,11 +216,9 @@ class GroundTruthRenderer:
         self.ground_truth = gt
         self.config = config if config is not None else SceneLook()
         try:
-            board = target_from_json(gt["board"]["spec"])
+            assets = assets_of_sample(gt)
         except (KeyError, TypeError, ValueError) as exc:
-            raise GroundTruthError(f"{self.sample_dir / 'ground_truth.json'}: bad board spec ({exc})") from None
-        board_at = (gt.get("config") or {}).get("board_at")  # a sample with the robot in it: the board beside it
-        assets = build_assets(seed=int(gt["seed"]), board=board, board_at=tuple(board_at) if board_at else None)
+            raise GroundTruthError(f"{self.sample_dir / 'ground_truth.json'}: bad board spec or seed ({exc})") from None
         # a sample whose video filmed the robot in a look of its own (world.sample_robot_look): the robot is drawn so
         look = (gt.get("robot") or {}).get("look") if self.spec is not None else None
         try:

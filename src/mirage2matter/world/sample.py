@@ -37,7 +37,7 @@ from .config import (
     WorldConfigError,
     save_world,
 )
-from .sample_assets import build_assets
+from .sample_assets import assets_of_sample
 
 __all__ = ["default_wrist_camera", "sample_world", "surface_gaussians", "convex_parts"]
 
@@ -143,18 +143,25 @@ def _final(part: PartConfig, tmp: Path, final: Path) -> PartConfig:
     return PartConfig(swap(part.gaussians), swap(part.mesh), swap(part.collision))
 
 
-def _scene_stand_in(seed: int, density_per_m2: float) -> Gaussians:
-    """Gaussians on the sample's table top (and the board on it): a scene for worlds without a trained one."""
+# The floor is far and out of focus in every view: coarse discs (5 cm apart) fill it in. The walls stay out: a
+# viewer's orbit from outside the room would see their backs and nothing else (they fill the head view's top corner).
+FAR_DENSITY_PER_M2 = 400.0
+
+
+def _scene_stand_in(seed: int, density_per_m2: float, gt: dict) -> Gaussians:
+    """Gaussians on the sample's table top and board (where the sample put it: ``gt``, its ground_truth.json), and
+    coarser ones on its floor: a scene for worlds without a trained one, seen from the sample's cameras."""
     parts = []
-    for a in build_assets(0):
-        if a.name not in ("table", "board"):
+    for a in assets_of_sample(gt):
+        far = a.name == "floor"
+        if a.name not in ("table", "board") and not far:
             continue
         mesh = a.mesh.copy()
         mesh.apply_transform(np.asarray(a.T_base_obj))
-        if a.name == "table":  # only the top face: the rest is out of every view that matters here
+        if a.name == "table":  # only the top face: its sides and legs are out of every view that matters here
             keep = mesh.face_normals[:, 2] > 0.9
             mesh = mesh.submesh([np.nonzero(keep)[0]], append=True)
-        n = max(1000, int(mesh.area * density_per_m2))
+        n = max(1000, int(mesh.area * (FAR_DENSITY_PER_M2 if far else density_per_m2)))
         g = surface_gaussians(mesh, n, seed + len(parts))
         if a.name == "board":  # 1 mm proud of the table, drawn over it
             g.means[:, 2] += 0.0005
@@ -236,7 +243,7 @@ def sample_world(
     if scene_ply is None:
         scene_ply = world_dir / "scene_stand_in.ply"
         if overwrite or not scene_ply.is_file():
-            write_ply(scene_ply, _scene_stand_in(seed, scene_density_per_m2))
+            write_ply(scene_ply, _scene_stand_in(seed, scene_density_per_m2, gt))
     try:
         robot_cfg = RobotConfig(name=str(robot))
     except RobotError as e:

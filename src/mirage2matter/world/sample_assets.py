@@ -38,7 +38,7 @@ from PIL import Image
 from trimesh.exchange.obj import export_obj
 
 from ..atomic import atomic_write
-from ..calib.board import BoardSpec, margin_pixels
+from ..calib.board import BoardSpec, margin_pixels, target_from_json
 
 __all__ = [
     "BOARD_MARGIN_SQUARES",
@@ -1012,3 +1012,12 @@ def ground_truth_entries(assets: list[PlacedAsset], mesh_dir: str = "") -> list[
         }
         for a in assets
     ]
+
+
+def assets_of_sample(gt: dict) -> list[PlacedAsset]:
+    """A sample's assets as its maker placed them, from its ground_truth.json record ``gt``: its seed's layout and its
+    board (the spec) where it lay (``config.board_at``: a sample that films the robot puts the board beside the base).
+    A malformed record raises KeyError, TypeError or ValueError."""
+    board_at = (gt.get("config") or {}).get("board_at")
+    return build_assets(seed=int(gt["seed"]), board=target_from_json(gt["board"]["spec"]),
+                        board_at=tuple(board_at) if board_at else None)  # fmt: skip
