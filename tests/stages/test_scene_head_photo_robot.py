@@ -227,3 +227,13 @@ def test_train_scene_masks_the_robot_out_of_the_sample_head_photo_and_says_how_m
     rays = cam.pixel_rays(np.c_[u.ravel(), v.ravel()]) @ cam.T_world_cam[:3, :3].T
     truth = mesh.ray.intersects_any(np.repeat(cam.T_world_cam[None, :3, 3], len(rays), 0), rays).reshape(240, 320)
     assert (truth & ~mask).sum() == 0 and iou(mask, truth) > 0.8, iou(mask, truth)  # 0.88: the 2 px margin
+
+
+def test_a_workspace_written_before_the_bake_keeps_its_scene_fingerprint():
+    """Every m2m.yaml written before the robot's colours were baked holds robot_iterations: 300, the default then: it
+    reads as today's default (no scene retrained for it); another count is kept, and fingerprinted."""
+    from mirage2matter.configs import fingerprinted, from_dict
+
+    old = from_dict(SceneConfig, {"robot_iterations": 300})
+    assert old.robot_iterations == 0 and fingerprinted(old) == fingerprinted(SceneConfig())
+    assert "robot_iterations" in fingerprinted(from_dict(SceneConfig, {"robot_iterations": 50}))

@@ -105,6 +105,15 @@ class Config:
     # at a task's poses (gaussians.robot.fit_robot_colours)
     robot_iterations: int = ranged(0, ge=0, le=10**6, metadata=ADDED_LATER)
 
+    @staticmethod
+    def upgrade(data: dict[str, Any]) -> dict[str, Any]:
+        """A workspace's settings from before the robot's colours were baked: robot_iterations 300, the default then
+        (written into every m2m.yaml), -> the default now, so such a workspace's scene is not retrained for it
+        (``m2m train-scene`` again bakes its robot)."""
+        if data.get("robot_iterations") == 300:
+            data["robot_iterations"] = 0
+        return data
+
     def validate(self) -> None:
         from ..gaussians.filter3d import check_variance
 
