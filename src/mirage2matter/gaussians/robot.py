@@ -151,8 +151,8 @@ def _bake(views, silhouettes, scene, robots, view_pose, dc, backend, background)
     :data:`MESH_PRIOR_PX` pixels. -> (the baked DC [N,3], each Gaussian's summed weight [N] in pixels)."""
     from .sh import SH_C0, rgb_to_sh_dc
 
-    num = torch.zeros(dc.shape[0], 3)
-    den = torch.zeros(dc.shape[0], 3)
+    num = torch.zeros_like(dc)
+    den = torch.zeros_like(dc)
     for v, sil, p in zip(views, silhouettes, view_pose, strict=True):
         m = _robot_pixels(sil, v.mask)
         if int(m.sum()) < 50:
