@@ -49,7 +49,7 @@ def record_expert_pairs(
     from ..env.ground_truth import GroundTruthFrames
     from ..env.twin_env import TwinEnv
 
-    env = TwinEnv(world, task, size=size, **({} if hybrid is None else {"hybrid": hybrid}))
+    env = TwinEnv(world, task, size=size, hybrid=hybrid)
     gt = GroundTruthFrames(env.twin, Path(sample_dir), env.config.cameras, env.config.size)
     try:
         return [_record_one(env, gt, int(seed)) for seed in seeds]

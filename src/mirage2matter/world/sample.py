@@ -153,9 +153,9 @@ def _scene_stand_in(seed: int, density_per_m2: float, gt: dict) -> Gaussians:
     coarser ones on its floor: a scene for worlds without a trained one, seen from the sample's cameras."""
     parts = []
     for a in assets_of_sample(gt):
-        far = a.name == "floor"
-        if a.name not in ("table", "board") and not far:
+        if a.name not in ("table", "board", "floor"):
             continue
+        far = a.name == "floor"
         mesh = a.mesh.copy()
         mesh.apply_transform(np.asarray(a.T_base_obj))
         if a.name == "table":  # only the top face: its sides and legs are out of every view that matters here
