@@ -5,9 +5,11 @@ forward kinematics poses them like any movable part). They start in the mesh loo
 (:func:`mesh_gaussians`: what a robot with no capture gets), and :func:`fit_robot_colours` takes their colours from the
 keyframe pixels where the robot was seen: the frozen scene and the posed robot are rendered together, so what stands
 in front of a link hides it, and only the robot's silhouette is read. Each Gaussian's colour is the average of the
-pixels it was drawn into, weighted by its share of each (baked, like a texture); optional gradient steps refine it.
-Positions, shapes and opacities stay the mesh's: only the colours are the capture's. A Gaussian that no keyframe pixel
-fell on keeps the mesh's colour.
+pixels it was drawn into, weighted by its share of each (baked, like a texture), with its part's paint (the median of
+the part's seen Gaussians; a part: one material of one link) as a prior of a few pixels; optional gradient steps
+refine it. Positions, shapes and opacities stay the mesh's: only the colours are the capture's. A Gaussian that no
+keyframe pixel fell on takes its part's paint; a part that no keyframe saw keeps the mesh's colours. The links a
+camera on the robot sees from centimetres (the hand, the fingers) get finer Gaussians.
 """
 
 from __future__ import annotations
@@ -27,6 +29,12 @@ from .transform import apply_sim3
 __all__ = ["RobotFitResult", "fit_robot_colours", "mesh_gaussians", "posed_robot"]
 
 SPACING_M = 0.004  # one Gaussian per 4 x 4 mm of link surface: ~60k for the Panda, finer than a keyframe pixel at 1 m
+# The links a camera on the robot sees from centimetres (LinkSurface.close_up: the wrist camera's hand, the fingers)
+# get Gaussians at half the spacing (the Panda: 58k -> 80k): at 4 mm their discs (sigma 2.4 mm) drew the fingers in
+# the wrist view as blurred blobs. On the bundled sample (3 scripted grasps at 128 px, against the ground truth) the
+# wrist view's pixels off the robot came 22.6 -> 22.9 dB with it; alone it left specks on the hand (each Gaussian
+# a few keyframe pixels: 24.9 -> 23.2 dB on the robot's), which the part prior below evens out.
+CLOSE_UP_SPACING = 0.5
 OPACITY = 0.97
 # The mesh's colour in a Gaussian's baked average counts as this many pixels' worth of observation: it decides only
 # where next to no keyframe pixel fell. On the bundled sample's robot (3 scripted grasps, the robot's pixels in the
@@ -35,6 +43,15 @@ OPACITY = 0.97
 # front surface, were kept by Adam at full steps in their gradients' sign: white and blue specks, glare on the
 # yellow link). The back of a link takes its front's colour: paint is mostly one colour per part.
 MESH_PRIOR_PX = 1e-4
+# A part's paint (the weighted median of its seen Gaussians' baked colours; a part: the faces of one link that share
+# one material in the model) counts as this many pixels in each of its Gaussians' averages: what the keyframes saw
+# barely or not at all (the hand's top, the fingers' inner faces; a finger's few keyframe pixels mixed with the table
+# behind it) takes the part's paint, and a Gaussian many pixels saw keeps its own colour (logos, scuffs). On the
+# bundled sample, the robot's pixels at a task's poses, head / wrist: 24.5 / 24.9 dB without, 24.9 / 25.1 (0.5 px),
+# 24.9 / 25.3 (2 px), 24.5 / 25.4 (8 px); with the close-up spacing 24.8 / 25.3 dB, the fingers dark as painted
+# instead of brown and orange. The held-out keyframes' robot pixels: 30.1 -> 29.3 dB (texture evened out).
+PART_PRIOR_PX = 2.0
+PART_MIN_SEEN = 10  # a part with fewer Gaussians seen (SEEN_PX) keeps the model's colour as its paint
 SEEN_PX = 0.01  # seen_fraction: Gaussians that keyframe pixels gave at least a hundredth of a pixel's weight
 
 
@@ -48,8 +65,10 @@ def _tangent_frames(normals: np.ndarray) -> np.ndarray:
 
 
 def mesh_gaussians(links: Sequence[LinkSurface], spacing: float = SPACING_M, seed: int = 0) -> dict[str, Gaussians]:
-    """{link: Gaussians in the link's own frame}: flat discs on the link's surface in the model's colours."""
-    pts, owner, face = sample_surface(links, spacing, seed, frame="link", with_faces=True)
+    """{link: Gaussians in the link's own frame}: flat discs on the link's surface in the model's colours, one per
+    ``spacing`` x ``spacing`` of surface (times :data:`CLOSE_UP_SPACING` on the links seen close up)."""
+    spacings = [spacing * (CLOSE_UP_SPACING if link.close_up else 1.0) for link in links]
+    pts, owner, face = sample_surface(links, spacings, seed, frame="link", with_faces=True)
     out = {}
     for i, link in enumerate(links):
         sel = owner == i
@@ -60,7 +79,7 @@ def mesh_gaussians(links: Sequence[LinkSurface], spacing: float = SPACING_M, see
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
         rgb = link.face_rgb[face[sel]] if link.face_rgb is not None else np.full((int(sel.sum()), 3), 0.6)
         m = int(sel.sum())
-        scales = np.tile([0.6 * spacing, 0.6 * spacing, 0.08 * spacing], (m, 1))
+        scales = np.tile([0.6, 0.6, 0.08], (m, 1)) * spacings[i]
         out[link.link] = Gaussians.from_activated(
             torch.tensor(pts[sel], dtype=torch.float32), torch.tensor(_tangent_frames(n), dtype=torch.float32),
             torch.tensor(scales, dtype=torch.float32), torch.full((m,), OPACITY),
@@ -144,11 +163,31 @@ def _psnr(views, silhouettes, scene, robots, view_pose, dc, backend, background)
     return None if n == 0 else float(10 * np.log10(1.0 / max(se / n, 1e-12)))
 
 
-def _bake(views, silhouettes, scene, robots, view_pose, dc, backend, background) -> tuple[torch.Tensor, torch.Tensor]:
+def _weighted_median(x: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """[C]: per column of ``x`` [M,C], the value where the weights ``w`` [M] (sorted by that column) reach half."""
+    out = []
+    for c in range(x.shape[1]):
+        order = torch.argsort(x[:, c])
+        cum = torch.cumsum(w[order], 0)
+        out.append(x[order[int(torch.searchsorted(cum, cum[-1] / 2).clamp_max(len(cum) - 1))], c])
+    return torch.stack(out)
+
+
+def _parts(link_sizes: Sequence[int], dc: torch.Tensor) -> torch.Tensor:
+    """[N] int: each Gaussian's part, its link (``link_sizes``: Gaussians per link, in order) and its model colour
+    (``dc`` [N,3]: the mesh look, one per material)."""
+    link = torch.repeat_interleave(torch.arange(len(link_sizes)), torch.as_tensor(list(link_sizes)))
+    key = torch.cat([link[:, None].to(dc.dtype), dc.detach().cpu()], dim=1)
+    return torch.unique(key, dim=0, return_inverse=True)[1]
+
+
+def _bake(views, silhouettes, scene, robots, view_pose, dc, backend, background,
+          parts: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
     """Each Gaussian's colour as the average of the robot pixels it was drawn into, each pixel weighted by the
     Gaussian's share of it (its blend weight alpha * T: the render's derivative with respect to its colour, so the
     scene in front and the other links occlude as in the picture), the mesh's colour (``dc`` [N,3]) counted as
-    :data:`MESH_PRIOR_PX` pixels. -> (the baked DC [N,3], each Gaussian's summed weight [N] in pixels)."""
+    :data:`MESH_PRIOR_PX` pixels and, with ``parts`` [N] (:func:`_parts`), its part's paint as :data:`PART_PRIOR_PX`.
+    -> (the baked DC [N,3], each Gaussian's summed weight [N] in pixels)."""
     from .sh import SH_C0, rgb_to_sh_dc
 
     num = torch.zeros_like(dc)
@@ -165,6 +204,16 @@ def _bake(views, silhouettes, scene, robots, view_pose, dc, backend, background)
     weight = den / SH_C0  # d colour / d DC is the DC's basis constant times the blend weight
     mesh_rgb = dc.detach() * SH_C0 + 0.5
     rgb = (num / SH_C0 + MESH_PRIOR_PX * mesh_rgb) / (weight + MESH_PRIOR_PX)
+    if parts is not None:
+        w = weight.mean(dim=1)
+        paint = mesh_rgb.clone()
+        parts = parts.to(w.device)
+        for k in torch.unique(parts):
+            seen = (parts == k) & (w >= SEEN_PX)
+            if int(seen.sum()) >= PART_MIN_SEEN:
+                paint[parts == k] = _weighted_median(rgb[seen], w[seen])
+        prior = MESH_PRIOR_PX * mesh_rgb + PART_PRIOR_PX * paint
+        rgb = (num / SH_C0 + prior) / (weight + MESH_PRIOR_PX + PART_PRIOR_PX)
     return rgb_to_sh_dc(rgb.clamp(0.0, 1.0)), weight.mean(dim=1)
 
 
@@ -206,7 +255,8 @@ def fit_robot_colours(
               if int(_robot_pixels(s, v.mask).sum()) >= 50]  # fmt: skip
     dc0 = robots[0].sh[:, 0].clone()
     psnr_mesh = _psnr(views_eval, silhouettes_eval, scene, robots, pose_eval, dc0, backend, bg)
-    baked, weight = _bake(views_train, silhouettes_train, scene, robots, pose_train, dc0, backend, bg)
+    baked, weight = _bake(views_train, silhouettes_train, scene, robots, pose_train, dc0, backend, bg,
+                          _parts(sizes, dc0))  # fmt: skip
     seen = weight >= SEEN_PX
     dc = baked.clone().requires_grad_(True)
     steps = 0

@@ -38,6 +38,8 @@ class LinkSurface:
     T_base_link    [4,4] the link's pose at the joint state
     face_rgb       [F,3] the model's colour of each face (its geom's material or rgba, 0..1): the mesh look
     fixed          no joint moves it (the base): its place says nothing about a joint state
+    close_up       a camera on the robot sees it from centimetres: the link is rigid with a camera's mount link,
+                   or it is a finger (in front of the wrist camera)
     """
 
     link: str
@@ -46,6 +48,7 @@ class LinkSurface:
     T_base_link: np.ndarray
     face_rgb: np.ndarray | None = None
     fixed: bool = False
+    close_up: bool = False
 
     @property
     def vertices(self) -> np.ndarray:
@@ -148,6 +151,8 @@ def robot_surface(spec: RobotSpec, q: Sequence[float]) -> list[LinkSurface]:
         mat = int(model.geom_matid[g])
         rgb = np.asarray(model.mat_rgba[mat][:3] if mat >= 0 else model.geom_rgba[g][:3], np.float64)
         parts.setdefault(body, []).append((v @ R.T + t, f, rgb))
+    # the rigid groups (MuJoCo's weld ids: a body and its jointless children) that carry a camera of the robot
+    mounts = {int(model.body_weldid[model.body(m.link).id]) for _, m in spec.cameras}
     out = []
     for body in sorted(parts):
         verts, faces, colours, n = [], [], [], 0
@@ -160,25 +165,29 @@ def robot_surface(spec: RobotSpec, q: Sequence[float]) -> list[LinkSurface]:
         T[:3, :3] = data.xmat[body].reshape(3, 3)
         T[:3, 3] = data.xpos[body]
         fixed = int(model.body_weldid[body]) == 0  # welded to the world body: no joint above it
-        out.append(LinkSurface(model.body(body).name, np.concatenate(verts), np.concatenate(faces), T,
-                               np.concatenate(colours), fixed))  # fmt: skip
+        name = model.body(body).name
+        close = int(model.body_weldid[body]) in mounts or name in spec.finger_links
+        out.append(LinkSurface(name, np.concatenate(verts), np.concatenate(faces), T, np.concatenate(colours), fixed,
+                               close))  # fmt: skip
     if not out:
         raise RobotSpecError(f"{spec.name}: its model {spec.model} has no geometry to draw the robot from")
     return out
 
 
-def sample_surface(links: Sequence[LinkSurface], spacing: float, seed: int = 0, frame: str = "base",
-                   with_faces: bool = False) -> tuple[np.ndarray, ...]:
-    """Points on the links' surfaces, about one per ``spacing`` x ``spacing`` metres of area: (points [M,3] in the
-    base frame, or each in its link's frame with ``frame="link"``; the index of each point's link in ``links`` [M];
-    with ``with_faces`` also the index of its face in its link [M]). Deterministic for a seed."""
+def sample_surface(links: Sequence[LinkSurface], spacing: float | Sequence[float], seed: int = 0,
+                   frame: str = "base", with_faces: bool = False) -> tuple[np.ndarray, ...]:
+    """Points on the links' surfaces, about one per ``spacing`` x ``spacing`` metres of area (one spacing, or one
+    per link): (points [M,3] in the base frame, or each in its link's frame with ``frame="link"``; the index of each
+    point's link in ``links`` [M]; with ``with_faces`` also the index of its face in its link [M]). Deterministic
+    for a seed."""
     rng = np.random.default_rng(seed)
+    spacings = np.broadcast_to(np.asarray(spacing, np.float64), (len(links),))  # one for all, or one per link
     pts, owner, face = [], [], []
-    for i, link in enumerate(links):
+    for i, (link, step) in enumerate(zip(links, spacings, strict=True)):
         verts = link.vertices if frame == "base" else link.vertices_link
         a, b, c = (verts[link.faces[:, k]] for k in range(3))
         area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-        n = int(math.ceil(area.sum() / spacing**2))
+        n = int(math.ceil(area.sum() / float(step) ** 2))
         if n == 0 or area.sum() <= 0:
             continue
         tri = rng.choice(len(area), size=n, p=area / area.sum())
