@@ -152,7 +152,8 @@ def robot_surface(spec: RobotSpec, q: Sequence[float]) -> list[LinkSurface]:
         rgb = np.asarray(model.mat_rgba[mat][:3] if mat >= 0 else model.geom_rgba[g][:3], np.float64)
         parts.setdefault(body, []).append((v @ R.T + t, f, rgb))
     # the rigid groups (MuJoCo's weld ids: a body and its jointless children) that carry a camera of the robot
-    mounts = {int(model.body_weldid[model.body(m.link).id]) for _, m in spec.cameras}
+    mount_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, m.link) for _, m in spec.cameras]
+    mounts = {int(model.body_weldid[b]) for b in mount_ids if b >= 0}
     out = []
     for body in sorted(parts):
         verts, faces, colours, n = [], [], [], 0
