@@ -33,7 +33,8 @@ SPACING_M = 0.004  # one Gaussian per 4 x 4 mm of link surface: ~60k for the Pan
 # get Gaussians at half the spacing (the Panda: 58k -> 80k): at 4 mm their discs (sigma 2.4 mm) drew the fingers in
 # the wrist view as blurred blobs. On the bundled sample (3 scripted grasps at 128 px, against the ground truth) the
 # wrist view's pixels off the robot came 22.6 -> 22.9 dB with it; alone it left specks on the hand (each Gaussian
-# a few keyframe pixels: 24.9 -> 23.2 dB on the robot's), which the part prior below evens out.
+# a few keyframe pixels: 24.9 -> 23.2 dB on the robot's), which the part prior below evens out. Its cost: a hybrid
+# frame at 224 px 229 / 231 -> 264 / 280 ms on 2 cores (`m2m bench datagen`, grasp banana, two runs each).
 CLOSE_UP_SPACING = 0.5
 OPACITY = 0.97
 # The mesh's colour in a Gaussian's baked average counts as this many pixels' worth of observation: it decides only
