@@ -183,11 +183,11 @@ def _parts(link_sizes: Sequence[int], dc: torch.Tensor) -> torch.Tensor:
 
 
 def _bake(views, silhouettes, scene, robots, view_pose, dc, backend, background,
-          parts: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+          parts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
     """Each Gaussian's colour as the average of the robot pixels it was drawn into, each pixel weighted by the
     Gaussian's share of it (its blend weight alpha * T: the render's derivative with respect to its colour, so the
     scene in front and the other links occlude as in the picture), the mesh's colour (``dc`` [N,3]) counted as
-    :data:`MESH_PRIOR_PX` pixels and, with ``parts`` [N] (:func:`_parts`), its part's paint as :data:`PART_PRIOR_PX`.
+    :data:`MESH_PRIOR_PX` pixels and its part's paint (``parts`` [N], :func:`_parts`) as :data:`PART_PRIOR_PX`.
     -> (the baked DC [N,3], each Gaussian's summed weight [N] in pixels)."""
     from .sh import SH_C0, rgb_to_sh_dc
 
@@ -204,18 +204,19 @@ def _bake(views, silhouettes, scene, robots, view_pose, dc, backend, background,
         den += torch.autograd.grad(rgb, x, grad_outputs=mf)[0]
     weight = den / SH_C0  # d colour / d DC is the DC's basis constant times the blend weight
     mesh_rgb = dc.detach() * SH_C0 + 0.5
-    rgb = (num / SH_C0 + MESH_PRIOR_PX * mesh_rgb) / (weight + MESH_PRIOR_PX)
-    if parts is not None:
-        w = weight.mean(dim=1)
-        paint = mesh_rgb.clone()
-        parts = parts.to(w.device)
-        for k in torch.unique(parts):
-            seen = (parts == k) & (w >= SEEN_PX)
-            if int(seen.sum()) >= PART_MIN_SEEN:
-                paint[parts == k] = _weighted_median(rgb[seen], w[seen])
-        prior = MESH_PRIOR_PX * mesh_rgb + PART_PRIOR_PX * paint
-        rgb = (num / SH_C0 + prior) / (weight + MESH_PRIOR_PX + PART_PRIOR_PX)
-    return rgb_to_sh_dc(rgb.clamp(0.0, 1.0)), weight.mean(dim=1)
+    w = weight.mean(dim=1)
+    # each part's paint from the Gaussians' own averages (the mesh's colour where next to no pixel fell)
+    own = (num / SH_C0 + MESH_PRIOR_PX * mesh_rgb) / (weight + MESH_PRIOR_PX)
+    paint = mesh_rgb.clone()
+    parts = parts.to(w.device)
+    for k in torch.unique(parts):
+        in_part = parts == k
+        seen = in_part & (w >= SEEN_PX)
+        if int(seen.sum()) >= PART_MIN_SEEN:
+            paint[in_part] = _weighted_median(own[seen], w[seen])
+    prior = MESH_PRIOR_PX * mesh_rgb + PART_PRIOR_PX * paint
+    rgb = (num / SH_C0 + prior) / (weight + MESH_PRIOR_PX + PART_PRIOR_PX)
+    return rgb_to_sh_dc(rgb.clamp(0.0, 1.0)), w
 
 
 def fit_robot_colours(
