@@ -359,3 +359,29 @@ def test_a_downsampled_view_is_the_scene_seen_at_that_resolution():
     assert downsample_view(coarse, 1) is coarse
     with pytest.raises(ValueError, match="leaves no pixels"):
         downsample_view(coarse, 100)
+
+
+class _Below:
+    """A constraint: no centre above z = top, no scale over cap (the scene's Gaussians would rise past it)."""
+
+    def __init__(self, top: float, cap: float, every: int) -> None:
+        self.top, self.cap, self.every, self.calls = top, cap, every, []
+
+    def __call__(self, means, quats, log_scales):
+        self.calls.append(len(means))
+        return means.clamp(max=torch.tensor([np.inf, np.inf, self.top])), log_scales.clamp(max=math.log(self.cap))
+
+
+def test_a_constraint_holds_every_few_steps_and_after_the_last():
+    views = _photos()
+    init = _init()
+    top = float(np.quantile(init.means[:, 2].numpy(), 0.5))  # half the Gaussians start above it
+    below = _Below(top, cap=0.01, every=25)
+    g, metrics = train(views[1:], views[:1], init, _config(iterations=110, checkpoint_every=0), progress=False,
+                       constraint=below)  # fmt: skip
+    assert len(below.calls) == 5  # after steps 25, 50, 75, 100 and the last (110)
+    assert float(g.means[:, 2].max()) <= top + 1e-6
+    assert float(g.log_scales.max()) <= math.log(0.01) + 1e-6
+    free, _ = train(views[1:], views[:1], init, _config(iterations=110, checkpoint_every=0), progress=False)
+    assert float(free.means[:, 2].max()) > top + 0.01  # without it half stay above
+    assert math.isfinite(metrics["psnr"])

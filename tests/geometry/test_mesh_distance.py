@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from mirage2matter.geometry.mesh_distance import point_mesh_distance
+from mirage2matter.geometry.mesh_distance import point_mesh_distance, point_mesh_nearest
 
 
 def _segment(p, a, b):
@@ -54,6 +54,9 @@ def test_a_mesh_near_and_far_is_exact(k):
     got = point_mesh_distance(pts, mesh.vertices, mesh.faces, k=k)
     tris = mesh.vertices[mesh.faces]
     np.testing.assert_allclose(got, [brute_force(p, tris) for p in pts], rtol=1e-9, atol=1e-12)
+    dist, tri = point_mesh_nearest(pts, mesh.vertices, mesh.faces, k=k)  # the triangle named is that nearest one
+    np.testing.assert_array_equal(dist, got)
+    np.testing.assert_allclose([brute_force(p, tris[[t]]) for p, t in zip(pts, tri, strict=True)], got, rtol=1e-9)
 
 
 def test_no_points_and_no_triangles():

@@ -25,6 +25,7 @@ from mirage2matter.gaussians.ply import read_ply
 from mirage2matter.geometry.rotation import axis_angle_to_matrix, rotation_angle
 from mirage2matter.geometry.sim3 import Sim3
 from mirage2matter.objects import ObjectsError
+from mirage2matter.objects.inside import points_inside
 from mirage2matter.objects.matting import MattingConfig
 from mirage2matter.objects.reconstruct import ObjectsConfig, find_targets, pinhole_keyframes, target_fingerprint
 from mirage2matter.objects.splat import SplatConfig
@@ -98,7 +99,7 @@ def test_cli_with_a_user_mesh_writes_the_object_and_reports_it(small_ws, tmp_pat
 
 def test_banana_small_run_against_ground_truth(small_ws):
     t0 = time.perf_counter()
-    out = run_objects(small_ws, ObjectsConfig(names=["banana"], **SMALL))
+    out = run_objects(small_ws, ObjectsConfig(names=["banana"], within_mesh=True, **SMALL))
     wall = time.perf_counter() - t0
     # where the object's minutes went: every step timed, none missing, adding up within the run's wall time
     seconds = out["banana"]["seconds"]
@@ -126,6 +127,11 @@ def test_banana_small_run_against_ground_truth(small_ws):
     on_base = Sim3.from_json(align["sim3_obj_to_base"]).apply(opaque)
     dist = np.abs(trimesh.proximity.signed_distance(gt, on_base[:2000]))
     assert np.median(dist) < 0.004
+    # and inside the object's own mesh (objects.within_mesh), every centre
+    local = trimesh.load(folder / "mesh.obj", force="mesh")
+    assert points_inside(local.vertices, local.faces, g.means.numpy().astype(np.float64)).all()
+    within = align["gaussians"]["within_mesh"]
+    assert within["heldout"]["alpha_outside"] <= 0.05 and within["gaussians"] >= len(g)
     # object frame: bottom centre, z up
     local = trimesh.load(folder / "mesh.obj", force="mesh").vertices
     assert abs(local[:, 2].min()) < 1e-6 and np.abs(local[:, :2].max(0) + local[:, :2].min(0)).max() < 1e-6
@@ -133,7 +139,7 @@ def test_banana_small_run_against_ground_truth(small_ws):
 
     # a rerun with the same settings is skipped
     mtime = (folder / "align.json").stat().st_mtime_ns
-    run_objects(small_ws, ObjectsConfig(names=["banana"], **SMALL))
+    run_objects(small_ws, ObjectsConfig(names=["banana"], within_mesh=True, **SMALL))
     assert (folder / "align.json").stat().st_mtime_ns == mtime
 
 

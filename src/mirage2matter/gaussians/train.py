@@ -21,7 +21,7 @@ from contextlib import contextmanager, nullcontext
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import torch
@@ -334,6 +334,16 @@ def evaluate(g: Gaussians, views: Sequence[View], config: TrainConfig, backend: 
 
 
 # ---- the trainer --------------------------------------------------------------------------------
+class Constraint(Protocol):
+    """Where the Gaussians may be: called with (means [N,3], quats [N,4], log_scales [N,3]) every ``every`` steps and
+    after the last, it returns the means and log-scales moved back into bounds (e.g. ``objects.within_mesh``)."""
+
+    every: int
+
+    def __call__(self, means: torch.Tensor, quats: torch.Tensor,
+                 log_scales: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]: ...  # fmt: skip
+
+
 def _view_order(n: int, seed: int, epoch: int) -> np.ndarray:
     """Training views visit order for one epoch; a function of (seed, epoch) so that a resumed
     run sees the same sequence as an uninterrupted one."""
@@ -352,7 +362,8 @@ class Trainer:
     """
 
     def __init__(self, views_train: Sequence[View], views_eval: Sequence[View], init: Gaussians,
-                 config: TrainConfig, clock: Callable[[], float] = time.perf_counter):  # fmt: skip
+                 config: TrainConfig, clock: Callable[[], float] = time.perf_counter,
+                 constraint: Constraint | None = None):  # fmt: skip
         if not views_train:
             raise ValueError("train needs at least one training view")
         self.length = config.run_length()  # validates iterations and max_seconds
@@ -396,6 +407,7 @@ class Trainer:
         self._step_share = 1.0 / config.iterations if config.iterations else 0.0  # progress of the last step
         self._last = {"progress": 0.0, "sh_degree": 0, "means_lr": self.schedule.means_lr(0.0), "lr_scale": 1.0}
         self._warm = False
+        self.constraint = constraint
 
     # -- where the run is
     @property
@@ -502,6 +514,11 @@ class Trainer:
                 o.step()
                 o.zero_grad(set_to_none=True)
         self.iteration += 1
+        if self.constraint is not None and (self.iteration % self.constraint.every == 0 or self.finished):
+            with torch.no_grad():  # projected steps: the moments stay, the values go back where they may be
+                means, log_scales = self.constraint(params["means"], params["quats"], params["scales"])
+                params["means"].copy_(means)
+                params["scales"].copy_(log_scales)
         if self._rates is not None and (refine or self.iteration % FILTER_3D_EVERY == 0):
             self._refresh_filter()  # after a refinement (added / removed Gaussians) and as the means move
         dt = self.clock() - t0
@@ -619,6 +636,7 @@ def train(
     checkpoint_path: str | Path | None = None,
     resume: bool = False,
     clock: Callable[[], float] = time.perf_counter,
+    constraint: Constraint | None = None,
 ) -> tuple[Gaussians, dict[str, Any]]:
     """Train ``init`` on ``views_train`` (a :class:`Trainer` stepped to the end); returns (trained Gaussians,
     metrics).
@@ -630,9 +648,10 @@ def train(
     Gaussians after)]). ``callback(step, stats)`` runs after every step with :meth:`Trainer.step`'s figures
     (``loss``, ``gaussians``, ...). With ``checkpoint_path`` a checkpoint is written atomically every
     ``config.checkpoint_every`` steps and at the end; ``resume=True`` continues from it when it exists.
-    ``clock`` (seconds) times the steps; tests inject a slow or fast one.
+    ``clock`` (seconds) times the steps; tests inject a slow or fast one. ``constraint``: where the Gaussians may
+    be (:class:`Constraint`), applied every ``constraint.every`` steps and after the last.
     """
-    trainer = Trainer(views_train, views_eval, init, config, clock)
+    trainer = Trainer(views_train, views_eval, init, config, clock, constraint)
     ckpt = Path(checkpoint_path) if checkpoint_path is not None else None
     if resume and ckpt is not None:
         trainer.resume(ckpt)

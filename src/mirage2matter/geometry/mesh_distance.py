@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["point_mesh_distance"]
+__all__ = ["point_mesh_distance", "point_mesh_nearest"]
 
 
 @njit(cache=True, inline="always")
@@ -61,10 +61,12 @@ def _point_triangle_sq(p, a, b, c):
 
 
 @njit(parallel=True, cache=True)
-def _nearest_of_candidates(points, tris, cand, out):
-    """out[n] = distance from points[n] to the nearest of the triangles tris[cand[n, j]] (j with cand >= 0)."""
+def _nearest_of_candidates(points, tris, cand, out, out_tri):
+    """out[n] = distance from points[n] to the nearest of the triangles tris[cand[n, j]] (j with cand >= 0), out_tri[n]
+    that triangle's index."""
     for n in prange(points.shape[0]):
         best = np.inf
+        best_t = -1
         for j in range(cand.shape[1]):
             t = cand[n, j]
             if t < 0:
@@ -72,27 +74,37 @@ def _nearest_of_candidates(points, tris, cand, out):
             d = _point_triangle_sq(points[n], tris[t, 0], tris[t, 1], tris[t, 2])
             if d < best:
                 best = d
+                best_t = t
         out[n] = math.sqrt(best)
+        out_tri[n] = best_t
 
 
 def point_mesh_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, k: int = 16) -> np.ndarray:
     """Distance [N] from ``points`` [N,3] to the nearest point of the triangles ``vertices[faces]`` (exact)."""
+    return point_mesh_nearest(points, vertices, faces, k)[0]
+
+
+def point_mesh_nearest(
+    points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, k: int = 16
+) -> tuple[np.ndarray, np.ndarray]:
+    """Distance [N] from ``points`` [N,3] to the nearest point of the triangles ``vertices[faces]`` (exact), and the
+    index [N] of that triangle in ``faces``."""
     from scipy.spatial import cKDTree
 
     pts = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
     tris = np.ascontiguousarray(np.asarray(vertices, np.float64)[np.asarray(faces, np.int64)])  # [T,3,3]
     if len(tris) == 0:
         raise ValueError("point_mesh_distance: the mesh has no triangles")
-    out = np.empty(len(pts))
+    out, out_tri = np.empty(len(pts)), np.empty(len(pts), np.int64)
     if len(pts) == 0:
-        return out
+        return out, out_tri
     centroids = tris.mean(1)
     reach = float(np.linalg.norm(tris - centroids[:, None], axis=2).max())
     tree = cKDTree(centroids)
     k = min(k, len(tris))
     c_dist, cand = tree.query(pts, k=k, workers=-1)
     c_dist, cand = c_dist.reshape(len(pts), k), cand.reshape(len(pts), k)
-    _nearest_of_candidates(pts, tris, np.ascontiguousarray(cand, np.int64), out)
+    _nearest_of_candidates(pts, tris, np.ascontiguousarray(cand, np.int64), out, out_tri)
     # unproven: a triangle beyond the k-th centroid could still be nearer; take every one within the bound
     unproven = np.flatnonzero((k < len(tris)) & (c_dist[:, -1] - reach < out))
     if len(unproven):
@@ -101,7 +113,8 @@ def point_mesh_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndar
         more = np.full((len(unproven), width), -1, np.int64)
         for row, ix in enumerate(near):
             more[row, : len(ix)] = ix
-        best = np.empty(len(unproven))
-        _nearest_of_candidates(pts[unproven], tris, more, best)
-        out[unproven] = np.minimum(out[unproven], best)
-    return out
+        best, best_tri = np.empty(len(unproven)), np.empty(len(unproven), np.int64)
+        _nearest_of_candidates(pts[unproven], tris, more, best, best_tri)
+        nearer = best < out[unproven]
+        out[unproven[nearer]], out_tri[unproven[nearer]] = best[nearer], best_tri[nearer]
+    return out, out_tri

@@ -24,7 +24,7 @@ import torch
 from ..configs import ranged
 from ..gaussians.dataset import split_holdout
 from ..gaussians.model import Gaussians
-from ..gaussians.train import TrainConfig, View, train
+from ..gaussians.train import Constraint, TrainConfig, View, train
 from ..geometry.camera import Camera
 from .background import table_background
 from .errors import ObjectsError
@@ -32,7 +32,7 @@ from .matting import render_alpha
 from .support import Plane
 from .views import crop_camera
 
-__all__ = ["SplatConfig", "heldout_views", "mask_crop", "object_metrics", "train_object_gaussians"]
+__all__ = ["SplatConfig", "heldout_metrics", "heldout_views", "mask_crop", "object_metrics", "train_object_gaussians"]
 
 
 @dataclass
@@ -205,6 +205,31 @@ def heldout_views(
     return [items[k][1] for k in split_holdout(len(items), config.holdout_every)[1]]
 
 
+def _alone(
+    items: Sequence[tuple[int, View, tuple[int, int, int, int]]], masks: Sequence[np.ndarray | None]
+) -> list[View]:
+    """The views the figures are taken on: the object alone (over black, inside its own mask), whatever it was
+    trained against."""
+    return [replace(view, mask=torch.from_numpy(masks[i][y0:y1, x0:x1].copy()), background=None)  # type: ignore[index]
+            for i, view, (x0, y0, x1, y1) in items]  # fmt: skip
+
+
+def heldout_metrics(
+    g: Gaussians,
+    cameras: Sequence[Camera],
+    images: Sequence[np.ndarray],
+    masks: Sequence[np.ndarray | None],
+    config: SplatConfig | None = None,
+    unknown: Sequence[np.ndarray | None] | None = None,
+) -> dict[str, Any]:
+    """:func:`object_metrics` of ``g`` (the cameras' frame) on the views ``train_object_gaussians`` holds out, as it
+    reports them (its ``heldout``): for Gaussians changed after training."""
+    config = config or SplatConfig()
+    items = _views(cameras, images, masks, config, unknown=unknown)
+    held = [items[k] for k in split_holdout(len(items), config.holdout_every)[1]]
+    return object_metrics(g, _alone(held, masks), config.dilate_px)
+
+
 def train_object_gaussians(
     init: Gaussians,
     cameras: Sequence[Camera],
@@ -215,8 +240,10 @@ def train_object_gaussians(
     progress: bool = False,
     plane: Plane | None = None,
     unknown: Sequence[np.ndarray | None] | None = None,
+    constraint: Constraint | None = None,
 ) -> tuple[Gaussians, dict[str, Any]]:
-    """(object Gaussians in the cameras' frame, metrics) trained from ``init`` on the masked crops; ``plane``: the
+    """(object Gaussians in the cameras' frame, metrics) trained from ``init`` on the masked crops; ``constraint``:
+    where the Gaussians may be (``within_mesh.HoldInside``); ``plane``: the
     support plane (cameras' frame), for the table behind the object (``SplatConfig.table_background``); ``unknown``:
     per keyframe, pixels that show something else (the robot), left out of the loss."""
     config = config or SplatConfig()
@@ -241,13 +268,8 @@ def train_object_gaussians(
         lambda_dssim=config.lambda_dssim,
         seed=config.seed,
     )
-    g, train_metrics = train(views_train, views_held, init, cfg, progress=progress)
-    # the figures are the object alone (over black, inside its own mask), whatever it was trained against
-    alone = []
-    for k in held_idx:
-        i, view, (x0, y0, x1, y1) = items[k]
-        alone.append(replace(view, mask=torch.from_numpy(masks[i][y0:y1, x0:x1].copy()), background=None))  # type: ignore[index]
-    held = object_metrics(g, alone, config.dilate_px)
+    g, train_metrics = train(views_train, views_held, init, cfg, progress=progress, constraint=constraint)
+    held = object_metrics(g, _alone([items[k] for k in held_idx], masks), config.dilate_px)
     metrics = {
         "heldout": held,
         "train_views": len(views_train),

@@ -117,8 +117,16 @@ def _object_line(name: str, s: dict[str, Any]) -> str:
         f"{mesh.get('watertight')}, {s.get('collision', {}).get('parts')} convex parts; 3DGS masked PSNR "
         f"{num(held.get('psnr_masked'), 1, '.2f')} dB, alpha outside {num(held.get('alpha_outside'), 1, '.3f')}; "
         f"Gaussians to mesh {num(s.get('alignment', {}).get('median_distance_to_mesh_m'), 1000, '.2f')} mm (median); "
-        f"{num(s.get('seconds', {}).get('total'), 1, '.0f')} s{_hidden_words(s)}"
+        f"{num(s.get('seconds', {}).get('total'), 1, '.0f')} s{_within_words(s)}{_hidden_words(s)}"
     )
+
+
+def _within_words(s: dict[str, Any]) -> str:
+    within = s.get("gaussians", {}).get("within_mesh")
+    if not within:
+        return ""
+    return (f"; held inside the mesh (short retraining): masked PSNR then {within['heldout']['psnr_masked']:.2f} dB, "
+            f"alpha outside {within['heldout']['alpha_outside']:.3f}")  # fmt: skip
 
 
 def _hidden_words(s: dict[str, Any]) -> str:
