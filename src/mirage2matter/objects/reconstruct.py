@@ -49,6 +49,7 @@ from .matting import MattingConfig, sample_in_hull
 from .splat import SplatConfig, mask_crop
 from .support import find_objects, name_clusters
 from .views import crop_camera
+from .within_mesh import HoldInside, keep_within_mesh
 
 __all__ = ["ObjectsConfig", "find_targets", "load_keyframes_rgb", "pinhole_keyframes", "process_object",
            "target_fingerprint"]
@@ -295,7 +296,6 @@ def process_object(
     from .mesh import ensure_watertight, load_mesh, mass_properties, reconstruct_mesh
     from .silhouette import SilhouetteCost, refine_by_silhouettes
     from .splat import heldout_metrics, train_object_gaussians
-    from .within_mesh import HoldInside, keep_within_mesh
 
     name = target.name
     log = _StepClock(log)
