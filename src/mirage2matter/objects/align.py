@@ -127,11 +127,18 @@ def signed_distance(mesh, points: np.ndarray) -> np.ndarray:
     """Signed distance [N] of ``points`` [N,3] to a watertight ``mesh`` (> 0 inside): the exact unsigned
     distance, signed by a ray-parity inside test (``inside.points_inside``; trimesh's own sign, its ray
     tests, took ~95 % of the time)."""
+    return signed_distance_and_normal(mesh, points)[0]
+
+
+def signed_distance_and_normal(mesh, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`signed_distance` [N], and the outward normal [N,3] of each point's nearest face."""
+    from ..geometry.mesh_distance import point_mesh_nearest
     from .inside import points_inside
 
     pts = np.asarray(points, np.float64).reshape(-1, 3)
+    dist, tri = point_mesh_nearest(pts, mesh.vertices, mesh.faces)
     sign = np.where(points_inside(mesh.vertices, mesh.faces, pts), 1.0, -1.0)
-    return sign * distance_to_mesh(pts, mesh)
+    return sign * dist, np.asarray(mesh.face_normals, np.float64)[tri]
 
 
 def object_frame(mesh_base, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:

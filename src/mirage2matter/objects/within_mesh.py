@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from .align import signed_distance_and_normal
+
 __all__ = ["REACH", "HoldInside", "hold_inside", "keep_within_mesh"]
 
 REACH = 2.0  # standard deviations of a Gaussian that must end inside (at 2 sigma its alpha is 14 % of its peak)
@@ -36,13 +38,13 @@ def hold_inside(mesh, means: np.ndarray, quats: np.ndarray, log_scales: np.ndarr
 
     mu = np.asarray(means, np.float64)
     n = len(mu)
-    signed, normal = _signed_distance(mesh, mu)
+    signed, normal = signed_distance_and_normal(mesh, mu)
     moved = signed < tol
     mu_new = mu.copy()
     todo, now, n_face = moved.copy(), signed.copy(), normal.copy()
     for _ in range(3):  # onto the surface, tol inside, along the nearest face's normal (again past an edge or corner)
         mu_new[todo] -= n_face[todo] * (tol - now[todo])[:, None]
-        now[moved], n_face[moved] = _signed_distance(mesh, mu_new[moved])
+        now[moved], n_face[moved] = signed_distance_and_normal(mesh, mu_new[moved])
         todo = moved & (now < 0.5 * tol)
         if not todo.any():
             break
@@ -109,16 +111,6 @@ def keep_within_mesh(g, mesh, tol: float = 0.0005, drop: float = 0.002) -> tuple
         "tolerance_m": tol,
     }
     return out, figures
-
-
-def _signed_distance(mesh, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(signed distance [N] to the watertight ``mesh``, > 0 inside; the outward normal [N,3] of the nearest face)."""
-    from ..geometry.mesh_distance import point_mesh_nearest
-    from .inside import points_inside
-
-    dist, tri = point_mesh_nearest(points, mesh.vertices, mesh.faces)
-    signed = np.where(points_inside(mesh.vertices, mesh.faces, points), dist, -dist)
-    return signed, np.asarray(mesh.face_normals, np.float64)[tri]
 
 
 def _inside_fraction(mesh, start: np.ndarray, step: np.ndarray, rows: np.ndarray) -> np.ndarray:
