@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from mirage2matter.errors import EpisodeStalled
 from mirage2matter.evaluation import evaluate_policy, wilson_interval
 
 
@@ -80,3 +81,34 @@ def test_an_episode_past_the_wall_clock_limit_is_cut_and_counted_a_failure():
     # no limit: the same episode runs to its horizon (truncated after 5 steps), not cut
     full = run(0.1, None)
     assert full["cut"] == 0 and full["runs"][0]["steps"] == 5 and "cut" not in full["runs"][0]
+
+
+class _StallsAt(_Line):
+    """A _Line whose renderer stalls for good: seed 1 at its second step, seed 2 already at its reset (its start
+    picture); the next reset works (as TwinEnv's ground-truth renderer restarts)."""
+
+    def reset(self, seed=None):
+        self.seed = seed
+        if seed == 2:
+            raise EpisodeStalled("the renderer stalled 3 times on one state")
+        return super().reset(seed)
+
+    def step(self, action):
+        if self.seed == 1 and self.t == 1:
+            raise EpisodeStalled("the renderer stalled 3 times on one state")
+        return super().step(action)
+
+
+def test_an_episode_whose_env_stalls_is_cut_and_the_evaluation_goes_on():
+    saved = []
+    summary, frames = evaluate_policy(_StallsAt(), lambda obs: np.array([0.3]), episodes=4, progress=False,
+                                      log=lambda s: None, camera="observation.state", on_episode=saved.append)
+    # every seed has its record, saved as it came (a killed run resumes after them); 0.3 x 4 >= 1: seeds 0 and 3 pass
+    assert [r["seed"] for r in saved] == [0, 1, 2, 3] and summary["runs"] == saved
+    assert [r["success"] for r in saved] == [True, False, False, True] and summary["cut"] == 2
+    stalled_step, stalled_reset = saved[1], saved[2]
+    assert stalled_step["cut"] and stalled_step["steps"] == 2 and "stalled at step 2" in stalled_step["reason"]
+    assert stalled_reset["cut"] and stalled_reset["steps"] == 0 and "stalled 3 times" in stalled_reset["reason"]
+    assert "cut" not in saved[0] and "cut" not in saved[3]
+    # the first two episodes' pictures are kept: all of seed 0's (4 steps), seed 1's up to its stall
+    assert [len(f) for f in frames] == [5, 2]

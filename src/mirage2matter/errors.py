@@ -11,8 +11,14 @@ This module imports nothing, so every layer (``geometry`` included) may use it.
 
 from __future__ import annotations
 
-__all__ = ["M2MError"]
+__all__ = ["EpisodeStalled", "M2MError"]
 
 
 class M2MError(Exception):
     """An expected failure; the message says what was wrong and what to do."""
+
+
+class EpisodeStalled(M2MError, RuntimeError):
+    """An environment that cannot go on with the episode it is in (a renderer that stalls at one state, its retries
+    included); the next ``reset`` starts afresh. A closed-loop evaluation counts that episode as a failure cut short
+    (``evaluation.run_episode``) and goes on with the next."""

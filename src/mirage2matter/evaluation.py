@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from .atomic import atomic_write
+from .errors import EpisodeStalled
 from .progress import progress_bar
 
 __all__ = ["contact_sheet", "evaluate_policy", "frame_of", "run_episode", "summarize", "wilson_interval"]
@@ -66,7 +67,9 @@ def evaluate_policy(
     (``start_poses``, as TwinEnv does): which placements and headings fail.
     ``max_episode_seconds``: an episode still running after that
     much wall-clock time ends there as a failure with ``reason`` saying so and ``cut: true`` (the summary counts
-    them in ``cut``): a world that renders pathologically slowly in one pose cannot hold an evaluation for hours."""
+    them in ``cut``): a world that renders pathologically slowly in one pose cannot hold an evaluation for hours.
+    An env that raises :class:`~mirage2matter.errors.EpisodeStalled` (the ground-truth renderer stalled at every
+    retry) ends that episode the same way, its reason saying so, and the evaluation goes on with the next seed."""
     rows = list(done or [])
     seen = {int(r["seed"]) for r in rows}
     kept: list[list[np.ndarray]] = []
@@ -97,15 +100,26 @@ def run_episode(
     A function of the env, the policy and the seed alone (``reset`` draws everything), so it runs the same episode
     wherever it runs (``eval_workers`` runs it on Ray workers)."""
     t0 = clock()
-    obs, _ = env.reset(seed=seed)
+    steps, success, info, slowest, cut, stalled = 0, False, {}, 0.0, False, None
+    frames: list[np.ndarray] | None = None
+    try:
+        obs, _ = env.reset(seed=seed)
+    except EpisodeStalled as e:  # the env cannot show this episode's start: a failure, and on to the next
+        cut, stalled = True, e
     start = getattr(getattr(env, "unwrapped", env), "start_poses", None)
     if hasattr(policy, "reset"):
         policy.reset()
-    frames = [frame_of(obs, camera)] if keep else None
-    steps, success, info, slowest, cut = 0, False, {}, 0.0, False
-    while True:
+    if keep and not cut:
+        frames = [frame_of(obs, camera)]
+    while not cut:
         t_step = clock()
-        obs, _, terminated, truncated, info = env.step(np.asarray(policy(obs), dtype=np.float32))
+        try:
+            obs, _, terminated, truncated, info = env.step(np.asarray(policy(obs), dtype=np.float32))
+        except EpisodeStalled as e:  # e.g. a renderer stalled at this state, its retries included
+            steps += 1
+            slowest = max(slowest, clock() - t_step)
+            cut, stalled = True, e
+            break
         now = clock()
         slowest = max(slowest, now - t_step)
         steps += 1
@@ -129,7 +143,10 @@ def run_episode(
         timings = getattr(getattr(env, "unwrapped", env), "timings", None)
     if isinstance(timings, dict) and timings:
         row["timings"] = {k: round(float(v), 2) for k, v in timings.items()}
-    if cut:
+    if stalled is not None:
+        row["cut"] = True
+        row["reason"] = f"the environment stalled at step {steps} ({stalled}); counted as a failure"
+    elif cut:
         row["cut"] = True
         row["reason"] = (f"wall-clock limit: still running after {max_episode_seconds:g} s at step {steps} "
                          f"(slowest step {slowest:.1f} s); counted as a failure")  # fmt: skip
@@ -153,7 +170,7 @@ def summarize(rows: list[dict], log: Callable[[str], None] = print) -> dict[str,
         "cut": sum(bool(r.get("cut")) for r in rows),
         "runs": rows,
     }
-    cut = f"; {summary['cut']} cut at the wall-clock limit (failures)" if summary["cut"] else ""
+    cut = f"; {summary['cut']} cut short (wall-clock limit or a stalled env; failures)" if summary["cut"] else ""
     log(f"evaluation: {n_ok}/{len(rows)} successes = {100 * summary['success_rate']:.1f}% "
         f"(95% Wilson interval {100 * lo:.1f}-{100 * hi:.1f}%){cut}")  # fmt: skip
     return summary

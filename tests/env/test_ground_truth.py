@@ -16,7 +16,7 @@ import pytest
 import trimesh
 
 from mirage2matter.env.ground_truth import GroundTruthError, GroundTruthRenderer, render_intrinsics
-from mirage2matter.errors import M2MError
+from mirage2matter.errors import EpisodeStalled, M2MError
 from mirage2matter.video import read_video_frames, write_video
 
 pytest.importorskip("genesis")
@@ -196,9 +196,12 @@ def test_a_stalled_render_is_stopped_and_retried_with_the_cameras_moved_back() -
     assert [round(float(T[1, 3] - 0.2), 6) for T in seen] == [0.0, -STALL_NUDGES_M[0], -STALL_NUDGES_M[1]]
     assert all(np.array_equal(T[:3, :3], T_cam[:3, :3]) and np.allclose(T[[0, 2], 3], [0.1, 0.3]) for T in seen)
     assert frames.timings["ground_truth_stalls"] == 2
+    frames.start_episode(None)
     frames.renderer = StallingWorker(stalls=3)
-    with pytest.warns(UserWarning), pytest.raises(GroundTruthError, match="stalled 3 times on one state"):
+    with pytest.warns(UserWarning), pytest.raises(GroundTruthError, match="stalled 3 times on one state") as err:
         frames.render()
+    # the episode cannot go on, the evaluation can: evaluation.run_episode counts it a failure cut short
+    assert isinstance(err.value, EpisodeStalled) and frames.timings["ground_truth_stalls"] == 3
 
 
 def test_intrinsics_genesis_cannot_render_are_refused_or_approximated_as_the_twin_does(sample_dir: Path) -> None:

@@ -95,6 +95,30 @@ def test_bad_actions_are_clear_errors(env):
         env.step(np.full(n, np.nan, np.float32))
 
 
+def test_a_stalled_render_ends_the_episode_and_the_next_reset_goes_on(env, monkeypatch):
+    from mirage2matter.errors import EpisodeStalled
+
+    obs, _ = env.reset(seed=3)
+    renderer = env.unwrapped.renderer
+    render = renderer.render
+
+    def stalled():
+        renderer.timings["ground_truth_stalls"] = 3.0  # the renderer's count reaches the episode's timings
+        raise EpisodeStalled("stalled 3 times on one state")
+
+    n_arm = env.unwrapped.twin.spec.n_arm
+    hold = obs["observation.state"][: n_arm + 1]  # stay where it is, gripper open
+    monkeypatch.setattr(renderer, "render", stalled)
+    with pytest.raises(EpisodeStalled):
+        env.step(hold)
+    assert env.unwrapped.timings["ground_truth_stalls"] == 3.0
+    monkeypatch.setattr(renderer, "render", render)
+    with pytest.raises(M2MError, match="call reset"):  # the stalled episode is over
+        env.step(hold)
+    again, _ = env.reset(seed=3)
+    assert all(np.array_equal(again[k], obs[k]) for k in obs)  # the same episode as before the stall
+
+
 def test_bad_input_is_refused_before_genesis_starts(world, ws, tmp_path):
     from mirage2matter.env.twin_env import TwinEnv
 

@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import M2MError
+from ..errors import EpisodeStalled, M2MError
 from ..processes import TimedWorker, WorkerTimeout
 from ..robots import DEFAULT_ROBOT, RobotSpec, get_robot
 from ..robots.surface import robot_surface
@@ -58,6 +58,7 @@ __all__ = [
     "INTRINSICS_MODES",
     "GroundTruthError",
     "GroundTruthRenderer",
+    "RenderStalled",
     "read_ground_truth",
     "render_intrinsics",
     "twin_K",
@@ -79,6 +80,11 @@ STALL_NUDGES_M = (0.0002, 0.001)
 
 class GroundTruthError(M2MError, ValueError):
     """No ground truth to render (a capture of one's own), or a bad camera / pose / joint input."""
+
+
+class RenderStalled(GroundTruthError, EpisodeStalled):
+    """The ground-truth renderer stalled on one state at every camera nudge: this episode cannot go on (an evaluation
+    counts it a failure cut short); the next render starts a fresh renderer."""
 
 
 def read_ground_truth(sample_dir: str | Path) -> dict[str, Any]:
@@ -561,7 +567,7 @@ class GroundTruthFrames:
                               f" the cameras {1000 * STALL_NUDGES_M[0]:g} mm or more back", stacklevel=2)  # fmt: skip
         else:
             cameras = {c: np.round(T, 5).tolist() for c, T in views.items()}
-            raise GroundTruthError(
+            raise RenderStalled(
                 f"the ground-truth renderer stalled {len(STALL_NUDGES_M) + 1} times on one state (each over "
                 f"{self.timeout_s:g} s); cameras {cameras}, robot_q {np.round(state['robot_q'], 5).tolist()}"
             )

@@ -28,6 +28,7 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
+from ..errors import EpisodeStalled
 from ..sim.tasks import Task, parse_task, steps_per_tick
 from ..world.config import WorldConfig
 from .config import EnvConfig, EnvError, EpisodeSpec, HybridOptions, Randomization, check_config
@@ -272,9 +273,14 @@ class TwinEnv(gymnasium.Env):
         return a
 
     def _observe(self) -> dict[str, np.ndarray]:
-        frames = self.renderer.render()
-        for k, v in self.renderer.timings.items():
-            self.timings[k] = v
+        try:
+            frames = self.renderer.render()
+        except EpisodeStalled:
+            self._monitor = None  # this episode is over: step() needs a reset
+            raise
+        finally:
+            for k, v in self.renderer.timings.items():
+                self.timings[k] = v
         obs = {image_key(c): np.array(frames[c], dtype=np.uint8, copy=True) for c in self.config.cameras}
         obs[STATE_KEY] = self.twin.robot_state().astype(np.float32)
         self._obs = obs
