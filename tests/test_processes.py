@@ -50,3 +50,28 @@ def test_a_child_that_dies_is_a_clear_error() -> None:
         with pytest.raises(WorkerError, match="toy process died while exit\\(\\)") as info:
             w.call("exit", 3, timeout_s=30)
         assert isinstance(info.value, M2MError)
+
+
+def _start_in_a_daemon(out) -> None:
+    w = TimedWorker(SimpleNamespace, name="toy")
+    try:
+        w.start()
+        out.put("started")
+    except WorkerError as e:
+        w.close()  # nothing to stop: the failed start kept no process
+        out.put(f"{type(e).__name__}: {e} | proc={w.proc}")
+
+
+def test_a_daemonic_worker_gets_a_clear_error_not_a_half_started_child() -> None:
+    """Generation's workers are daemonic processes, which multiprocessing forbids children: a TimedWorker there says
+    so (GroundTruthFrames then renders in-process), and closing it afterwards is safe."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    out = ctx.Queue()
+    p = ctx.Process(target=_start_in_a_daemon, args=(out,), daemon=True)
+    p.start()
+    message = out.get(timeout=120)
+    p.join(timeout=30)
+    assert message.startswith("WorkerError: the toy process cannot start here: this process is a daemonic worker")
+    assert message.endswith("proc=None")

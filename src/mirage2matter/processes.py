@@ -13,7 +13,7 @@ from typing import Any
 
 from .errors import M2MError
 
-__all__ = ["TimedWorker", "WorkerError", "WorkerTimeout", "die_with_parent"]
+__all__ = ["TimedWorker", "WorkerError", "WorkerTimeout", "can_start_children", "die_with_parent"]
 
 
 def die_with_parent(parent_pid: int | None = None) -> None:
@@ -28,6 +28,12 @@ def die_with_parent(parent_pid: int | None = None) -> None:
         pass
     if parent_pid is not None and os.getppid() != parent_pid:
         os._exit(1)
+
+
+def can_start_children() -> bool:
+    """Whether this process may start child processes (a daemonic multiprocessing worker, such as generation's,
+    may not)."""
+    return not mp.current_process().daemon
 
 
 class WorkerError(M2MError, RuntimeError):
@@ -96,11 +102,15 @@ class TimedWorker:
         if self.proc is not None:
             return
 
+        if not can_start_children():
+            raise WorkerError(f"the {self.name} process cannot start here: this process is a daemonic worker, which "
+                              "may not have children (run the work in-process: no time limit)")  # fmt: skip
         ctx = mp.get_context("spawn")  # Genesis, numba and CUDA do not survive fork
         parent, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_work, args=(self.factory, self.args, self.kwargs, child, os.getpid()),
-                                daemon=True, name=self.name)  # fmt: skip
-        self.proc.start()
+        proc = ctx.Process(target=_work, args=(self.factory, self.args, self.kwargs, child, os.getpid()),
+                           daemon=True, name=self.name)  # fmt: skip
+        proc.start()
+        self.proc = proc  # only once started: close() after a failed start has nothing to stop
         child.close()
         self._conn = parent
         kind, payload = self._receive(self.start_timeout_s, "starting")

@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import EpisodeStalled, M2MError
-from ..processes import TimedWorker, WorkerTimeout
+from ..processes import TimedWorker, WorkerTimeout, can_start_children
 from ..robots import DEFAULT_ROBOT, RobotSpec, get_robot
 from ..robots.surface import robot_surface
 from ..sim.scene import RenderScene, SceneLook, pos_quat, pose_from
@@ -516,6 +516,10 @@ class GroundTruthFrames:
         w, h = size
         views = {c: (twin.camera(c)[1], w, h) for c in self.cameras}
         args, kwargs = (sample_dir, views), {"with_robot": True, "robot": twin.cfg.robot.name, "intrinsics": "twin"}
+        if timeout_s is not None and not can_start_children():  # e.g. in one of generation's worker processes
+            warnings.warn("the ground-truth renderer runs in this process (a daemonic worker may not start one): "
+                          "no time limit on its renders, an llvmpipe stall is waited out", stacklevel=2)  # fmt: skip
+            self.timeout_s = timeout_s = None
         if timeout_s is None:
             self.renderer: Any = GroundTruthRenderer(*args, **kwargs)
         else:  # in a child process: a render that hangs in llvmpipe can be stopped (see ``render``)
