@@ -12,7 +12,7 @@ import pytest
 import mirage2matter.env  # noqa: F401  (registers mirage2matter/Twin-v0)
 from mirage2matter.env import ENV_ID, EnvError
 from mirage2matter.env.config import EpisodeSpec
-from mirage2matter.errors import M2MError
+from mirage2matter.errors import EpisodeStalled, M2MError
 from mirage2matter.sim.tasks import GraspTask, TaskError
 from mirage2matter.world import load_world
 
@@ -96,8 +96,6 @@ def test_bad_actions_are_clear_errors(env):
 
 
 def test_a_stalled_render_ends_the_episode_and_the_next_reset_goes_on(env, monkeypatch):
-    from mirage2matter.errors import EpisodeStalled
-
     obs, _ = env.reset(seed=3)
     renderer = env.unwrapped.renderer
     render = renderer.render

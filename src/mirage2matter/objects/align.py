@@ -37,6 +37,7 @@ __all__ = [
     "object_frame",
     "pca_keypoints",
     "signed_distance",
+    "signed_distance_and_normal",
 ]
 
 
