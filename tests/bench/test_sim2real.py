@@ -98,6 +98,33 @@ def test_the_robot_look_ablation_draws_the_mesh_robot_in_its_demos_and_own_world
         Sim2RealConfig(sample=sample_dir, robot_ablation_demos=100).validate()
 
 
+def test_the_oracle_trains_the_recipe_on_the_ground_truths_own_pictures(tmp_path, sample_dir, monkeypatch):
+    """``oracle_demos``: the task's demos drawn by the sample's ground-truth renderer (never supersampled, never on
+    Ray), trained and evaluated like the method's policy of that demo count, set beside it in its own table; off by
+    default, and it must have a hybrid twin."""
+    from mirage2matter.bench import sim2real
+
+    scores = {"grasp_banana_150": 30, "grasp_banana_ground_truth_150": 36}
+    ws, calls = recorded_bench(tmp_path, monkeypatch, lambda cfg: _e(scores.get(cfg.name.split("-")[0], 20)))
+    cfg = Sim2RealConfig(sample=sample_dir, task="grasp banana", demos=(150,), seeds=1, press_task="",
+                         ablation_demos=0, robot_ablation_demos=0, oracle_demos=150, supersample=2, episodes=10,
+                         parallel=1)  # fmt: skip
+    result = sim2real.run_sim2real(ws, cfg, log=lambda m: None)
+    gens = [c for name, c in calls if name == "generate"]
+    assert [(c.renderer, c.ground_truth, c.supersample, c.out) for c in gens] == [
+        ("hybrid", None, 2, None),
+        ("ground_truth", sample_dir.resolve(), 1, ws.dataset_dir("grasp_banana_ground_truth"))]  # fmt: skip
+    evals = {c.name: c for name, c in calls if name == "eval_policy"}
+    assert {"grasp_banana_ground_truth_150-ground_truth", "grasp_banana_ground_truth_150-hybrid"} <= set(evals)
+    assert result["policies"][-1]["kind"] == "oracle"
+    md = result["tables"].split("Oracle")[1]
+    assert "| the reconstruction's (the method) | 60.0 % [46-72] (30/50) | 60.0 % [46-72] (30/50) |" in md
+    assert "| the ground truth's own (oracle) | 72.0 % [58-83] (36/50) | 72.0 % [58-83] (36/50) |" in md
+    assert Sim2RealConfig(sample=sample_dir).oracle_demos == 0
+    with pytest.raises(M2MError, match="oracle_demos .* must be one of demos"):
+        Sim2RealConfig(sample=sample_dir, oracle_demos=100).validate()
+
+
 def test_the_main_policies_are_their_training_seeds_as_one(tmp_path, sample_dir, monkeypatch):
     """By default the bench runs the recipe the README measured: 300 demos of the expert with `--tie 2 --look 0.5`,
     drawn at frame size, four training seeds of 4,000 steps each deployed as one, the first seed alone beside them;

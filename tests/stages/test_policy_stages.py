@@ -200,12 +200,53 @@ def test_bench_policy_gap_records_the_expert_once_and_scores_both_renderers(
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["policies"] == result["policies"]
 
 
+@pytest.mark.slow
+def test_generate_through_the_ground_truth_draws_the_samples_own_pictures(ws: Path, sample_dir: Path) -> None:
+    """``generate --renderer ground_truth`` (the sim-to-real bench's oracle): two worker processes, each drawing with
+    the ground-truth renderer in a child of its own (its stall guard: a daemonic worker could not start one); the
+    dataset's first frame is the truth's picture of that episode's start, not the hybrid world's; the fingerprint
+    holds the ground truth's content."""
+    import hashlib
+
+    from mirage2matter.env import TwinEnv
+    from mirage2matter.video import read_video_frames
+
+    out = ws / "datasets" / "oracle"
+    settings = (ws / "m2m.yaml").read_bytes()
+    try:
+        assert main(["generate", "-w", str(ws), "--task", TASK, "--episodes", "1", "--size", "48", "--workers", "2",
+                     "--renderer", "ground_truth", "--ground-truth", str(sample_dir),
+                     "--out", str(out)]) == 0  # fmt: skip
+    finally:
+        (ws / "m2m.yaml").write_bytes(settings)
+    summary = json.loads((out / "summary.json").read_text())
+    sha1 = hashlib.sha1((sample_dir / "ground_truth.json").read_bytes()).hexdigest()
+    assert summary["fingerprint"]["source"]["ground_truth"] == {"sha1": sha1}
+    (row,) = [json.loads(x) for x in (out / "meta" / "m2m_episodes.jsonl").read_text().splitlines()]
+    _, _, first = next(read_video_frames(next((out / "videos" / "observation.images.head").rglob("*.mp4"))))
+
+    def start_frame(**kw) -> np.ndarray:
+        env = TwinEnv(ws / "world", TASK, size=48, horizon=None, **kw)
+        try:
+            obs, _ = env.reset(seed=row["seed"])
+        finally:
+            env.close()
+        return obs["observation.images.head"].astype(float)
+
+    def psnr(a: np.ndarray, b: np.ndarray) -> float:
+        return float(10 * np.log10(255**2 / max(np.mean((a - b) ** 2), 1e-9)))
+
+    truth, hybrid = start_frame(renderer="ground_truth", ground_truth=sample_dir), start_frame()
+    assert psnr(first, truth) > 30.0  # the truth's picture, through H.264
+    assert psnr(first, truth) > psnr(first, hybrid) + 5.0  # not the hybrid world's
+
+
 def _error(capsys, *argv: str) -> str:
     assert main(list(argv)) == 2
     return capsys.readouterr().err
 
 
-def test_bad_input_is_a_clear_error_and_leaves_no_report(ws: Path, tmp_path: Path, capsys) -> None:
+def test_bad_input_is_a_clear_error_and_leaves_no_report(ws: Path, sample_dir: Path, tmp_path: Path, capsys) -> None:
     w = str(ws)
     before = sorted(p.name for p in (ws / "evals").iterdir()) if (ws / "evals").is_dir() else []
     # ground truth on a capture without one (this workspace records no capture)
@@ -214,6 +255,20 @@ def test_bad_input_is_a_clear_error_and_leaves_no_report(ws: Path, tmp_path: Pat
     err = _error(capsys, "eval-policy", "-w", w, "--policy", "tiny", "--renderer", "ground_truth",
                  "--ground-truth", str(tmp_path))  # fmt: skip
     assert "no ground_truth.json" in err
+    # generation through a ground truth: none here, one that is not a sample, a hybrid-only setting with it
+    settings = (ws / "m2m.yaml").read_bytes()
+    gen = ("generate", "-w", w, "--task", TASK, "--episodes", "1", "--out", str(ws / "datasets" / "nope"),
+           "--renderer", "ground_truth")  # fmt: skip
+    try:
+        err = _error(capsys, *gen)
+        assert "generate --renderer ground_truth: this workspace's capture" in err and "--ground-truth DIR" in err
+        assert "no ground_truth.json" in _error(capsys, *gen, "--ground-truth", str(tmp_path))
+        assert "add --renderer ground_truth" in _error(capsys, *gen[:-2], "--ground-truth", str(sample_dir))
+        err = _error(capsys, *gen, "--ground-truth", str(sample_dir), "--supersample", "2")
+        assert "--supersample set(s) how the hybrid renderer draws" in err
+    finally:
+        (ws / "m2m.yaml").write_bytes(settings)
+    assert not (ws / "datasets" / "nope").exists()
     # a task the world cannot run
     assert "no press button named 'banana'" in _error(capsys, "eval-policy", "-w", w, "--policy", "tiny",
                                                       "--task", "press banana")  # fmt: skip

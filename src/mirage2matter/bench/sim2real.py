@@ -69,6 +69,9 @@ class Sim2RealConfig:
     ablation_demos  demos of the mesh-objects ablation and of its Gaussian twin (0: no ablation)
     robot_ablation_demos  demos of the mesh-robot ablation (`generate --robot-look mesh`) and of its Gaussian-robot
                     twin (0: none; skipped, said so, when the world has no robot Gaussians)
+    oracle_demos    demos of the oracle: the same task drawn by the sample's ground-truth renderer (`generate
+                    --renderer ground_truth`), trained like its hybrid twin of that demo count: how far the recipe goes
+                    when the pictures are the real world's own (0: none; its generation is ~5x slower on the CPU)
     size            frame side of generation and evaluation (pixels)
     supersample     generation's splat layer drawn at s x the frame size and box-averaged down (`generate
                     --supersample`; the hybrid evaluations follow the datasets). 1 (off) by default: the recipe
@@ -96,6 +99,7 @@ class Sim2RealConfig:
     press_demos: int = ranged(150, ge=1, le=10**6)
     ablation_demos: int = ranged(150, ge=0, le=10**6)
     robot_ablation_demos: int = ranged(150, ge=0, le=10**6)
+    oracle_demos: int = ranged(0, ge=0, le=10**6)
     size: int = ranged(128, ge=16, le=4096)
     supersample: int = ranged(1, ge=1, le=MAX_SUPERSAMPLE)
     workers: int = ranged(2, ge=1, le=256)
@@ -118,6 +122,8 @@ class Sim2RealConfig:
         if self.robot_ablation_demos and self.robot_ablation_demos not in self.demos:
             bad.append(f"robot_ablation_demos ({self.robot_ablation_demos}) must be one of demos {self.demos} (its "
                        "Gaussian-robot twin)")  # fmt: skip
+        if self.oracle_demos and self.oracle_demos not in self.demos:
+            bad.append(f"oracle_demos ({self.oracle_demos}) must be one of demos {self.demos} (its hybrid twin)")
         if min(self.episodes, self.workers, self.seeds, self.parallel) < 1 or self.size < 16 or self.minutes <= 0:
             bad.append("episodes, workers, seeds and parallel must be >= 1, size >= 16, minutes > 0")
         if self.steps < 0:
@@ -196,11 +202,16 @@ def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[s
             "a grasp policy from 40 to 68 % of 50 ground-truth episodes (README)")
     seconds = {"generation": 0.0, "training": 0.0, "evaluation": 0.0}
     n_max, slug = max(cfg.demos), task_slug(cfg.task)
-    mesh_slug, mesh_robot_slug = f"{slug}_mesh_objects", f"{slug}_mesh_robot"
+    mesh_slug, mesh_robot_slug, oracle_slug = f"{slug}_mesh_objects", f"{slug}_mesh_robot", f"{slug}_ground_truth"
 
-    def gen(task: str, n: int, objects: str = "gaussians", out: str | None = None, robot_look: str = "auto") -> dict:
-        c = generate.Config(task=(task,), episodes=n, workers=cfg.workers, ray_address=cfg.ray_address, size=cfg.size,
-                            objects=objects, supersample=cfg.supersample, robot_look=robot_look,
+    def gen(task: str, n: int, objects: str = "gaussians", out: str | None = None, robot_look: str = "auto",
+            oracle: bool = False) -> dict:  # fmt: skip
+        # the oracle's frames are the truth's: no hybrid setting (supersampling), local workers (generate refuses Ray)
+        c = generate.Config(task=(task,), episodes=n, workers=cfg.workers, size=cfg.size, objects=objects,
+                            ray_address=None if oracle else cfg.ray_address,
+                            supersample=1 if oracle else cfg.supersample, robot_look=robot_look,
+                            renderer="ground_truth" if oracle else "hybrid",
+                            ground_truth=Path(cfg.sample).resolve() if oracle else None,
                             out=ws.dataset_dir(out) if out else None)  # fmt: skip
         s, dt, _ = _run_stage("generate", ws, c, log)
         seconds["generation"] += dt
@@ -278,6 +289,10 @@ def run_sim2real(ws: Workspace, cfg: Sim2RealConfig, log: Log = print) -> dict[s
         datasets[mesh_robot_slug] = gen(cfg.task, cfg.robot_ablation_demos, out=mesh_robot_slug, robot_look="mesh")
         policy_row("robot_ablation", cfg.task, mesh_robot_slug, cfg.robot_ablation_demos, main_worlds,
                    robot_look="mesh")  # fmt: skip
+
+    if cfg.oracle_demos:
+        datasets[oracle_slug] = gen(cfg.task, cfg.oracle_demos, out=oracle_slug, oracle=True)
+        policy_row("oracle", cfg.task, oracle_slug, cfg.oracle_demos, main_worlds)
 
     result = {
         "bench": "sim2real",
@@ -364,6 +379,15 @@ def markdown_tables(result: dict[str, Any], cfg: Sim2RealConfig) -> str:
                 f"{_cell(gs.get('hybrid'))} |",
                 f"| the model's meshes (Genesis, composited) | {_cell(mesh_robot.get('ground_truth'))} | "
                 f"{_cell(mesh_robot.get('hybrid'))} |"]  # fmt: skip
+    oracle = next((r for r in rows if r["kind"] == "oracle"), None)
+    if oracle is not None:
+        gs = _gaussian_twin(rows, cfg.task, cfg.oracle_demos)
+        out += ["", f"Oracle: {cfg.task}, {cfg.oracle_demos} demos, one training seed; the same recipe trained on the "
+                "ground truth's own pictures, its ceiling when the looks are perfect", "",
+                "| the demos' pictures | ground-truth world | reconstructed (hybrid) world |", "|---|---|---|",
+                f"| the reconstruction's (the method) | {_cell(gs.get('ground_truth'))} | {_cell(gs.get('hybrid'))} |",
+                f"| the ground truth's own (oracle) | {_cell(oracle.get('ground_truth'))} | "
+                f"{_cell(oracle.get('hybrid'))} |"]  # fmt: skip
     scale = sorted((_single(r) for r in rows if r["task"] == cfg.task and r["kind"] in ("main", "data_scale")),
                    key=lambda r: r["demos"])  # fmt: skip
     out += ["", f"Data scale (paper Table 4): {cfg.task}, ground-truth world, one training seed", "",

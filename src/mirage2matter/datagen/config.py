@@ -91,6 +91,8 @@ class GenerateConfig:
                    drawn whole (not over a cached background); local worker processes only (not with Ray)
     takeover       None: the expert acts from each episode's start; a :class:`Takeover`: a trained policy acts
                    first and the expert takes over from where it left the world
+    ground_truth   None: hybrid frames; a sample folder: its ground-truth renderer draws the frames instead (the
+                   sim-to-real bench's oracle: demonstrations in the "real world"'s own pictures)
     """
 
     run: RunConfig
@@ -99,3 +101,4 @@ class GenerateConfig:
     hybrid: HybridOptions = field(default_factory=HybridOptions)
     splat_server: bool = False
     takeover: Takeover | None = None
+    ground_truth: Path | None = None

@@ -117,9 +117,12 @@ class _Processes:
         self.job = job  # the workers hold it from their spawn on: its attempts travel as its key
         self._sendable: set[str] = set()
         threads = max(1, (os.cpu_count() or 1) // self.n)
+        # a source that starts a child of its own (the ground-truth renderer's stall guard, processes.TimedWorker)
+        # needs a worker that is not daemonic; it still dies with this process (die_with_parent), close() ends it
+        daemon = not getattr(job.factory, "starts_children", False)
         for _ in range(self.n):
             args = (job, threads, self.tasks, self.results, os.getpid())
-            p = self.ctx.Process(target=_worker_main, args=args, daemon=True)
+            p = self.ctx.Process(target=_worker_main, args=args, daemon=daemon)
             p.start()
             self.procs.append(p)
         ready = 0

@@ -15,6 +15,7 @@ recorded from there (the policy's ticks are not recorded: their actions are not 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
@@ -48,6 +49,9 @@ class SimSourceConfig:
     randomization  per-episode jitter
     hybrid         the hybrid renderer's settings (splat quality, depth-aware compositing, render speed)
     takeover       None, or a trained policy that acts first in every episode (:class:`~.config.Takeover`)
+    ground_truth   None: hybrid frames; a sample folder (with ground_truth.json): the frames are drawn by that sample's
+                   ground-truth renderer instead (``env.ground_truth``; the world must be the one reconstructed from
+                   it): demonstrations in the pictures of the sim-to-real bench's "real world", its oracle
     """
 
     world: WorldConfig
@@ -56,6 +60,7 @@ class SimSourceConfig:
     randomization: Randomization = field(default_factory=Randomization)
     hybrid: HybridOptions = field(default_factory=HybridOptions)
     takeover: Takeover | None = None
+    ground_truth: Path | None = None
 
     def spec(self) -> DatasetSpec:
         """The dataset's spec: the frames, and the state / action names and type of the world's robot."""
@@ -70,9 +75,12 @@ class SimSourceConfig:
         )
 
     def env_config(self) -> EnvConfig:
-        """The environment the episodes run in (hybrid frames; no horizon: the script ends an episode)."""
-        return EnvConfig(world=self.world, task=self.task, renderer="hybrid", episode=self.episode, horizon=None,
-                         randomization=self.randomization, hybrid=self.hybrid)  # fmt: skip
+        """The environment the episodes run in (hybrid frames, or the sample's ground truth's; no horizon: the
+        script ends an episode)."""
+        renderer = "hybrid" if self.ground_truth is None else "ground_truth"
+        return EnvConfig(world=self.world, task=self.task, renderer=renderer, episode=self.episode, horizon=None,
+                         randomization=self.randomization, hybrid=self.hybrid,
+                         ground_truth=self.ground_truth)  # fmt: skip
 
     def to_json(self) -> dict[str, Any]:
         """The task and every frame setting, not the world (fingerprinted by its content, see ``generate``). The
@@ -83,10 +91,13 @@ class SimSourceConfig:
                                "cameras": list(e.cameras)}  # fmt: skip
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name not in ("world", "task", "takeover", "episode"):
+            if f.name not in ("world", "task", "takeover", "episode", "ground_truth"):
                 out[f.name] = asdict(v) if is_dataclass(v) else v
         if self.takeover is not None:  # absent without one: datasets made before the option keep their fingerprint
             out["takeover"] = self.takeover.to_json()
+        if self.ground_truth is not None:  # likewise; by content (a moved sample draws the same pictures)
+            gt = Path(self.ground_truth) / "ground_truth.json"
+            out["ground_truth"] = {"sha1": hashlib.sha1(gt.read_bytes()).hexdigest()}
         if out["hybrid"].get("objects") == "gaussians":  # the default: datasets made before the option keep their key
             del out["hybrid"]["objects"]
         if out["hybrid"]["splat"].get("supersample") == 1:  # likewise
@@ -234,6 +245,12 @@ class SimSourceFactory:
 
     def __call__(self) -> SimEpisodeSource:
         return SimEpisodeSource(self.cfg, self.splat_server)
+
+    @property
+    def starts_children(self) -> bool:
+        """Whether its source starts a process of its own (the ground-truth renderer draws in a child that a stall
+        can be stopped in): its worker process must not be daemonic."""
+        return self.cfg.ground_truth is not None
 
     def portable(self) -> Any:
         """This factory with the files its episodes read (the world's splats, meshes, collision parts, robot

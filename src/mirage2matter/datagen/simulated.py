@@ -15,7 +15,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..env.config import EnvError, check_config
+from ..env.config import EnvError, HybridOptions, check_config
 from ..env.hybrid import splat_parts
 from ..env.robot_proxy import render_robot_file
 from ..errors import M2MError
@@ -57,7 +57,7 @@ def _source(world: WorldConfig, task: Task, cfg: GenerateConfig):
     from .sim_source import SimSourceConfig
 
     return SimSourceConfig(world=world, task=task, episode=cfg.episode, randomization=cfg.randomization,
-                           hybrid=cfg.hybrid, takeover=cfg.takeover)  # fmt: skip
+                           hybrid=cfg.hybrid, takeover=cfg.takeover, ground_truth=cfg.ground_truth)  # fmt: skip
 
 
 def _source_fingerprint(world: WorldConfig, source) -> dict[str, Any]:
@@ -77,6 +77,8 @@ def _check(world: WorldConfig, task: Task, cfg: GenerateConfig) -> None:
     if cfg.splat_server and cfg.run.ray_address:
         raise GenerateError("--splat-server serves local worker processes; it cannot serve Ray actors (drop "
                             "--ray-address, or --splat-server)")  # fmt: skip
+    if cfg.ground_truth is not None:
+        _check_ground_truth(world, cfg)
     missing = [c for c in cfg.episode.cameras if c not in world.cameras]
     if missing:
         raise GenerateError(
@@ -93,6 +95,29 @@ def _check(world: WorldConfig, task: Task, cfg: GenerateConfig) -> None:
         raise GenerateError(str(e)) from None
     if cfg.takeover is not None:
         _check_takeover(world, cfg)
+
+
+def _check_ground_truth(world: WorldConfig, cfg: GenerateConfig) -> None:
+    """Frames drawn by a sample's ground truth: a readable sample, and no setting that only the hybrid renderer has
+    (it would be silently ignored)."""
+    from ..env.ground_truth import GroundTruthError, read_ground_truth
+
+    try:  # a world not reconstructed from this sample fails as each worker builds its renderer (the objects' names)
+        read_ground_truth(cfg.ground_truth)
+    except GroundTruthError as e:
+        raise GenerateError(f"generate --renderer ground_truth: {e}") from None
+    if cfg.run.ray_address:
+        raise GenerateError("generate --renderer ground_truth runs local workers (the sample's files are not shipped "
+                            "to a Ray cluster); drop --ray-address")  # fmt: skip
+    h, default = cfg.hybrid, HybridOptions()
+    hybrid_only = [name for name, on in (
+        ("--objects meshes", h.objects != default.objects), ("--supersample", h.splat.supersample != 1),
+        ("--robot-look", h.robot_look != default.robot_look), ("--splat-server", cfg.splat_server),
+        ("--table-texture", bool(cfg.randomization.table_texture)),
+        ("--object-shrink", bool(cfg.randomization.object_shrink))) if on]  # fmt: skip
+    if hybrid_only:
+        raise GenerateError(f"generate --renderer ground_truth: {', '.join(hybrid_only)} set(s) how the hybrid "
+                            "renderer draws; the ground-truth renderer draws the sample's own world (drop them)")
 
 
 def _check_takeover(world: WorldConfig, cfg: GenerateConfig) -> None:

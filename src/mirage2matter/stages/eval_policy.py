@@ -259,8 +259,9 @@ def robot_look_of(ws: Workspace, cfg: Config) -> str:
     return _as_generated(ws, cfg, lambda hybrid: str(hybrid.get("robot_look", "auto")), "auto")
 
 
-def ground_truth_dir(ws: Workspace, cfg: Config) -> Path:
-    """The sample folder the ground_truth renderer draws; PolicyError when the workspace has none."""
+def ground_truth_dir(ws: Workspace, cfg: Any, command: str = "eval-policy") -> Path:
+    """The sample folder the ground_truth renderer draws (``cfg.ground_truth``, else the folder of the workspace's
+    capture when it is a sample); PolicyError naming ``command`` when there is none."""
     if cfg.ground_truth is not None:
         gt = Path(cfg.ground_truth)
     else:
@@ -273,13 +274,13 @@ def ground_truth_dir(ws: Workspace, cfg: Config) -> Path:
         gt = Path(source).parent if source is not None else None
         if gt is None or not (gt / "ground_truth.json").is_file():
             raise PolicyError(
-                f"eval-policy --renderer ground_truth: this workspace's capture ({source or 'not recorded'}) has no "
+                f"{command} --renderer ground_truth: this workspace's capture ({source or 'not recorded'}) has no "
                 "ground truth: only a sample made by `m2m sample make` (such as samples/tabletop) has its own world "
                 "to render. Use --renderer hybrid, or name the sample with --ground-truth DIR"
             )
     if not (gt / "ground_truth.json").is_file():
-        raise PolicyError(f"--ground-truth {gt}: no ground_truth.json there; give a sample folder (samples/tabletop) "
-                          "or use --renderer hybrid")  # fmt: skip
+        raise PolicyError(f"{command} --ground-truth {gt}: no ground_truth.json there; give a sample folder "
+                          "(samples/tabletop) or use --renderer hybrid")  # fmt: skip
     return gt
 
 

@@ -19,7 +19,7 @@ from ..policy.config import POLICY_FILE
 from ..render.options import MAX_SUPERSAMPLE, supersample_problem
 from ..workspace import Workspace
 from .base import ADDED_LATER, Input, Log
-from .eval_policy import trained_policy_dirs
+from .eval_policy import ground_truth_dir, trained_policy_dirs
 
 
 @dataclass
@@ -60,6 +60,11 @@ class Config:
                  and the episode is recorded from there: demonstrations of getting back on track from the states the
                  policy itself reaches (DAgger's data; the policy's own steps are not recorded)
     takeover_steps  lo,hi: the takeover's policy acts for a number of control ticks drawn in [lo, hi] per episode
+    renderer     what draws the frames: hybrid (the reconstructed world: the method) or ground_truth (a sample's own
+                 world, as its video was rendered: demonstrations in the sim-to-real bench's "real" pictures, an
+                 oracle for how far a recipe goes when the looks are perfect; ~5x slower on the CPU)
+    ground_truth  the sample folder (with ground_truth.json) the ground_truth renderer draws (default: the folder of
+                 the workspace's capture, when it is a sample)
     """
 
     task: tuple[str, ...] = ()
@@ -82,6 +87,8 @@ class Config:
     # within the approach: the sample's grasps take ~42 ticks, and with 10,60 a trained policy finished the task on its
     # own before the takeover in 3 of the first 5 attempts (nothing for the expert to correct)
     takeover_steps: tuple[int, int] = ranged(Takeover.steps, ge=0, le=MAX_TAKEOVER_STEPS, ordered=True)
+    renderer: Literal["hybrid", "ground_truth"] = field(default="hybrid", metadata=ADDED_LATER)
+    ground_truth: Path | None = field(default=None, metadata=ADDED_LATER)
 
     def validate(self) -> None:
         if not self.task:
@@ -102,6 +109,9 @@ class Config:
         bad_steps = takeover_steps_problem(self.takeover_steps)
         if bad_steps:
             raise GenerateError(f"generate: {bad_steps}")
+        if self.ground_truth is not None and self.renderer != "ground_truth":
+            raise GenerateError("generate: ground_truth names the sample the ground_truth renderer draws; add "
+                                "--renderer ground_truth, or leave it out")  # fmt: skip
         if self.takeover is not None and not self.takeover.strip():
             raise GenerateError("generate: takeover names no policy; give a trained policy (m2m train-policy), or "
                                 "leave it out")  # fmt: skip
@@ -122,8 +132,18 @@ class Config:
         except PolicyError as e:
             raise GenerateError(f"generate --takeover: {e}") from None
 
+    def ground_truth_dir(self, ws: Workspace) -> Path | None:
+        """The sample the ground_truth renderer draws (None for hybrid frames); GenerateError when there is none."""
+        if self.renderer != "ground_truth":
+            return None
+        try:
+            return ground_truth_dir(ws, self, command="generate")
+        except PolicyError as e:
+            raise GenerateError(str(e)) from None
+
     def generation(self, ws: Workspace | None = None) -> GenerateConfig:
-        """The generation settings; ``ws`` resolves a takeover's policies (required with one)."""
+        """The generation settings; ``ws`` resolves a takeover's policies (required with one) and the default
+        ground-truth sample."""
         takeover = None
         if self.takeover is not None:
             if ws is None:
@@ -139,12 +159,22 @@ class Config:
             randomization=Randomization(object_shrink=self.object_shrink, table_texture=self.table_texture,
                                         start_regions=self.start_regions()),
             hybrid=hybrid_options(self.objects, self.supersample, self.robot_look),
-            splat_server=self.splat_server, takeover=takeover,
+            splat_server=self.splat_server, takeover=takeover, ground_truth=self._ground_truth(ws),
         )  # fmt: skip
+
+    def _ground_truth(self, ws: Workspace | None) -> Path | None:
+        if self.renderer != "ground_truth":
+            return None
+        if ws is None and self.ground_truth is None:
+            raise GenerateError("generate: the default ground-truth sample is the workspace's capture; none was given")
+        return self.ground_truth_dir(ws) if ws is not None else Path(self.ground_truth)
 
 
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
     files = [Input(ws.world_yaml, made_by="compose")]
+    gt = cfg.ground_truth_dir(ws)
+    if gt is not None:
+        files.append(Input(gt / "ground_truth.json", field="ground_truth"))
     return files + [Input(p / POLICY_FILE, made_by="train-policy") for p in cfg.takeover_dirs(ws.committed)]
 
 
@@ -191,6 +221,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
             + ("" if rate is None else f", success {100 * rate:.0f}%")
             + (f", {s.get('demos_per_min')} demos/min" if s.get("demos_per_min") else "")
             + (", valid" if not problems else f", {len(problems)} PROBLEMS")
+            + (f", frames drawn by {generation.ground_truth}'s ground truth" if generation.ground_truth else "")
         )
     n_ok = sum(not t["validation_problems"] for t in per_task.values())
     episodes = sum(int(t.get("episodes") or 0) for t in per_task.values())
