@@ -382,8 +382,8 @@ def markdown_tables(result: dict[str, Any], cfg: Sim2RealConfig) -> str:
     oracle = next((r for r in rows if r["kind"] == "oracle"), None)
     if oracle is not None:
         gs = _gaussian_twin(rows, cfg.task, cfg.oracle_demos)
-        out += ["", f"Oracle: {cfg.task}, {cfg.oracle_demos} demos, one training seed; the same recipe trained on the "
-                "ground truth's own pictures, its ceiling when the looks are perfect", "",
+        out += ["", f"Oracle: {cfg.task}, {cfg.oracle_demos} demos, one training seed; the same recipe and motions, "
+                "the demos drawn by the ground truth itself (the looks made perfect)", "",
                 "| the demos' pictures | ground-truth world | reconstructed (hybrid) world |", "|---|---|---|",
                 f"| the reconstruction's (the method) | {_cell(gs.get('ground_truth'))} | {_cell(gs.get('hybrid'))} |",
                 f"| the ground truth's own (oracle) | {_cell(oracle.get('ground_truth'))} | "
