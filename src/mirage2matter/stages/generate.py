@@ -132,10 +132,16 @@ class Config:
         except PolicyError as e:
             raise GenerateError(f"generate --takeover: {e}") from None
 
-    def ground_truth_dir(self, ws: Workspace) -> Path | None:
-        """The sample the ground_truth renderer draws (None for hybrid frames); GenerateError when there is none."""
+    def ground_truth_dir(self, ws: Workspace | None) -> Path | None:
+        """The sample the ground_truth renderer draws (None for hybrid frames); GenerateError when there is none.
+        Without ``ws`` only a named sample (the default is the workspace capture's)."""
         if self.renderer != "ground_truth":
             return None
+        if ws is None:
+            if self.ground_truth is None:
+                raise GenerateError("generate: the default ground-truth sample is the workspace's capture; none was "
+                                    "given")  # fmt: skip
+            return Path(self.ground_truth)
         try:
             return ground_truth_dir(ws, self, command="generate")
         except PolicyError as e:
@@ -159,15 +165,8 @@ class Config:
             randomization=Randomization(object_shrink=self.object_shrink, table_texture=self.table_texture,
                                         start_regions=self.start_regions()),
             hybrid=hybrid_options(self.objects, self.supersample, self.robot_look),
-            splat_server=self.splat_server, takeover=takeover, ground_truth=self._ground_truth(ws),
+            splat_server=self.splat_server, takeover=takeover, ground_truth=self.ground_truth_dir(ws),
         )  # fmt: skip
-
-    def _ground_truth(self, ws: Workspace | None) -> Path | None:
-        if self.renderer != "ground_truth":
-            return None
-        if ws is None and self.ground_truth is None:
-            raise GenerateError("generate: the default ground-truth sample is the workspace's capture; none was given")
-        return self.ground_truth_dir(ws) if ws is not None else Path(self.ground_truth)
 
 
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
