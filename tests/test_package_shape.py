@@ -241,11 +241,11 @@ def test_the_runtime_does_not_import_the_sample_maker():
 
 # Third-party modules slow to import (or needing a display, a GPU, a service) or optional (sam2, fast_simplification:
 # a clear message without them): the only ones loaded inside functions, so that `m2m --help` and the stages' configs
-# load none of them.
+# load none of them. OpenGL picks its platform when first imported: only after Genesis has chosen EGL.
 HEAVY_THIRD_PARTY = {
     "torch", "genesis", "pycolmap", "ray", "open3d", "viser", "mujoco", "cv2", "av", "numba", "ompl", "coacd",
     "gsplat", "trimesh", "skimage", "scipy", "pyarrow", "matplotlib", "selenium", "PIL", "lerobot", "plyfile",
-    "fsspec", "pandas", "manifold3d", "mkdocs", "tqdm", "sam2", "fast_simplification", "gymnasium",
+    "fsspec", "pandas", "manifold3d", "mkdocs", "tqdm", "sam2", "fast_simplification", "gymnasium", "OpenGL",
 }  # fmt: skip
 
 

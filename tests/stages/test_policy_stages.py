@@ -221,7 +221,7 @@ def test_generate_through_the_ground_truth_draws_the_samples_own_pictures(ws: Pa
         (ws / "m2m.yaml").write_bytes(settings)
     summary = json.loads((out / "summary.json").read_text())
     sha1 = hashlib.sha1((sample_dir / "ground_truth.json").read_bytes()).hexdigest()
-    assert summary["fingerprint"]["source"]["ground_truth"] == {"sha1": sha1}
+    assert summary["fingerprint"]["source"]["ground_truth"] == {"sha1": sha1, "texture_filter": "trilinear"}
     (row,) = [json.loads(x) for x in (out / "meta" / "m2m_episodes.jsonl").read_text().splitlines()]
     _, _, first = next(read_video_frames(next((out / "videos" / "observation.images.head").rglob("*.mp4"))))
 

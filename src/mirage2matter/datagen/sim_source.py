@@ -97,7 +97,9 @@ class SimSourceConfig:
             out["takeover"] = self.takeover.to_json()
         if self.ground_truth is not None:  # likewise; by content (a moved sample draws the same pictures)
             gt = Path(self.ground_truth) / "ground_truth.json"
-            out["ground_truth"] = {"sha1": hashlib.sha1(gt.read_bytes()).hexdigest()}
+            # the env's ground-truth frames filter textures trilinearly (GroundTruthFrames; before 2026-12-06: as the
+            # sample's video, anisotropically): datasets drawn either way are not one
+            out["ground_truth"] = {"sha1": hashlib.sha1(gt.read_bytes()).hexdigest(), "texture_filter": "trilinear"}
         if out["hybrid"].get("objects") == "gaussians":  # the default: datasets made before the option keep their key
             del out["hybrid"]["objects"]
         if out["hybrid"]["splat"].get("supersample") == 1:  # likewise

@@ -56,6 +56,7 @@ from .config import EnvError
 
 __all__ = [
     "INTRINSICS_MODES",
+    "TEXTURE_FILTERS",
     "GroundTruthError",
     "GroundTruthRenderer",
     "RenderStalled",
@@ -65,6 +66,9 @@ __all__ = [
 ]
 
 INTRINSICS_MODES = ("exact", "twin")
+# How the scene's textures are filtered: "anisotropic" as the sample's video was rendered, or "trilinear", which
+# llvmpipe does not stall on (RenderScene.trilinear_textures).
+TEXTURE_FILTERS = ("anisotropic", "trilinear")
 # A principal point this far (px) from the image centre, or fx this far from fy (px), is not "centred, square".
 _K_TOL_PX = 1e-3
 # Rotation blocks of object and camera poses must be orthonormal to this (physics quaternions are unit).
@@ -186,6 +190,12 @@ class GroundTruthRenderer:
     intrinsics   "exact" (refuse a K Genesis cannot render) or "twin" (approximate it as the physics twin does)
     config       the look (ambient, lights, background, shadow, near, far): a
                  :class:`~mirage2matter.sim.scene.SceneLook` (default: the sample's, as its video was rendered)
+    texture_filter "anisotropic" (as the video was rendered: Genesis' 16x on llvmpipe) or "trilinear" (llvmpipe's
+                 anisotropic filter can take minutes over one frame at some camera poses, see
+                 :meth:`~mirage2matter.sim.scene.RenderScene.trilinear_textures`; built with one render of each camera)
+    tmp_dir      where its exported meshes go (a temporary folder inside it; default: the system's temp folder);
+                 removed by :meth:`close`, not when the process is killed (:class:`GroundTruthFrames` gives its
+                 renderer process a folder it removes itself)
 
     Building takes ~25 s warm (~2 min with cold Genesis kernel caches); use it as a context manager or call
     :meth:`close`. Not thread-safe: one render at a time.
@@ -200,10 +210,14 @@ class GroundTruthRenderer:
         robot: str | None = None,
         intrinsics: str = "exact",
         config: SceneLook | None = None,
+        texture_filter: str = "anisotropic",
+        tmp_dir: str | Path | None = None,
     ) -> None:
         self._scene = None
         self._workdir: Path | None = None
         gt = read_ground_truth(sample_dir)  # before Genesis starts: a capture fails at once
+        if texture_filter not in TEXTURE_FILTERS:
+            raise GroundTruthError(f"texture_filter: one of {TEXTURE_FILTERS}, got {texture_filter!r}")
         if not isinstance(cameras, Mapping) or not cameras:
             raise GroundTruthError("cameras: give at least one camera as {name: (K [3,3], width, height)}")
         self._K: dict[str, np.ndarray] = {}
@@ -240,7 +254,7 @@ class GroundTruthRenderer:
         # the twin's names and the sample's asset names -> asset name
         self._aliases = {**self._twin_names, **{a: a for a in self._movable}}
 
-        self._workdir = Path(tempfile.mkdtemp(prefix="m2m_ground_truth_"))
+        self._workdir = Path(tempfile.mkdtemp(prefix="m2m_ground_truth_", dir=tmp_dir))
         self._rm_workdir = weakref.finalize(self, shutil.rmtree, self._workdir, True)  # also without close()
         try:
             self._scene = RenderScene(self.config)
@@ -269,6 +283,9 @@ class GroundTruthRenderer:
             if self._look:  # the model's robot computes the links' poses out of sight; the look draws them
                 self.robot.set_pos(np.array([0.0, 0.0, _HIDDEN_ROBOT_Z]))
                 self._place_look()
+            self.texture_filter = texture_filter
+            if texture_filter == "trilinear":
+                self._trilinear_textures()
         except BaseException:
             self.close()
             raise
@@ -292,6 +309,15 @@ class GroundTruthRenderer:
             pos, quat = pos_quat(T)
             entity.set_pos(pos)
             entity.set_quat(quat)
+
+    def _trilinear_textures(self) -> None:
+        """Every texture filtered trilinearly: each camera renders once from above the table (which puts the
+        textures on the GL context), then the filter is set."""
+        T_above = np.eye(4)  # 1.5 m above the workspace looking down (OpenCV axes: +z forward, +y down the image)
+        T_above[:3, :3] = np.diag([1.0, -1.0, -1.0])
+        T_above[:3, 3] = (0.5, 0.0, 1.5)
+        self._render_all(dict.fromkeys(self._K, T_above), rgb=True)
+        self._scene.trilinear_textures(list(self._scene.entities))
 
     def _check_assets_match(self, assets: list, gt: dict) -> None:
         """The assets rebuilt from the seed must be the sample's (else this code's asset maker drifted)."""
@@ -506,24 +532,35 @@ class GroundTruthFrames:
     every frame an asset is drawn at ``T_base_body(now) @ T_body_asset``. The robot is drawn at the twin's joint
     state, the cameras where the twin has them (its mount jitter included); no colour jitter (the "real world"
     is as it is). Bodies without a ground-truth asset are an error: this world is not the sample's.
+
+    Its textures are filtered trilinearly (``texture_filter="trilinear"``), not anisotropically as the video was
+    rendered: with the video's filtering llvmpipe held single frames for minutes, cutting 2-3 of every 10 episodes
+    at a 4-minute limit; the frames differ from the video's filtering by 37-40 dB PSNR (median; H.264 left 35 dB of
+    the video's own frames).
     """
 
     def __init__(self, twin: Any, sample_dir: str | Path, cameras: tuple[str, ...], size: tuple[int, int],
-                 timeout_s: float | None = RENDER_TIMEOUT_S) -> None:  # fmt: skip
+                 timeout_s: float | None = RENDER_TIMEOUT_S, texture_filter: str = "trilinear") -> None:  # fmt: skip
         self.twin, self.cameras, self.timeout_s = twin, tuple(cameras), timeout_s
         self.timings: dict[str, float] = dict.fromkeys(("ground_truth_render", "ground_truth_stalls"), 0.0)
         T_base_body0 = twin.object_poses()  # at the placements, straight after the build
         w, h = size
         views = {c: (twin.camera(c)[1], w, h) for c in self.cameras}
-        args, kwargs = (sample_dir, views), {"with_robot": True, "robot": twin.cfg.robot.name, "intrinsics": "twin"}
+        args = (sample_dir, views)
+        kwargs = dict(with_robot=True, robot=twin.cfg.robot.name, intrinsics="twin", texture_filter=texture_filter)
         if timeout_s is not None and not can_start_children():  # e.g. in one of generation's worker processes
             warnings.warn("the ground-truth renderer runs in this process (a daemonic worker may not start one): "
                           "no time limit on its renders, an llvmpipe stall is waited out", stacklevel=2)  # fmt: skip
             self.timeout_s = timeout_s = None
+        self._tmp: Path | None = None
         if timeout_s is None:
             self.renderer: Any = GroundTruthRenderer(*args, **kwargs)
         else:  # in a child process: a render that hangs in llvmpipe can be stopped (see ``render``)
-            self.renderer = TimedWorker(GroundTruthRenderer, args, kwargs, name="ground-truth renderer")
+            # a killed child cannot remove its exported meshes (~50 MB each): they go in a folder this process removes
+            self._tmp = Path(tempfile.mkdtemp(prefix="m2m_ground_truth_"))
+            self._rm_tmp = weakref.finalize(self, shutil.rmtree, self._tmp, True)
+            self.renderer = TimedWorker(GroundTruthRenderer, args, {**kwargs, "tmp_dir": self._tmp},
+                                        name="ground-truth renderer")  # fmt: skip
         try:
             known = set(self._call("object_names"))
             unknown = sorted(set(T_base_body0) - known)
@@ -535,7 +572,7 @@ class GroundTruthFrames:
                 )
             self.T_body_asset = {n: np.linalg.inv(T) @ gt[n] for n, T in T_base_body0.items()}
         except BaseException:
-            self.renderer.close()
+            self.close()
             raise
 
     def _call(self, method: str, *args: Any, **kwargs: Any) -> Any:
@@ -580,6 +617,8 @@ class GroundTruthFrames:
 
     def close(self) -> None:
         self.renderer.close()
+        if self._tmp is not None:
+            self._rm_tmp()
 
 
 def _moved_back(T_base_cam: np.ndarray, metres: float) -> np.ndarray:

@@ -234,6 +234,37 @@ class RenderScene:
         """Genesis' ``(rgb, depth, segmentation, normal)`` from ``camera`` at ``T_base_cam`` (:func:`render_view`)."""
         return render_view(self.cameras[camera], T_base_cam, **what)
 
+    def trilinear_textures(self, names: Any) -> int:
+        """Draw the textures of the entities ``names`` with trilinear filtering instead of the anisotropic filtering
+        Genesis gives every texture (the most the driver offers: 16x on llvmpipe). llvmpipe's anisotropic filter loops
+        over a pixel's whole footprint in the texture, which at some exact camera poses has no practical bound: one
+        128-px render of the sample's scene from a camera beside the banana took 24-37 s (0.01 s with trilinear
+        filtering, and 0.04 s with the camera 0.1 mm away; docs/results/robot-in-capture.md). The textures must be on
+        the GL context: call this after a render. Returns how many textures were changed."""
+        from OpenGL.GL import GL_TEXTURE_2D, glBindTexture, glTexParameterf
+        from OpenGL.GL.EXT.texture_filter_anisotropic import GL_TEXTURE_MAX_ANISOTROPY_EXT
+
+        vis = self.scene.visualizer
+        textures = []
+        for name in names:
+            for geom in self.entities[name].vgeoms:
+                node = vis.context.rigid_nodes.get(geom.uid)
+                for primitive in node.mesh.primitives if node is not None else ():
+                    for texture in primitive.material.textures:
+                        if texture._texid is None:
+                            raise RuntimeError(f"{name}: its textures are not on the GL context yet; render once first")
+                        textures.append(texture)
+        renderer = vis.rasterizer._renderer
+        renderer.make_current()
+        try:
+            for texture in textures:
+                glBindTexture(GL_TEXTURE_2D, texture._texid)
+                glTexParameterf(GL_TEXTURE_2D, GL_TEXTURE_MAX_ANISOTROPY_EXT, 1.0)
+            glBindTexture(GL_TEXTURE_2D, 0)
+        finally:
+            renderer.make_uncurrent()
+        return len(textures)
+
     def labels(self, seg: Any) -> np.ndarray:
         """int32 [H,W] labels of a segmentation render: i -> ``names[i]``, -1 where nothing (or no named entity)."""
         if self._lut is None:
