@@ -5,8 +5,9 @@ A renderer is built together with the twin it renders (a builder takes the :clas
 that draw only the robot; a ground-truth renderer may render its own scene and need no twin cameras at all.
 
 - ``hybrid`` (:mod:`.hybrid`): the Gaussian world + the composited Genesis robot; what generation records.
-- ``ground_truth`` (:mod:`.ground_truth`): the sample's textured-mesh world as its video was rendered, driven by
-  the twin's state; it needs a sample's ground truth (``EnvConfig.ground_truth``).
+- ``ground_truth`` (:mod:`.ground_truth`): the sample's textured-mesh world as its video was rendered (textures
+  filtered trilinearly: :class:`~.ground_truth.GroundTruthFrames`), driven by the twin's state; it needs a sample's
+  ground truth (``EnvConfig.ground_truth``).
 """
 
 from __future__ import annotations

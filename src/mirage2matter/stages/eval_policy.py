@@ -47,7 +47,7 @@ class Config:
                     several names or folders joined by commas (A,B,C) run as one ensemble (``ensemble_combine``)
     task            the task instruction (default: the task of the datasets the policy was trained on, when one)
     renderer        observations: hybrid (the reconstructed world, as generation renders it) or ground_truth (a
-                    sample's own world, as its video was rendered)
+                    sample's own world, as its video was rendered but with textures filtered trilinearly)
     ground_truth    the sample folder (with ground_truth.json) the ground_truth renderer draws (default: the folder
                     of the workspace's capture, when it is a sample)
     episodes        episodes to run

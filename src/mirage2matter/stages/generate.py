@@ -61,8 +61,9 @@ class Config:
                  policy itself reaches (DAgger's data; the policy's own steps are not recorded)
     takeover_steps  lo,hi: the takeover's policy acts for a number of control ticks drawn in [lo, hi] per episode
     renderer     what draws the frames: hybrid (the reconstructed world: the method) or ground_truth (a sample's own
-                 world, as its video was rendered: demonstrations in the sim-to-real bench's "real" pictures, an
-                 oracle for how far a recipe goes when the looks are perfect; ~5x slower on the CPU)
+                 world, as its video was rendered, textures filtered trilinearly: demonstrations in the sim-to-real
+                 bench's "real" pictures, an oracle for how far a recipe goes when the looks are perfect; slower on
+                 the CPU)
     ground_truth  the sample folder (with ground_truth.json) the ground_truth renderer draws (default: the folder of
                  the workspace's capture, when it is a sample)
     """
