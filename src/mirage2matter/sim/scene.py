@@ -244,7 +244,7 @@ class RenderScene:
         from OpenGL.GL import GL_TEXTURE_2D, glBindTexture, glTexParameterf
         from OpenGL.GL.EXT.texture_filter_anisotropic import GL_TEXTURE_MAX_ANISOTROPY_EXT
 
-        vis = self.scene.visualizer
+        vis = self.scene.visualizer  # Genesis 1.4.5's rasterizer: a pyrender node per visual geom, its GL texture ids
         textures = []
         for name in names:
             for geom in self.entities[name].vgeoms:
