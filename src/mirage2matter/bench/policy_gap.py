@@ -27,7 +27,7 @@ import numpy as np
 
 from ..configs import ranged
 from ..datagen import task_slug
-from ..env.config import hybrid_options
+from ..env.config import GROUND_TRUTH_TEXTURE_FILTER, hybrid_options
 from ..env.episode_cache import load_or_record_episodes
 from ..policy.data import IMAGE_PREFIX, STATE_KEY
 from ..stages import eval_policy
@@ -166,7 +166,7 @@ def run_policy_gap(ws: Workspace, gap: PolicyGapConfig, policy_refs: list[str], 
     gt_id = hashlib.sha256((gt / "ground_truth.json").read_bytes()).hexdigest()[:8]
     rows, ok, n_episodes = {}, 0, 0
     for (supersample, look), refs in drawn.items():
-        name = f"{task_slug(gap.task)}-{gap.size}px-{world_id}-gt{gt_id}-tri"  # textures filtered trilinearly
+        name = f"{task_slug(gap.task)}-{gap.size}px-{world_id}-gt{gt_id}-{GROUND_TRUTH_TEXTURE_FILTER}"
         name += ("-mesh_robot" if look == "mesh" else "") + (f"-ss{supersample}" if supersample > 1 else "")
         folder = ws.evals_dir / "expert_pairs" / name
         hybrid = hybrid_options(cfg.objects, supersample, look)

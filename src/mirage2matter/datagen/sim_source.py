@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from ..env.config import EnvConfig, EpisodeSpec, HybridOptions, Randomization
+from ..env.config import GROUND_TRUTH_TEXTURE_FILTER, EnvConfig, EpisodeSpec, HybridOptions, Randomization
 from ..export.spec import DatasetSpec, EpisodeData
 from ..ray_cluster import splat_resources
 from ..sim.tasks import Task
@@ -97,9 +97,8 @@ class SimSourceConfig:
             out["takeover"] = self.takeover.to_json()
         if self.ground_truth is not None:  # likewise; by content (a moved sample draws the same pictures)
             gt = Path(self.ground_truth) / "ground_truth.json"
-            # the env's ground-truth frames filter textures trilinearly (GroundTruthFrames; before 2026-12-06: as the
-            # sample's video, anisotropically): datasets drawn either way are not one
-            out["ground_truth"] = {"sha1": hashlib.sha1(gt.read_bytes()).hexdigest(), "texture_filter": "trilinear"}
+            out["ground_truth"] = {"sha1": hashlib.sha1(gt.read_bytes()).hexdigest(),
+                                   "texture_filter": GROUND_TRUTH_TEXTURE_FILTER}  # fmt: skip
         if out["hybrid"].get("objects") == "gaussians":  # the default: datasets made before the option keep their key
             del out["hybrid"]["objects"]
         if out["hybrid"]["splat"].get("supersample") == 1:  # likewise

@@ -19,10 +19,14 @@ if TYPE_CHECKING:
     from ..sim.tasks import Task
     from ..world.config import WorldConfig
 
-__all__ = ["CAMERAS", "EnvConfig", "EnvError", "EpisodeSpec", "HybridOptions", "Randomization", "check_config",
-           "parse_start_region"]  # fmt: skip
+__all__ = ["CAMERAS", "GROUND_TRUTH_TEXTURE_FILTER", "EnvConfig", "EnvError", "EpisodeSpec", "HybridOptions",
+           "Randomization", "check_config", "parse_start_region"]  # fmt: skip
 
 CAMERAS = ("head", "wrist")
+# How the env's ground-truth frames filter the sample's textures (env.ground_truth.GroundTruthFrames): trilinearly,
+# not anisotropically as its video was rendered (llvmpipe's anisotropic filter held single frames for minutes). Frames
+# drawn before 2026-12-06 were anisotropic: what records them (a dataset's fingerprint, policy-gap's cache) names it.
+GROUND_TRUTH_TEXTURE_FILTER = "trilinear"
 
 
 @dataclass(frozen=True)

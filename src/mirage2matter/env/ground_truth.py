@@ -52,7 +52,7 @@ from ..sim.scene import RenderScene, SceneLook, pos_quat, pose_from
 from ..sim.twin import Twin, TwinOptions
 from ..world.sample_assets import assets_of_sample
 from ..world.sample_robot_look import ROBOT_LOOK_PREFIX, robot_look_meshes
-from .config import EnvError
+from .config import GROUND_TRUTH_TEXTURE_FILTER, EnvError
 
 __all__ = [
     "INTRINSICS_MODES",
@@ -533,14 +533,15 @@ class GroundTruthFrames:
     state, the cameras where the twin has them (its mount jitter included); no colour jitter (the "real world"
     is as it is). Bodies without a ground-truth asset are an error: this world is not the sample's.
 
-    Its textures are filtered trilinearly (``texture_filter="trilinear"``), not anisotropically as the video was
-    rendered: with the video's filtering llvmpipe held single frames for minutes, cutting 2-3 of every 10 episodes
-    at a 4-minute limit; the frames differ from the video's filtering by 37-40 dB PSNR (median; H.264 left 35 dB of
-    the video's own frames).
+    Its textures are filtered trilinearly (``texture_filter``: :data:`~.config.GROUND_TRUTH_TEXTURE_FILTER`), not
+    anisotropically as the video was rendered: with the video's filtering llvmpipe held single frames for minutes,
+    cutting 2-3 of every 10 episodes at a 4-minute limit; the frames differ from the video's filtering by 37-40 dB
+    PSNR (median; H.264 left 35 dB of the video's own frames).
     """
 
     def __init__(self, twin: Any, sample_dir: str | Path, cameras: tuple[str, ...], size: tuple[int, int],
-                 timeout_s: float | None = RENDER_TIMEOUT_S, texture_filter: str = "trilinear") -> None:  # fmt: skip
+                 timeout_s: float | None = RENDER_TIMEOUT_S,
+                 texture_filter: str = GROUND_TRUTH_TEXTURE_FILTER) -> None:  # fmt: skip
         self.twin, self.cameras, self.timeout_s = twin, tuple(cameras), timeout_s
         self.timings: dict[str, float] = dict.fromkeys(("ground_truth_render", "ground_truth_stalls"), 0.0)
         T_base_body0 = twin.object_poses()  # at the placements, straight after the build
