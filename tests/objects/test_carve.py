@@ -9,7 +9,14 @@ import trimesh
 
 from mirage2matter.geometry.camera import Camera, look_at_pose
 from mirage2matter.objects import ObjectsError
-from mirage2matter.objects.carve import Grid, _view_distances, carve, signed_distance_image, surface_mesh
+from mirage2matter.objects.carve import (
+    Grid,
+    _view_distances,
+    carve,
+    largest_part,
+    signed_distance_image,
+    surface_mesh,
+)
 
 K = np.array([[300.0, 0, 80], [0, 300.0, 60], [0, 0, 1]])
 LO, HI = np.array([-0.03, -0.02, 0.0]), np.array([0.03, 0.02, 0.03])  # a 6 x 4 x 3 cm box on the table
@@ -124,3 +131,15 @@ def test_too_few_views_and_nothing_left_are_errors():
     shifted = [np.roll(m, 40, axis=1) for m in masks]  # masks that agree on nothing
     with pytest.raises(ObjectsError, match="carve the whole volume away"):
         surface_mesh(carve(grid, cams, shifted, skip=0, name="box"), grid, name="box")
+
+
+def test_the_object_not_a_sliver_is_the_part_kept():
+    """A carved surface's parts: the object (closed, 1.2e-4 m^3 here) and a one-face sliver beside it, as the bundled
+    sample's button once came out of marching cubes. The object is kept (a ranking by volume where closed and by face
+    count where not kept the sliver, and the stage stopped on its open mesh)."""
+    body = trimesh.creation.box(extents=HI - LO)
+    sliver = trimesh.Trimesh([[0.1, 0, 0], [0.1 + 1e-5, 0, 0], [0.1, 1e-5, 1e-5]], [[0, 1, 2]], process=False)
+    assert body.is_watertight and not sliver.is_watertight
+    assert abs(body.volume) < len(sliver.faces), "the test no longer shows the old ranking's trap"
+    for parts in ([body, sliver], [sliver, body]):
+        assert largest_part(parts) is body
