@@ -3,9 +3,13 @@
 Each keyframe's mask becomes a signed distance image (pixels, positive inside). A voxel's value is
 a low order statistic over the views that see it (the ``skip``-th smallest: a mask that misses
 part of the object in one view does not cut it away), so the zero level set is the visual hull with
-sub-pixel boundaries. Depth maps (e.g. rendered from the object's Gaussians) carve the free space
-in front of the surfaces they see. Below the support plane the field is negative: the unseen
-underside is closed against the table. Marching cubes (scikit-image) turns the zero level into a mesh.
+sub-pixel boundaries. The vote has a price: a voxel just outside the object is cut only by the few
+views that see it at the object's rim, and skipping those keeps a shell around the whole object.
+Where masks are unreliable (low, against the table) it is worth it; higher up (``skip_below``) a
+disagreement keeps only a chunk, as a missing piece of one mask leaves, not a shell. Depth maps
+(e.g. rendered from the object's Gaussians) carve the free space in front of the surfaces they see.
+Below the support plane the field is negative: the unseen underside is closed against the table.
+Marching cubes (scikit-image) turns the zero level into a mesh.
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ from numba import njit, prange
 from ..geometry.camera import Camera
 from .errors import ObjectsError
 
-__all__ = ["Grid", "carve", "largest_part", "signed_distance_image", "surface_mesh"]
+__all__ = ["Grid", "carve", "largest_part", "signed_distance_image", "surface_mesh", "vote_near_support"]
 
 
 @dataclass
@@ -110,6 +114,7 @@ def carve(
     depths: Sequence[np.ndarray | None] | None = None,
     depth_edge_px: float = 2.0,
     depth_margin: float = 0.0,
+    skip_below: float | None = None,
 ) -> np.ndarray:
     """Carving field [nx,ny,nz] float32 (pixels; > 0 inside the hull) from the ``masks`` [H,W] bool of
     the ``cameras`` (None: the object is not seen there). ``plane_height(points) -> [N]`` gives the
@@ -118,7 +123,10 @@ def carve(
     ``depths`` [H,W] (metres along the camera's z, NaN where unknown) carve free space too: a voxel
     in front of the surface a keyframe sees is empty. Silhouettes alone cannot carve what lies
     above a flat top seen only from above at an angle; depth can. Only what lies more than
-    ``depth_margin`` (metres) in front of the seen surface is carved (rendered depth is noisy)."""
+    ``depth_margin`` (metres) in front of the seen surface is carved (rendered depth is noisy).
+
+    ``skip_below`` (metres above the plane; None: everywhere): the vote holds in full below it; above
+    twice it, the voxels the vote keeps are kept only where they form a chunk (:func:`vote_near_support`)."""
     pts = grid.centres()
     dists = []
     for k, (cam, mask) in enumerate(zip(cameras, masks, strict=True)):
@@ -140,11 +148,41 @@ def carve(
     d.sort(axis=0)
     k = np.minimum(skip, np.maximum(n_seen - 1, 0))
     field = np.take_along_axis(d, k[None], axis=0)[0]
+    h = None if plane_height is None else plane_height(pts)
+    if skip_below is not None and h is not None and skip > 0:
+        strict = d[0]  # no view may disagree
+        field = vote_near_support(field.reshape(grid.shape), strict.reshape(grid.shape), h.reshape(grid.shape),
+                                  skip_below, grid.voxel).ravel()  # fmt: skip
     field[n_seen < max(3, skip + 2)] = -1.0  # seen by too few views to say
-    if plane_height is not None:
-        h = plane_height(pts)
+    if h is not None:
         field = np.where(h < 0, np.minimum(field, h / grid.voxel), field)
     return field.reshape(grid.shape).astype(np.float32)
+
+
+# A piece one mask misses is a chunk; the vote's shell at the rim is about a voxel or two thick (bundled sample, 1.5 mm
+# voxels: its median distance to the true surface 1 mm). Kept: what survives an opening of this radius.
+CHUNK_RADIUS = 0.003
+
+
+def vote_near_support(voted: np.ndarray, strict: np.ndarray, height: np.ndarray, below: float,
+                      voxel: float) -> np.ndarray:  # fmt: skip
+    """The carving field [nx,ny,nz] with the vote (``voted``) near the support and none (``strict``) higher up,
+    linear in between (``height`` [nx,ny,nz] metres above the plane: ``below`` .. 2 ``below``). Higher up the voxels
+    the vote alone keeps stay where they form a chunk (an opening of CHUNK_RADIUS): one mask's missing piece.
+
+    Why the height: near the table an object's masks are least sure (the matting's floor, contact shadows, low edges
+    the colour of the wood) and its views' misses are real; higher up the outline stands against the table behind
+    and what the vote keeps is mostly a shell. Bundled sample, 40 keyframes, the vote (3 of 36 views) everywhere:
+    the volume it added below 10 mm lay 92 % inside the true croissant, above 20 mm 17 % (banana 35 %, button 15 %)."""
+    from scipy import ndimage
+
+    cross = ndimage.generate_binary_structure(3, 1)
+    only_voted = (voted > 0) & ~(strict > 0)
+    r = max(1, int(round(CHUNK_RADIUS / voxel)))
+    chunks = ndimage.binary_dilation(ndimage.binary_opening(only_voted, cross, iterations=r), cross)
+    high = np.where(chunks, voted, strict)
+    w = np.clip(height / below - 1.0, 0.0, 1.0)
+    return (1.0 - w) * voted + w * high
 
 
 def surface_mesh(field: np.ndarray, grid: Grid, name: str = "object"):

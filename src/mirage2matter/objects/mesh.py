@@ -38,12 +38,14 @@ def reconstruct_mesh(
     name: str | None = None,
     depths: Sequence[np.ndarray | None] | None = None,
     depth_margin: float = 0.0005,
+    skip_below: float | None = None,
 ):
     """Watertight trimesh.Trimesh (base frame) of the object from its masks (and, when given, depth
     maps [H,W] per keyframe, NaN where unknown, that carve the free space in front of what they
     see, beyond ``depth_margin``; 2 mm left the sample's meshes fat where depth carves: the button's
     walls 1.8 mm outside its ground truth). ``skip_fraction`` of the views that see a voxel may
-    disagree without cutting it away."""
+    disagree without cutting it away, fully below ``skip_below`` metres above the plane (None: everywhere) and,
+    above twice that, only where that keeps a chunk (``carve.vote_near_support``)."""
     import trimesh
 
     name = name or cluster.name
@@ -54,9 +56,8 @@ def reconstruct_mesh(
     grid = Grid.around(lo, hi, voxel)
     n_seen = sum(1 for m in masks if m is not None)
     skip = int(round(skip_fraction * n_seen))
-    field = carve(
-        grid, cameras, masks, plane_height=plane.height, skip=skip, name=name, depths=depths, depth_margin=depth_margin
-    )
+    field = carve(grid, cameras, masks, plane_height=plane.height, skip=skip, name=name, depths=depths,
+                  depth_margin=depth_margin, skip_below=skip_below)  # fmt: skip
     mesh = surface_mesh(field, grid, name=name)
     if smooth_iterations > 0:
         trimesh.smoothing.filter_taubin(mesh, iterations=smooth_iterations)
