@@ -31,6 +31,10 @@ matting's faint Gaussians dropped before the object 3DGS) gives the croissant 1.
 1.49 mm / volume 1.004 (every bar), but then the banana's and the button's volumes are 1.10 / 1.12 here and the
 bundled 24-keyframe banana's 1.106. Still xfail, strict.
 
+2026-12-07, the carving's vote by height (``ObjectsConfig.skip_below``): this test failed on the button's volume
+(1.123) before it; after it (15.8 min): button 1.051, banana 0.914, the croissant **0.884** (chamfer 2.15 mm; its masks
+are tight and the vote's shell had made up for them): the xfail's reason is the croissant's volume now.
+
 Run again with ``--runxfail`` at the end of that stop (a fresh sample, 10.5 min in all on 2 cores): `m2m run` went
 through every stage in 8.9 min (scene held-out 32.0 dB, head view 21.4 dB against the photo, objects 4.5 min, the
 world composed, the three datasets valid); 32/32 keyframes, the lens found again, cameras 0.117 deg / 1.00 mm; banana
@@ -89,7 +93,7 @@ EPISODES = 20
 # image (the check below); with a noise cluster no longer taking the button's name and the robot's pixels unknown
 # rather than whole keyframes left out, the objects stage goes through: banana (volume 0.996) and croissant (0.940)
 # pass every bar, the button's volume is 1.123 (bar 10 %; 1.117 with keyframes left out whole)
-@pytest.mark.xfail(strict=True, reason="the button's volume outside issue 6's 10 % (issue 62)")
+@pytest.mark.xfail(strict=True, reason="the croissant's volume under issue 6's 10 % (issue 62)")
 def test_second_sample_init_and_run_self_calibrated_with_the_ur5e(tmp_path, capsys):
     times = {}
     t0 = time.perf_counter()
