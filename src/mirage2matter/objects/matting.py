@@ -73,7 +73,8 @@ class MattingConfig:
     # the croissant, which is the colour of the wood (0.55; 0.003 already 0.80).
     # It also cuts the croissant's horn tips (their centres lie 2-4 mm up): lower floors keep them but each broke a
     # check (1 mm: the U test's IoU 0.927; 2.5 mm: banana and button 1.11x / 1.10x the true volume; 3 mm: banana
-    # 1.14x), see docs/results/robot-in-capture.md, "The croissant's horn tips".
+    # 1.14x; volumes carved with the vote everywhere, before ObjectsConfig.skip_below), see
+    # docs/results/robot-in-capture.md, "The croissant's horn tips".
     floor: float = ranged(0.004, ge=0, le=0.1)
     passes: int = ranged(2, ge=1, le=2)
     hidden_margin_px: int = ranged(3, ge=0, le=100)
