@@ -61,12 +61,22 @@ def test_signed_distance_image_is_zero_on_pixel_edges():
     assert sd[4, 3] == pytest.approx(0.5) and sd[4, 2] == pytest.approx(-0.5)
 
 
+def _box_masks(cams) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The box's exact silhouettes, and the same with half the object missing in one view."""
+    good = [_silhouette(c) for c in cams]
+    bad = list(good)
+    bad[3] = bad[3].copy()
+    bad[3][:, : bad[3].shape[1] // 2 + 5] = False
+    return good, bad
+
+
+BOX_GRID = Grid.around([-0.05, -0.04, -0.003], [0.05, 0.04, 0.05], 0.001)
+
+
 def test_box_is_recovered_and_one_bad_mask_is_outvoted():
     cams = _cameras()
-    masks = [_silhouette(c) for c in cams]
-    masks[3] = masks[3].copy()
-    masks[3][:, : masks[3].shape[1] // 2 + 5] = False  # half the object missing in one view
-    grid = Grid.around([-0.05, -0.04, -0.003], [0.05, 0.04, 0.05], 0.001)
+    _, masks = _box_masks(cams)
+    grid = BOX_GRID
     true_volume = float(np.prod(HI - LO))
     hull = surface_mesh(carve(grid, cams, masks, plane_height=lambda p: p[:, 2], skip=1), grid)
     # silhouettes from above at an angle never carve the "roof" over a flat top
@@ -90,11 +100,8 @@ def test_the_vote_keeps_a_missing_piece_high_up_but_no_shell():
     """Above ``skip_below`` the vote keeps what one mask misses (a chunk), not the shell it keeps around the whole
     object where the rim's few views are skipped (silhouettes alone, so the box's roof stays in all three)."""
     cams = _cameras()
-    good = [_silhouette(c) for c in cams]
-    bad = list(good)
-    bad[3] = bad[3].copy()
-    bad[3][:, : bad[3].shape[1] // 2 + 5] = False  # half the object missing in one view
-    grid = Grid.around([-0.05, -0.04, -0.003], [0.05, 0.04, 0.05], 0.001)
+    good, bad = _box_masks(cams)
+    grid = BOX_GRID
 
     def hull(masks, **kw):
         return surface_mesh(carve(grid, cams, masks, plane_height=lambda p: p[:, 2], **kw), grid)
