@@ -221,8 +221,9 @@ def _write_settings(path: Path, config: SampleConfig, objects: list[str], captur
         data = {k: v for k, v in data.items() if k not in joints and k != "capture_moves"}
         at = list(data).index("board_pose") + 1
         data = dict([*list(data.items())[:at], *joints.items(), *list(data.items())[at:]])
-    else:
+    else:  # no robot in the video: neither its joint state nor its moves (a move says it was filmed)
         data.pop("capture_joints", None)
+        data.pop("capture_moves", None)
         notes.append("The table is filmed without the robot (`m2m sample make --empty-table`): it appears only in "
                      "the hand-eye images; the board lies where its base would stand.")  # fmt: skip
     if config.layout != "nominal":
