@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 from mirage2matter.calib.robot_view import (
+    THROUGH_MIN_OBSERVATIONS,
     fit_to_robot,
     robot_depths,
+    robot_framing,
     robot_points,
     robot_silhouette,
     robot_silhouettes,
@@ -64,6 +66,36 @@ def test_the_robot_points_are_found_and_the_table_is_not(scene):
     assert found.seen and found.seen_fraction > 0.5
     empty = robot_points(table, links, cams)
     assert not empty.seen and empty.seen_fraction < 0.02
+
+
+def test_a_robot_without_sfm_points_counts_where_framed_and_not_seen_through(scene):
+    """Smooth paint gives SfM no point on the robot: it is in the capture where keyframes frame it and none of what
+    they observed lies behind it (the table points the robot hides are not observed); an empty table where it would
+    stand is seen through; keyframes looking away do not frame it."""
+    _, links, cams, table = scene
+    depths = robot_depths(cams, links)
+
+    def observed(robot_there: bool) -> dict:
+        out = {}
+        for cam, depth in zip(cams, depths, strict=True):
+            uv, z = cam.project(table)
+            u, v = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
+            ok = (z > 0) & (u >= 0) & (v >= 0) & (u < cam.width) & (v < cam.height)
+            if robot_there:  # the robot hides what lies behind it
+                ok[ok] &= depth[v[ok], u[ok]] > z[ok] - 0.005
+            out[cam.name] = (uv[ok], table[ok])
+        return out
+
+    there = robot_framing(cams, lambda cam: links, observed(True))
+    assert there.seen and there.keyframes == len(cams) and there.through <= 0.05 * max(there.inside, 1), there
+    empty = robot_framing(cams, lambda cam: links, observed(False))
+    assert not empty.seen and empty.keyframes == len(cams), empty
+    assert empty.inside >= THROUGH_MIN_OBSERVATIONS and empty.through > 0.8 * empty.inside, empty
+    assert robot_framing(cams, lambda cam: links, {}).seen  # no observations: nothing says it is not there
+    away = [Camera(cams[0].K, look_at_pose((2.0, y, 0.8), (3.5, y, 0.3)), 320, 240, f"away{i}")
+            for i, y in enumerate((-0.5, 0.0, 0.5))]  # fmt: skip
+    looked_away = robot_framing(away, lambda cam: links, {})
+    assert looked_away.keyframes == 0 and not looked_away.seen
 
 
 def test_the_visual_hull_holds_the_links_not_the_space_around(scene):

@@ -35,8 +35,8 @@ from ..geometry.camera import Camera
 from ..geometry.rotation import rotation_angle
 from ..geometry.umeyama import umeyama
 
-__all__ = ["SfMConfig", "SfMError", "SfMResult", "compare_poses", "load_model_points", "load_sfm_summary",
-           "robust_bundle_adjustment", "run_sfm"]
+__all__ = ["SfMConfig", "SfMError", "SfMResult", "compare_poses", "load_model_points", "load_observations",
+           "load_sfm_summary", "robust_bundle_adjustment", "run_sfm"]
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 MIN_IMAGES = 3
@@ -469,6 +469,21 @@ def load_model_points(model_dir: str | os.PathLike[str]) -> tuple[np.ndarray, np
     xyz = np.array([p.xyz for p in pts], dtype=np.float64).reshape(-1, 3)
     rgb = np.array([p.color for p in pts], dtype=np.uint8).reshape(-1, 3)
     return xyz, rgb
+
+
+def load_observations(model_dir: str | os.PathLike[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per registered image (by name): where it saw the model's 3D points and which: ``(xy [K,2] pixels, COLMAP's
+    convention: pixel centres at +0.5, as ours; xyz [K,3] in the model's frame)``, one row per observation."""
+    import pycolmap
+
+    rec = pycolmap.Reconstruction(str(model_dir))
+    out = {}
+    for image in rec.images.values():
+        seen = [p for p in image.points2D if p.has_point3D()]
+        xy = np.array([p.xy for p in seen], np.float64).reshape(-1, 2)
+        xyz = np.array([rec.points3D[p.point3D_id].xyz for p in seen], np.float64).reshape(-1, 3)
+        out[image.name] = (xy, xyz)
+    return out
 
 
 # ---- evaluation ---------------------------------------------------------------------------------

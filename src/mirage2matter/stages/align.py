@@ -113,7 +113,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     footprint = _footprint(cfg.robot)
     result = align_scene(posed.cameras, images, posed.points, board, T_base_board, icp=cfg.icp,
                          footprint_xy=footprint)  # fmt: skip
-    robot = _robot_in_capture(cfg, result, posed, board, T_base_board, log)
+    robot = _robot_in_capture(cfg, result, posed, board, T_base_board, log, ws.sfm_model)
     if robot.get("correction") is not None:  # the robot's surface refined the board's alignment
         from ..geometry.sim3 import Sim3
 
@@ -140,14 +140,24 @@ DISAGREE_RMS_MM = 8.0
 DISAGREE_MOVE_MM, DISAGREE_MOVE_DEG = 10.0, 1.0
 
 
-def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarray, log: Log) -> dict[str, Any]:
+def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarray, log: Log,
+                      sfm_model: Path) -> dict[str, Any]:  # fmt: skip
     """Where the keyframes show the robot at ``cfg.capture_joints``: which SfM points are its own, how well its
     surface agrees with the board's alignment, and (``robot_fit`` auto) the correction when it is better by the
-    measure above. Returns robot.json's record (``on_robot`` [N] bool over the SfM points, not saved as such)."""
+    measure above. Returns robot.json's record (``on_robot`` [N] bool over the SfM points, not saved as such).
+    ``sfm_model``: the SfM model, whose observations say whether keyframes saw through where the robot stands."""
     if cfg.robot.lower() == "none":
         return {"seen": False, "line": "robot: none given (align.robot none)", "on_robot": None}
     from ..calib.align import apply_to_cameras
-    from ..calib.robot_view import POSE_MIN_ON_FRACTION, fit_to_robot, robot_points, robot_silhouettes, visual_hull
+    from ..calib.robot_view import (
+        POSE_MIN_ON_FRACTION,
+        fit_to_robot,
+        robot_framing,
+        robot_points,
+        robot_silhouettes,
+        visual_hull,
+    )
+    from ..sfm.colmap import load_observations
 
     spec = get_robot(cfg.robot)
     poses = capture_poses(spec, cfg.capture_joints, cfg.capture_moves)
@@ -169,17 +179,21 @@ def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarra
                               "keyframe_pose": keyframe_pose, "seen": found.seen,
                               "points_on_surface": found.on_surface, "on_fraction": found.on_fraction,
                               "seen_fraction": found.seen_fraction, "per_link": found.per_link}  # fmt: skip
-    if not found.seen and len(poses) > 1:
-        # sfm kept the moved robot out of its features, so only the first pose's keyframes add points on it; the
-        # logged move is the user's word that the robot was filmed: it counts as seen where the keyframes frame it
-        small = [c.scaled(0.25) for c in cameras]
-        framed = sum(float(sil.mean()) >= 0.01 for sil in
-                     (robot_silhouettes([c], pose_links[keyframe_pose[c.name]])[0] for c in small))  # fmt: skip
-        record.update(seen=framed >= 2, seen_by="capture_moves", keyframes_framing=int(framed))
-        found.seen = framed >= 2
     if not found.seen:
+        # Smooth paint gives SfM few points on the robot (and sfm keeps a moved robot out of its features): it counts
+        # as seen where keyframes frame it and what they observed there does not lie behind it (robot_framing).
+        observations = {n: (xy, sim.apply(xyz)) for n, (xy, xyz) in load_observations(sfm_model).items()}
+        framing = robot_framing(cameras, lambda c: pose_links[keyframe_pose[c.name]], observations)
+        record.update(seen=framing.seen, seen_by="framing", keyframes_framing=framing.keyframes,
+                      observations_inside=framing.inside, observations_behind=framing.through)  # fmt: skip
+        found.seen = framing.seen
+    if not found.seen:
+        why = f"framed by {record['keyframes_framing']} keyframes"
+        if record["keyframes_framing"] and framing.inside:
+            why += (f", {framing.through} of the {framing.inside} SfM observations there lie behind it: the cameras "
+                    "saw the table through where it would stand")  # fmt: skip
         record["line"] = (f"robot: not in the keyframes ({found.on_surface} SfM points on its surface at "
-                          f"{given.split(':')[0]}); nothing removed")  # fmt: skip
+                          f"{given.split(':')[0]}; {why}); nothing removed")  # fmt: skip
         return {**record, "on_robot": None}
     # the visual hull too (only now: the silhouettes cost ~0.3 s a keyframe): points every view of a pose sees inside
     # the robot at that pose are the robot's even off its model surface
@@ -193,8 +207,12 @@ def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarra
     fit = fit_to_robot(points[near], links, anchors=(sim.apply(tri.points), corners_base)) if near.sum() >= 30 \
         else None  # fmt: skip
     record.update(points_removed=int(on.sum()), points_total=len(points))
-    seen_by = (f"framed by {record['keyframes_framing']} keyframes, moved while filmed: " if "seen_by" in record
-               else "")  # fmt: skip
+    seen_by = ""
+    if "seen_by" in record:
+        inside, behind = record["observations_inside"], record["observations_behind"]
+        seen_by = (f"framed by {record['keyframes_framing']} keyframes, " + (
+            f"{behind} of the {inside} SfM observations inside it behind it; " if inside else
+            "no SfM observation inside it; "))  # fmt: skip
     line = (f"robot: in the keyframes ({seen_by}{found.on_surface} SfM points on its surface, "
             f"{100 * found.seen_fraction:.0f} % of it reconstructed; capture joints {given.split(':')[0]}), "
             f"{int(on.sum())} of {len(points)} SfM points are its own and kept out of the scene")  # fmt: skip
