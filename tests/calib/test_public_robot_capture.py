@@ -82,6 +82,7 @@ def test_the_robot_no_sfm_point_lies_on_is_found_in_the_side_views(capture):
     robot = json.loads((ws / "calib" / "robot.json").read_text())
     assert robot["seen"] and robot["seen_by"] == "framing" and robot["keyframes_framing"] >= 2, robot
     assert robot["observations_behind"] <= 0.1 * max(robot["observations_inside"], 1), robot
+    assert "too few SfM points on it (0) to check capture_joints" in robot["line"]  # said, not silently unchecked
     spec = get_robot("panda")
     links = robot_surface(spec, np.asarray(spec.home, float))
     for c in json.loads((ws / "calib" / "cameras_base.json").read_text()):

@@ -216,7 +216,10 @@ def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarra
     line = (f"robot: in the keyframes ({seen_by}{found.on_surface} SfM points on its surface, "
             f"{100 * found.seen_fraction:.0f} % of it reconstructed; capture joints {given.split(':')[0]}), "
             f"{int(on.sum())} of {len(points)} SfM points are its own and kept out of the scene")  # fmt: skip
-    if fit is not None:
+    if fit is None:  # too few points on the robot to check the joint state or the alignment by its surface
+        line += (f"; too few SfM points on it ({int(near.sum())}) to check capture_joints or the alignment against "
+                 "its surface")  # fmt: skip
+    else:
         record["fit"] = fit.to_json()
         better = (fit.rms_after_mm <= 0.75 * fit.rms_before_mm
                   and fit.corner_rms_mm <= 1.5 * result.corner_rms_mm + 0.5)  # fmt: skip
