@@ -86,3 +86,31 @@ def test_names_pass_over_a_sparse_cluster_when_clusters_outnumber_them():
     _, clusters = find_objects(np.concatenate([pts, noise]))
     named = name_clusters(clusters, ["a", "b", "c"], sparse_fraction=0.0)
     assert np.linalg.norm(named[0].centroid[:2] - [0.05, 0.1]) < 0.02  # the rule is what passes it over
+
+
+def test_the_board_on_the_table_holds_the_plane_where_objects_tops_outnumber_it():
+    """Flat-topped objects of one height (tins, boxes) with more points on their tops than SfM found on the table: the
+    largest plane is their tops. With the board's plane (it lies on the table) the table is found, and every object
+    stands on it; with no table point at all (a plain wooden table), the board's own plane is the table's."""
+    rng = np.random.default_rng(3)
+    table = np.c_[rng.uniform(-0.1, 0.9, 300), rng.uniform(-0.5, 0.5, 300), rng.normal(0, 0.001, 300)]
+    centres = [(0.3, 0.3), (0.5, -0.2), (0.7, 0.25), (0.35, -0.35)]
+    tops = [
+        np.c_[np.array(c) + rng.uniform(-0.04, 0.04, (150, 2)), 0.045 + rng.normal(0, 0.0005, 150)] for c in centres
+    ]
+    sides = [np.c_[np.array(c) + rng.uniform(-0.04, 0.04, (40, 2)), rng.uniform(0.008, 0.045, 40)] for c in centres]
+    pts = np.concatenate([table, *tops, *sides])
+    board = (np.array([0.45, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]))
+
+    assert abs(fit_support_plane(pts).offset + 0.045) < 0.002  # the tops, without the board
+    plane = fit_support_plane(pts, board=board)
+    assert abs(plane.offset) < 0.002 and plane.normal[2] > 0.999
+    _, clusters = find_objects(pts, plane=plane)
+    assert len(clusters) == len(centres)
+
+    bare = np.concatenate([*tops, *sides])  # the table gave SfM nothing
+    plane = fit_support_plane(bare, board=board)
+    assert plane.offset == 0.0 and plane.normal[2] == 1.0
+    far = np.c_[rng.uniform(2.0, 2.1, (30, 2)), rng.uniform(0.01, 0.05, 30)]  # beyond any robot's reach
+    _, clusters = find_objects(np.concatenate([bare, far]), plane=plane)
+    assert len(clusters) == len(centres) and all(np.hypot(*c.centroid[:2]) < 1.2 for c in clusters)

@@ -47,7 +47,7 @@ from .masks import (
 )
 from .matting import MattingConfig, sample_in_hull
 from .splat import SplatConfig, mask_crop
-from .support import find_objects, name_clusters
+from .support import find_objects, fit_support_plane, name_clusters
 from .views import crop_camera
 from .within_mesh import HoldInside, keep_within_mesh
 
@@ -171,9 +171,11 @@ def pinhole_keyframes(cameras: list[Camera], image_dir: Path) -> tuple[list[Came
     return out_cameras, out_images
 
 
-def find_targets(config: ObjectsConfig, cameras, points) -> tuple[Any, list[Target]]:
-    """(support plane, the objects to reconstruct) from the base-frame points [M,3], named by the config."""
-    plane, clusters = find_objects(points)
+def find_targets(config: ObjectsConfig, cameras, points, board: tuple[np.ndarray, np.ndarray] | None = None
+                 ) -> tuple[Any, list[Target]]:  # fmt: skip
+    """(support plane, the objects to reconstruct) from the base-frame points [M,3], named by the config. ``board``:
+    (centre, up normal) of the calibration target on the table, which the support plane is sought beside."""
+    plane, clusters = find_objects(points, plane=fit_support_plane(points, board=board) if board else None)
     targets: list[Target] = []
     free = list(clusters)
     for text in config.prompts:

@@ -17,6 +17,17 @@ from .errors import ObjectsError
 
 __all__ = ["ObjectCluster", "Plane", "find_objects", "fit_support_plane", "name_clusters"]
 
+# The calibration board lies on the table, so its plane is the table's (fit_support_plane's ``board``). On a real
+# capture with a plain wooden table SfM put its points on the objects' tops, not the table: the largest plane was the
+# tops of two tins and a bottle, 4.5 cm over the board, and no point off the board lay within 1 cm of the board's
+# plane (jimazeyu/colmap_handeye). Candidate planes lie within these of the board's (at its centre).
+BOARD_NEAR_M = 0.01
+BOARD_NEAR_DEG = 2.0
+# With fewer table points than this the table's extent is unknown: objects are kept within NO_TABLE_REACH_M of the
+# base (the robot's reach, and more) instead of over the table's points.
+MIN_TABLE_POINTS = 30
+NO_TABLE_REACH_M = 1.2
+
 
 @dataclass
 class Plane:
@@ -45,20 +56,14 @@ class ObjectCluster:
         return self.centroid[:2]
 
 
-def fit_support_plane(
-    points: np.ndarray,
-    threshold: float = 0.003,
-    max_tilt_deg: float = 30.0,
-    iterations: int = 2000,
-    seed: int = 0,
-) -> Plane:
-    """RANSAC plane with the most points within ``threshold`` whose normal is within
-    ``max_tilt_deg`` of +z (the base frame's up), refined by least squares on its inliers."""
-    pts = np.asarray(points, np.float64)
-    if len(pts) < 3:
-        raise ObjectsError(f"only {len(pts)} points; the support plane needs a point cloud (run align-scene first)")
+def _ransac_plane(pts: np.ndarray, threshold: float, max_tilt_deg: float, iterations: int, seed: int,
+                  board: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray] | None:  # fmt: skip
+    """(normal [3], a point [3]) of the plane with the most points within ``threshold`` among RANSAC's candidates
+    tilted at most ``max_tilt_deg`` from +z (and with ``board``, within BOARD_NEAR_M / BOARD_NEAR_DEG of it); None
+    when none holds 3 points (with ``board``: MIN_TABLE_POINTS)."""
     rng = np.random.default_rng(seed)
     cos_tilt = np.cos(np.radians(max_tilt_deg))
+    cos_board = np.cos(np.radians(BOARD_NEAR_DEG))
     best, best_count = None, -1
     for _ in range(iterations):
         a, b, c = pts[rng.choice(len(pts), 3, replace=False)]
@@ -69,10 +74,37 @@ def fit_support_plane(
         n /= norm
         if abs(n[2]) < cos_tilt:
             continue
+        if board is not None and (abs(n @ board[1]) < cos_board or abs((board[0] - a) @ n) > BOARD_NEAR_M):
+            continue
         count = int((np.abs((pts - a) @ n) < threshold).sum())
         if count > best_count:
             best, best_count = (n, a), count
-    if best is None or best_count < 3:
+    return best if best_count >= (3 if board is None else MIN_TABLE_POINTS) else None
+
+
+def fit_support_plane(
+    points: np.ndarray,
+    threshold: float = 0.003,
+    max_tilt_deg: float = 30.0,
+    iterations: int = 2000,
+    seed: int = 0,
+    board: tuple[np.ndarray, np.ndarray] | None = None,
+) -> Plane:
+    """RANSAC plane with the most points within ``threshold`` whose normal is within
+    ``max_tilt_deg`` of +z (the base frame's up), refined by least squares on its inliers.
+
+    ``board``: (centre [3], up normal [3]) of the calibration board, which lies on the table: only candidates within
+    :data:`BOARD_NEAR_M` of its centre and :data:`BOARD_NEAR_DEG` of its normal count, and where none holds
+    :data:`MIN_TABLE_POINTS` points (a table SfM found no texture on) the board's own plane is the table's."""
+    pts = np.asarray(points, np.float64)
+    if len(pts) < 3:
+        raise ObjectsError(f"only {len(pts)} points; the support plane needs a point cloud (run align-scene first)")
+    best = _ransac_plane(pts, threshold, max_tilt_deg, iterations, seed, board)
+    if board is not None and best is None:  # a table SfM found no texture on: the board's plane is the table's
+        n = np.asarray(board[1], np.float64) / np.linalg.norm(board[1])
+        offset = -float(n @ np.asarray(board[0], np.float64))
+        return Plane(n, offset, np.abs(pts @ n + offset) < threshold)
+    if best is None:
         raise ObjectsError("no near-horizontal support plane found in the point cloud; is it aligned to the base?")
     n, a = best
     inliers = np.abs((pts - a) @ n) < threshold
@@ -111,7 +143,8 @@ def find_objects(
     """(support plane, object clusters named ``object_<i>`` ordered by distance from the base origin).
 
     Keeps points between ``min_height`` and ``max_height`` above the plane that lie over the
-    table (within ``table_margin`` of the plane inliers' xy bounding box), links points closer than
+    table (within ``table_margin`` of the plane inliers' xy bounding box; with fewer than :data:`MIN_TABLE_POINTS`
+    of them, within :data:`NO_TABLE_REACH_M` of the base), links points closer than
     ``link_radius``, and keeps clusters with at least ``min_points`` points that rise at least
     ``min_extent`` above the plane (flat things on the table are not objects). A cluster that is both
     sparse (fewer than ``speck_fraction`` of the largest cluster's points) and low (top under
@@ -120,10 +153,13 @@ def find_objects(
     pts = np.asarray(points, np.float64)
     plane = plane or fit_support_plane(pts)
     h = plane.height(pts)
-    table = pts[plane.inliers]
-    lo = np.percentile(table[:, :2], 1, axis=0) - table_margin
-    hi = np.percentile(table[:, :2], 99, axis=0) + table_margin
-    over = np.all((pts[:, :2] >= lo) & (pts[:, :2] <= hi), axis=1)
+    table = pts[plane.inliers] if len(plane.inliers) == len(pts) else pts[np.abs(h) < 0.003]
+    if len(table) >= MIN_TABLE_POINTS:
+        lo = np.percentile(table[:, :2], 1, axis=0) - table_margin
+        hi = np.percentile(table[:, :2], 99, axis=0) + table_margin
+        over = np.all((pts[:, :2] >= lo) & (pts[:, :2] <= hi), axis=1)
+    else:  # a table SfM saw no texture on: its extent is unknown
+        over = np.hypot(pts[:, 0], pts[:, 1]) <= NO_TABLE_REACH_M
     keep = (h > min_height) & (h < max_height) & over
     cand = pts[keep]
     if len(cand) == 0:
