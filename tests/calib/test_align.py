@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 
 from fixtures import SAMPLE
-from mirage2matter.calib.align import AlignError, align_scene, apply_to_cameras
+from mirage2matter.calib.align import AlignError, align_scene, apply_to_cameras, draw_base_overlay, overlay_keyframe
 from mirage2matter.calib.board import BoardSpec
 from mirage2matter.capture import CaptureConfig, extract_keyframes
 from mirage2matter.geometry.camera import Camera, look_at_pose
@@ -194,3 +194,23 @@ def test_a_fisheye_lens_goes_through_alignment():
     assert np.allclose(_undistorted_normalized(cam, uv), pc[:, :2], atol=1e-9)
     moved = apply_to_cameras(Sim3(2.0, axis_angle_to_matrix(np.array([0.0, 0.0, 1.0]), 0.3), np.ones(3)), [cam])[0]
     assert moved.distortion_model == "fisheye" and moved.distortion == cam.distortion
+
+
+def test_the_overlay_is_drawn_where_the_base_is_seen_with_the_robots_outline():
+    """Of the keyframes that see the board, the overlay takes one that sees the base's origin (nearest its centre): a
+    wrist camera looking down at the board first in name order does not; the robot's outline is drawn there too."""
+    K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
+    wrist = Camera(K, look_at_pose((0.45, 0.05, 0.5), (0.45, 0.0, 0.0)), 320, 240, "0.jpg")  # the board only
+    aside = Camera(K, look_at_pose((1.0, 1.0, 0.6), (0.6, 0.3, 0.0)), 320, 240, "1.jpg")  # the origin near an edge
+    side = Camera(K, look_at_pose((1.2, -0.6, 0.6), (0.1, 0.0, 0.1)), 320, 240, "2.jpg")  # the base in the middle
+    cams = [wrist, aside, side]
+    assert overlay_keyframe(cams, ["0.jpg", "1.jpg", "2.jpg"]) == 2
+    assert overlay_keyframe(cams, ["0.jpg", "1.jpg"]) == 1
+    assert overlay_keyframe(cams, ["0.jpg"]) == 0  # none sees the base: the first that sees the board
+    images = [np.zeros((240, 320, 3), np.uint8) for _ in cams]
+    disc = np.zeros((240, 320), bool)
+    disc[100:140, 140:180] = True
+    plain = draw_base_overlay(images, cams, ["0.jpg", "2.jpg"])
+    drawn = draw_base_overlay(images, cams, ["0.jpg", "2.jpg"], robot_mask=lambda cam: disc)
+    yellow = np.all(drawn == (255, 255, 0), axis=2)
+    assert yellow[98:142, 138:182].sum() > 100 and not np.all(plain == (255, 255, 0), axis=2).any()

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -254,15 +255,38 @@ def apply_to_cameras(sim3: Sim3, cameras: list[Camera]) -> list[Camera]:
     return out
 
 
+def overlay_keyframe(cameras_base: list[Camera], frames_with_board: list[str]) -> int:
+    """Index of the keyframe to draw the base into: of those that see the board, the one that sees the base's origin
+    nearest its image centre (a wrist view sees the board and not the base); the first of them when none sees it."""
+    best, best_d = None, np.inf
+    for i, cam in enumerate(cameras_base):
+        if cam.name not in frames_with_board:
+            continue
+        best = i if best is None else best
+        uv, z = cam.project(np.zeros((1, 3)))
+        d = float(np.hypot(uv[0, 0] / cam.width - 0.5, uv[0, 1] / cam.height - 0.5))
+        if z[0] > 0 and max(abs(uv[0, 0] / cam.width - 0.5), abs(uv[0, 1] / cam.height - 0.5)) < 0.5 and d < best_d:
+            best, best_d = i, d
+    if best is None:
+        raise ValueError("no keyframe sees the board")
+    return best
+
+
 def draw_base_overlay(
-    images: list[np.ndarray], cameras_base: list[Camera], frames_with_board: list[str], footprint_xy=None
-) -> np.ndarray:
+    images: list[np.ndarray], cameras_base: list[Camera], frames_with_board: list[str], footprint_xy=None,
+    robot_mask: Callable[[Camera], np.ndarray] | None = None,
+) -> np.ndarray:  # fmt: skip
     """The robot base footprint [P,2] (from the robot model, else a 10 cm circle at the origin) and the base
-    axes (x red, y green, z blue, 15 cm) drawn into a keyframe (uint8 [H,W,3]) that sees the board."""
+    axes (x red, y green, z blue, 15 cm) drawn into a keyframe (uint8 [H,W,3]) that sees the board
+    (:func:`overlay_keyframe`); with ``robot_mask(camera) -> bool [H,W]``, the robot's outline at its capture joint
+    state too (yellow): on the robot in the picture when the joints and the alignment are right."""
     import cv2
 
-    k = next(i for i, c in enumerate(cameras_base) if c.name in frames_with_board)
+    k = overlay_keyframe(cameras_base, frames_with_board)
     cam, image = cameras_base[k], images[k].copy()
+    if robot_mask is not None:
+        contours, _ = cv2.findContours(robot_mask(cam).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        cv2.drawContours(image, contours, -1, (255, 255, 0), 2, cv2.LINE_AA)
     if footprint_xy is None:
         t = np.linspace(0, 2 * np.pi, 64)
         footprint_xy = 0.1 * np.c_[np.cos(t), np.sin(t)]

@@ -252,7 +252,8 @@ def _pictures(ws: Workspace, name: str, summary: dict[str, Any]) -> str:
         return "".join(_figure(ws, p, p.stem, width=200) for p in _keyframes(ws))
     if name == "align":
         return _figure(ws, ws.overlay_png, "the robot base's footprint and axes (x red, y green, z blue) in a "
-                       "keyframe: is the scene aligned to the robot?")  # fmt: skip
+                       "keyframe, and the robot's outline at its capture joints (yellow) where the keyframes show it: "
+                       "is the scene aligned to the robot?")  # fmt: skip
     if name == "scene":
         return _scene_figures(ws)
     if name == "head_view":
