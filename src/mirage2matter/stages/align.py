@@ -153,6 +153,25 @@ DISAGREE_RMS_MM = 8.0
 DISAGREE_MOVE_MM, DISAGREE_MOVE_DEG = 10.0, 1.0
 
 
+def _framing(cameras: list, pose_links: list, keyframe_pose: dict[str, int], sim, sfm_model: Path) -> dict[str, Any]:
+    """robot.json's fields for a robot SfM put too few points on: smooth paint gives SfM few features (and sfm keeps
+    a moved robot out of them), so it counts as seen where keyframes frame it and what they observed there does not
+    lie behind it (calib.robot_view.robot_framing, on the SfM model's observations moved to the base)."""
+    from ..calib.robot_view import robot_framing
+    from ..sfm.colmap import load_observations
+
+    observations = {n: (xy, sim.apply(xyz)) for n, (xy, xyz) in load_observations(sfm_model).items()}
+    framing = robot_framing(cameras, lambda c: pose_links[keyframe_pose[c.name]], observations)
+    line = f"framed by {framing.keyframes} keyframes"
+    if framing.keyframes:
+        line += (f", {framing.through} of the {framing.inside} SfM observations inside it lie behind it" if
+                 framing.inside else ", no SfM observation inside it")  # fmt: skip
+    if framing.keyframes and framing.inside and not framing.seen:
+        line += ": the cameras saw the table through where it would stand"
+    return {"seen": framing.seen, "seen_by": "framing", "keyframes_framing": framing.keyframes,
+            "observations_inside": framing.inside, "observations_behind": framing.through, "framing_line": line}
+
+
 def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarray, log: Log,
                       sfm_model: Path) -> dict[str, Any]:  # fmt: skip
     """Where the keyframes show the robot at ``cfg.capture_joints``: which SfM points are its own, how well its
@@ -162,15 +181,7 @@ def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarra
     if cfg.robot.lower() == "none":
         return {"seen": False, "line": "robot: none given (align.robot none)", "on_robot": None}
     from ..calib.align import apply_to_cameras
-    from ..calib.robot_view import (
-        POSE_MIN_ON_FRACTION,
-        fit_to_robot,
-        robot_framing,
-        robot_points,
-        robot_silhouettes,
-        visual_hull,
-    )
-    from ..sfm.colmap import load_observations
+    from ..calib.robot_view import POSE_MIN_ON_FRACTION, fit_to_robot, robot_points, robot_silhouettes, visual_hull
 
     spec = get_robot(cfg.robot)
     poses = capture_poses(spec, cfg.capture_joints, cfg.capture_moves)
@@ -193,20 +204,11 @@ def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarra
                               "points_on_surface": found.on_surface, "on_fraction": found.on_fraction,
                               "seen_fraction": found.seen_fraction, "per_link": found.per_link}  # fmt: skip
     if not found.seen:
-        # Smooth paint gives SfM few points on the robot (and sfm keeps a moved robot out of its features): it counts
-        # as seen where keyframes frame it and what they observed there does not lie behind it (robot_framing).
-        observations = {n: (xy, sim.apply(xyz)) for n, (xy, xyz) in load_observations(sfm_model).items()}
-        framing = robot_framing(cameras, lambda c: pose_links[keyframe_pose[c.name]], observations)
-        record.update(seen=framing.seen, seen_by="framing", keyframes_framing=framing.keyframes,
-                      observations_inside=framing.inside, observations_behind=framing.through)  # fmt: skip
-        found.seen = framing.seen
+        record.update(_framing(cameras, pose_links, keyframe_pose, sim, sfm_model))
+        found.seen = record["seen"]
     if not found.seen:
-        why = f"framed by {record['keyframes_framing']} keyframes"
-        if record["keyframes_framing"] and framing.inside:
-            why += (f", {framing.through} of the {framing.inside} SfM observations there lie behind it: the cameras "
-                    "saw the table through where it would stand")  # fmt: skip
         record["line"] = (f"robot: not in the keyframes ({found.on_surface} SfM points on its surface at "
-                          f"{given.split(':')[0]}; {why}); nothing removed")  # fmt: skip
+                          f"{given.split(':')[0]}; {record['framing_line']}); nothing removed")  # fmt: skip
         return {**record, "on_robot": None}
     # the visual hull too (only now: the silhouettes cost ~0.3 s a keyframe): points every view of a pose sees inside
     # the robot at that pose are the robot's even off its model surface
@@ -220,12 +222,7 @@ def _robot_in_capture(cfg: Config, result, posed, board, T_base_board: np.ndarra
     fit = fit_to_robot(points[near], links, anchors=(sim.apply(tri.points), corners_base)) if near.sum() >= 30 \
         else None  # fmt: skip
     record.update(points_removed=int(on.sum()), points_total=len(points))
-    seen_by = ""
-    if "seen_by" in record:
-        inside, behind = record["observations_inside"], record["observations_behind"]
-        seen_by = (f"framed by {record['keyframes_framing']} keyframes, " + (
-            f"{behind} of the {inside} SfM observations inside it behind it; " if inside else
-            "no SfM observation inside it; "))  # fmt: skip
+    seen_by = f"{record['framing_line']}; " if "seen_by" in record else ""
     line = (f"robot: in the keyframes ({seen_by}{found.on_surface} SfM points on its surface, "
             f"{100 * found.seen_fraction:.0f} % of it reconstructed; capture joints {given.split(':')[0]}), "
             f"{int(on.sum())} of {len(points)} SfM points are its own and kept out of the scene")  # fmt: skip
