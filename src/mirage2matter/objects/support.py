@@ -18,9 +18,9 @@ from .errors import ObjectsError
 __all__ = ["ObjectCluster", "Plane", "find_objects", "fit_support_plane", "name_clusters"]
 
 # The calibration board lies on the table, so its plane is the table's (fit_support_plane's ``board``). On a real
-# capture with a plain wooden table SfM put its points on the objects' tops, not the table: the largest plane was the
-# tops of two tins and a bottle, 4.5 cm over the board, and no point off the board lay within 1 cm of the board's
-# plane (jimazeyu/colmap_handeye). Candidate planes lie within these of the board's (at its centre).
+# capture with a plain wooden table SfM put its points on the objects, not the table: the largest plane was the tops
+# of two tins and a bottle, 4.5 cm over the board, with 4 points off the board within 1 cm of the board's plane
+# (jimazeyu/colmap_handeye). Candidate planes lie within these of the board's (at its centre).
 BOARD_NEAR_M = 0.01
 BOARD_NEAR_DEG = 2.0
 # With fewer table points than this the table's extent is unknown: objects are kept within NO_TABLE_REACH_M of the
