@@ -264,9 +264,9 @@ def overlay_keyframe(cameras_base: list[Camera], frames_with_board: list[str]) -
             continue
         best = i if best is None else best
         uv, z = cam.project(np.zeros((1, 3)))
-        d = float(np.hypot(uv[0, 0] / cam.width - 0.5, uv[0, 1] / cam.height - 0.5))
-        if z[0] > 0 and max(abs(uv[0, 0] / cam.width - 0.5), abs(uv[0, 1] / cam.height - 0.5)) < 0.5 and d < best_d:
-            best, best_d = i, d
+        off = uv[0] / [cam.width, cam.height] - 0.5  # the origin from the image centre, in image sides
+        if z[0] > 0 and np.abs(off).max() < 0.5 and np.hypot(*off) < best_d:
+            best, best_d = i, float(np.hypot(*off))
     if best is None:
         raise ValueError("no keyframe sees the board")
     return best

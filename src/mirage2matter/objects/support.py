@@ -153,7 +153,7 @@ def find_objects(
     pts = np.asarray(points, np.float64)
     plane = plane or fit_support_plane(pts)
     h = plane.height(pts)
-    table = pts[plane.inliers] if len(plane.inliers) == len(pts) else pts[np.abs(h) < 0.003]
+    table = pts[plane.inliers]
     if len(table) >= MIN_TABLE_POINTS:
         lo = np.percentile(table[:, :2], 1, axis=0) - table_margin
         hi = np.percentile(table[:, :2], 99, axis=0) + table_margin

@@ -122,7 +122,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     sim = result.sim3_sfm_to_base
     cameras_base = _save(ws, result, T_base_board, board, posed, robot)
     overlay = draw_base_overlay(images, cameras_base, result.triangulation.frames_with_board, footprint,
-                                _robot_outline(cfg, robot))  # fmt: skip
+                                _robot_outline(ws))  # fmt: skip
     with atomic_write(ws.overlay_png, "wb") as f:
         Image.fromarray(overlay).save(f, format="PNG")
     icp = "" if result.icp_rmse_mm is None else f", ICP {result.icp_rmse_mm:.1f} mm"
@@ -135,16 +135,13 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     }  # fmt: skip
 
 
-def _robot_outline(cfg: Config, robot: dict[str, Any]):
-    """``camera -> bool [H,W]``: the robot's silhouette at the joint state that keyframe saw, for the overlay; None
-    where the keyframes do not show the robot."""
-    if not robot.get("seen"):
-        return None
-    from ..calib.robot_view import robot_silhouette
+def _robot_outline(ws: Workspace):
+    """``camera -> bool [H,W]``: the robot's silhouette at the joint state that keyframe saw (calib/robot.json, just
+    written), for the overlay; None where the keyframes do not show the robot."""
+    from ..calib.robot_view import robot_silhouette, seen_robot
 
-    spec, poses = get_robot(cfg.robot), CapturePoses.from_json(robot)
-    pose_of = robot.get("keyframe_pose") or {}
-    return lambda cam: robot_silhouette(cam, robot_surface(spec, poses.joints[pose_of.get(cam.name, 0)]))
+    seen = seen_robot(ws.robot_capture_file)
+    return None if seen is None else lambda cam: robot_silhouette(cam, seen.links_for(cam.name))
 
 
 # The robot's surface disagrees with the board's alignment past these (after the robot's own fit): a wrong

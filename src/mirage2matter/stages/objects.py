@@ -61,28 +61,32 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     return {"objects": out, "details": lines, "line": f"{len(out)} objects: {', '.join(sorted(out))}"}
 
 
+def _target_on_table(ws: Workspace):
+    """(the calibration target, T_base_board [4,4]) as align-scene placed it; None without one."""
+    from ..calib.board import target_from_json
+
+    board = ws.board_on_table()
+    return None if board is None or not board[0] else (target_from_json(board[0]), board[1])
+
+
 def _off_the_board(ws: Workspace, points_base: np.ndarray) -> np.ndarray:
     """The SfM points [N,3] without those on the calibration target (calib.board.on_target): the board is no object.
     With the board beside the robot's base (on the bundled sample), 12 points over its pattern were the "object"
     nearest the base, named for the first object the user listed."""
-    from ..calib.board import on_target, target_from_json
+    from ..calib.board import on_target
 
-    board = ws.board_on_table()
-    if board is None or not board[0]:
-        return points_base
-    return points_base[~on_target(points_base, target_from_json(board[0]), board[1])]
+    board = _target_on_table(ws)
+    return points_base if board is None else points_base[~on_target(points_base, *board)]
 
 
 def _board_plane(ws: Workspace) -> tuple[np.ndarray, np.ndarray] | None:
     """(centre [3], up normal [3]) of the calibration target in the base frame, as align-scene placed it: it lies on
     the table, so the support plane is sought beside it (objects.support.fit_support_plane); None without one."""
-    from ..calib.board import target_from_json
-
-    board = ws.board_on_table()
-    if board is None or not board[0]:
+    board = _target_on_table(ws)
+    if board is None:
         return None
-    T = board[1]
-    local = target_from_json(board[0]).points_board()
+    target, T = board
+    local = target.points_board()
     centre = T[:3, :3] @ ((local.min(axis=0) + local.max(axis=0)) / 2) + T[:3, 3]
     normal = T[:3, 2] if T[2, 2] > 0 else -T[:3, 2]
     return centre, normal
