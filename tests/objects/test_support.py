@@ -114,3 +114,24 @@ def test_the_board_on_the_table_holds_the_plane_where_objects_tops_outnumber_it(
     assert plane.offset == 0.0 and plane.normal[2] == 1.0
     _, clusters = find_objects(bare, plane=plane)
     assert len(clusters) == len(centres) and all(np.hypot(*c.centroid[:2]) < 1.2 for c in clusters)
+
+
+def test_stray_points_do_not_chain_textured_objects_and_a_sparse_one_stays_whole():
+    # The public real capture's case: two textured objects (SfM points ~5 mm apart on their tops) 4.4 cm apart with
+    # two stray points in the gap, 2.2 cm from either side; beside them a sparse, long object (the samples' banana:
+    # points 1.5-3 cm apart along 18 cm)
+    rng = np.random.default_rng(3)
+    table = np.c_[rng.uniform(-0.2, 0.8, (3000, 2)), rng.normal(0, 0.001, 3000)]
+    top = np.c_[rng.uniform(0, 0.08, (200, 1)), rng.uniform(0, 0.06, (200, 1)), rng.normal(0.05, 0.001, 200)]
+    box_a, box_b = top + [0.40, 0, 0], top[::-1] + [0.524, 0, 0]
+    stray = np.array([[0.502, 0.02, 0.05], [0.502, 0.04, 0.05]])
+    along = np.cumsum(np.r_[0.0, rng.uniform(0.015, 0.03, 8)])
+    sparse = np.c_[0.3 + along, np.full(len(along), 0.3), np.full(len(along), 0.02)]
+    sparse = np.concatenate([sparse + [0, dy, dz] for dy in (-0.004, 0.004) for dz in (0, 0.01)])
+    plane, clusters = find_objects(np.concatenate([table, box_a, box_b, stray, sparse]))
+    sizes = sorted(len(c.points) for c in clusters)
+    assert len(clusters) == 3, sizes
+    assert sizes[0] == len(sparse)  # the sparse object whole
+    for box in (box_a, box_b):
+        assert any(len(c.points) >= len(box) and np.linalg.norm(c.centroid[:2] - box[:, :2].mean(0)) < 0.01
+                   for c in clusters)  # fmt: skip
