@@ -67,6 +67,34 @@ def test_prompt_picks_the_cluster_it_points_at():
         cluster_for_prompt(parse_prompt("cup@nope.jpg:box=0,0,5,5"), cams, [a, b])
 
 
+def test_box_prompts_split_objects_that_touch():
+    # two tins side by side, touching: one cluster on the table; a box around each in one keyframe separates them
+    from mirage2matter.objects.reconstruct import ObjectsConfig, find_targets
+
+    rng = np.random.default_rng(1)
+    table = np.c_[rng.uniform(-0.3, 0.3, (2000, 2)), rng.normal(0, 0.0005, 2000)]
+    tins = {"left": [-0.045, 0.0], "right": [0.045, 0.0]}
+    pts = {n: np.c_[xy + rng.uniform(-0.04, 0.04, (150, 2)), rng.uniform(0.01, 0.05, 150)] for n, xy in tins.items()}
+    cams = _cams()
+    cloud = np.concatenate([table, *pts.values()])
+    _, whole = find_targets(ObjectsConfig(), cams, cloud)
+    assert len(whole) == 1 and len(whole[0].cluster.points) == 300
+    cam = cams[2]  # looking along -y: left and right apart in the image
+    prompts = []
+    for name, p in pts.items():
+        uv, _ = cam.project(p)
+        (x0, y0), (x1, y1) = uv.min(0) - 2, uv.max(0) + 2
+        prompts.append(f"{name}@{cam.name}:box={x0},{y0},{x1},{y1}")
+    _, targets = find_targets(ObjectsConfig(prompts=prompts), cams, cloud)
+    assert [t.name for t in targets] == ["left", "right"]
+    for t in targets:
+        assert len(t.cluster.points) >= 140 and np.all(np.sign(t.cluster.points[:, 0]) == np.sign(tins[t.name][0]))
+    # a box around both leaves the cluster whole
+    both = f"tins@{cam.name}:box=0,0,320,240"
+    _, targets = find_targets(ObjectsConfig(prompts=[both]), cams, cloud)
+    assert len(targets[0].cluster.points) == 300
+
+
 def test_folder_masks(tmp_path):
     cams = _cams()
     (tmp_path / "cup").mkdir()

@@ -43,6 +43,7 @@ __all__ = [
     "Sam2Masks",
     "Target",
     "fill_holes",
+    "in_prompt_box",
     "parse_prompt",
     "refine_grabcut",
 ]
@@ -185,9 +186,7 @@ def parse_prompt(text: str) -> Prompt:
         raise ObjectsError(f"prompt {text!r}: bad {kind} values {values!r}") from None
 
 
-def cluster_for_prompt(prompt: Prompt, cameras: Sequence[Camera], clusters: Sequence[ObjectCluster]) -> ObjectCluster:
-    """The cluster the prompt points at: most projected points inside the box, or nearest (in
-    pixels) to the prompt's points, in the prompted keyframe."""
+def _prompt_camera(prompt: Prompt, cameras: Sequence[Camera]) -> Camera:
     by_name = {os.path.basename(c.name): c for c in cameras}
     cam = by_name.get(os.path.basename(prompt.frame)) or by_name.get(Path(prompt.frame).stem + ".jpg")
     if cam is None:
@@ -195,6 +194,23 @@ def cluster_for_prompt(prompt: Prompt, cameras: Sequence[Camera], clusters: Sequ
         cam = stems.get(Path(prompt.frame).stem)
     if cam is None:
         raise ObjectsError(f"prompt for {prompt.name!r}: keyframe {prompt.frame!r} is not in the workspace's capture/")
+    return cam
+
+
+def in_prompt_box(prompt: Prompt, cameras: Sequence[Camera], points: np.ndarray) -> np.ndarray:
+    """[K] bool: which of ``points`` [K,3] (base frame) project inside the prompt's box in its keyframe (all of them
+    for a points prompt)."""
+    if prompt.box is None:
+        return np.ones(len(points), bool)
+    uv, z = _prompt_camera(prompt, cameras).project(points)
+    x0, y0, x1, y1 = prompt.box
+    return (z > 0) & (uv[:, 0] >= x0) & (uv[:, 0] <= x1) & (uv[:, 1] >= y0) & (uv[:, 1] <= y1)
+
+
+def cluster_for_prompt(prompt: Prompt, cameras: Sequence[Camera], clusters: Sequence[ObjectCluster]) -> ObjectCluster:
+    """The cluster the prompt points at: most projected points inside the box, or nearest (in
+    pixels) to the prompt's points, in the prompted keyframe."""
+    cam = _prompt_camera(prompt, cameras)
     best, best_score = None, -np.inf
     for c in clusters:
         uv, z = cam.project(c.points)

@@ -43,11 +43,12 @@ from .masks import (
     Sam2Masks,
     Target,
     cluster_for_prompt,
+    in_prompt_box,
     parse_prompt,
 )
 from .matting import MattingConfig, sample_in_hull
 from .splat import SplatConfig, mask_crop
-from .support import find_objects, fit_support_plane, name_clusters
+from .support import MIN_CLUSTER_POINTS, cluster_of, find_objects, fit_support_plane, name_clusters
 from .views import crop_camera
 from .within_mesh import HoldInside, keep_within_mesh
 
@@ -182,6 +183,12 @@ def find_targets(config: ObjectsConfig, cameras, points, board: tuple[np.ndarray
         prompt = parse_prompt(text)
         c = cluster_for_prompt(prompt, cameras, free)
         free.remove(c)
+        inside = in_prompt_box(prompt, cameras, c.points)
+        if min(inside.sum(), (~inside).sum()) >= MIN_CLUSTER_POINTS:
+            # objects that touch are one cluster: a box takes the part in it, and leaves the rest to other prompts
+            free.append(cluster_of(c.points[~inside], plane))
+            free.sort(key=lambda k: float(np.linalg.norm(k.centroid[:2])))
+            c = cluster_of(c.points[inside], plane)
         c.name = prompt.name
         targets.append(Target(prompt.name, c, plane))
     if config.names:

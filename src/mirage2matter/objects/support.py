@@ -15,7 +15,15 @@ import numpy as np
 
 from .errors import ObjectsError
 
-__all__ = ["ObjectCluster", "Plane", "find_objects", "fit_support_plane", "name_clusters"]
+__all__ = [
+    "MIN_CLUSTER_POINTS",
+    "ObjectCluster",
+    "Plane",
+    "cluster_of",
+    "find_objects",
+    "fit_support_plane",
+    "name_clusters",
+]
 
 # The calibration board lies on the table, so its plane is the table's (fit_support_plane's ``board``). On a real
 # capture with a plain wooden table SfM put its points on the objects, not the table: the largest plane was the tops
@@ -54,6 +62,11 @@ class ObjectCluster:
     @property
     def footprint_centre(self) -> np.ndarray:
         return self.centroid[:2]
+
+
+def cluster_of(points: np.ndarray, plane: Plane, name: str = "") -> ObjectCluster:
+    """The cluster of ``points`` [K,3] (base frame) standing on ``plane``."""
+    return ObjectCluster(name, points, points.mean(0), float(plane.height(points).max()))
 
 
 def _ransac_plane(pts: np.ndarray, threshold: float, max_tilt_deg: float, iterations: int, seed: int,
@@ -116,6 +129,10 @@ def fit_support_plane(
     return Plane(n, offset, inliers)
 
 
+# The fewest SfM points an object's cluster holds (find_objects' default; a box prompt splits a cluster into parts of
+# at least this many).
+MIN_CLUSTER_POINTS = 12
+
 # A link longer than LINK_FLOOR_M must also be short for the denser of its two points: at most LINK_SPACING x that
 # point's distance to its LINK_NEIGHBOURS-th nearest neighbour. A sparse object (the samples' banana: ~35 points
 # along 18 cm, gaps up to 3.5 cm) keeps its long links; a few stray points between two textured objects (the public
@@ -151,7 +168,7 @@ def find_objects(
     min_height: float = 0.006,
     max_height: float = 0.4,
     link_radius: float = 0.035,
-    min_points: int = 12,
+    min_points: int = MIN_CLUSTER_POINTS,
     min_extent: float = 0.012,
     table_margin: float = 0.05,
     speck_fraction: float = 0.15,
@@ -192,7 +209,7 @@ def find_objects(
         top = float(plane.height(p).max())
         if len(p) < min_points or top < min_extent:
             continue
-        clusters.append(ObjectCluster("", p, p.mean(0), top))
+        clusters.append(cluster_of(p, plane))
     if clusters:
         biggest = max(len(c.points) for c in clusters)
         clusters = [c for c in clusters if len(c.points) >= speck_fraction * biggest or c.height >= speck_height]
