@@ -154,6 +154,9 @@ def test_stages_whose_optional_inputs_are_absent_are_skipped_with_the_reason(tmp
     assert plan["head_view"].startswith("no head-camera calibration")
     assert "the world's head camera needs one: give handeye.images" in plan["world"]
     assert plan["generate"] == "no world (skipped above)"
+    # a keyframe a fixed camera took is the world's head camera
+    plan = plan_run(ws, _plain(tmp_path, world={"head_keyframe": "right.jpg"}))
+    assert plan["world"] is None and plan["head_view"].startswith("no head-camera calibration")
     # a head camera calibrated earlier (by hand): kept, and the stages after it run; no tasks -> no demonstrations
     ws.handeye_file.parent.mkdir(parents=True)
     ws.handeye_file.write_text("{}")

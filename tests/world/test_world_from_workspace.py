@@ -212,6 +212,48 @@ def test_missing_inputs_name_the_stage(recon_ws, tmp_path):
     assert not (bad / "world" / "world.yaml").exists()
 
 
+def test_head_camera_from_a_keyframe_and_the_wrist_camera_as_calibrated(recon_ws, tmp_path):
+    # a capture whose fixed camera took one of its keyframes (a side camera in the SfM), and a wrist calibration
+    from dataclasses import replace
+
+    from mirage2matter.world.config import WorldConfigError
+
+    ws, _ = recon_ws
+    new = tmp_path / "ws"
+    for sub in ("calib", "scene", "objects"):
+        shutil.copytree(ws / sub, new / sub)
+    head = json.loads((SAMPLE / "ground_truth.json").read_text())["head_camera"]
+    K_side = [[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]]
+    side = {"name": "side.jpg", "width": 640, "height": 480, "K": K_side, "T_world_cam": head["T_base_headcam"]}
+    other = {**side, "name": "frame_000001.jpg", "T_world_cam": np.eye(4).tolist()}
+    (new / "calib" / "cameras_base.json").write_text(json.dumps([other, side]))
+    T_hand_cam = np.eye(4)
+    T_hand_cam[:3, 3] = [0.05, 0.0, 0.04]
+    K_wrist = [[600.0, 0, 424], [0, 600.0, 240], [0, 0, 1]]
+    wrist = {"mount": "wrist", "link": "hand", "T_hand_wristcam": T_hand_cam.tolist(), "K": K_wrist, "width": 848,
+             "height": 480}
+    (new / "calib" / "handeye.json").write_text(json.dumps(wrist))
+    with pytest.raises(WorldConfigError, match="head_keyframe"):
+        from_workspace(new)  # the only calibration is the wrist camera's
+    bad = replace(WORLD.config(), head_keyframe="nowhere.jpg")
+    with pytest.raises(WorldConfigError, match="'nowhere.jpg': not one of the capture's keyframes"):
+        run_stage(WORLD, Workspace(new), bad, log=lambda s: None)
+    record = run_stage(WORLD, Workspace(new), replace(bad, head_keyframe="side.jpg"), log=lambda s: None)[0]
+    cfg = load_world(new / "world")
+    assert cfg.cameras["head"].mount == "base" and np.allclose(cfg.cameras["head"].T_mount_cam, head["T_base_headcam"])
+    assert np.allclose(cfg.cameras["head"].K, K_side) and cfg.cameras["head"].width == 640
+    w = cfg.cameras["wrist"]
+    assert w.mount == "hand" and np.allclose(w.T_mount_cam, T_hand_cam) and np.allclose(w.K, K_wrist)
+    assert "keyframe side.jpg" in record["line"] and "wrist camera as calibrated (on hand)" in record["line"]
+    # poses of a frame the model does not have (a controller's "EE"): the robot's own mount, said so
+    ee = {**wrist, "link": "EE", "T_EE_wristcam": wrist.pop("T_hand_wristcam")}
+    (new / "calib" / "handeye.json").write_text(json.dumps(ee))
+    record = run_stage(WORLD, Workspace(new), replace(bad, head_keyframe="side"), log=lambda s: None, force=True)[0]
+    assert load_world(new / "world").cameras["wrist"].mount == "hand"
+    assert not np.allclose(load_world(new / "world").cameras["wrist"].T_mount_cam, T_hand_cam)
+    assert "link 'EE' is not a link of panda's model" in record["line"]
+
+
 def test_compose_cli_builds_the_world_from_the_workspace(recon_ws, tmp_path, capsys):
     ws, _ = recon_ws
     cli_ws = tmp_path / "ws"

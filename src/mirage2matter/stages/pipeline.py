@@ -288,7 +288,8 @@ def plan_run(
     stage cannot do without are given, and each running stage's Config accepts its values.
 
     Optional inputs make stages optional: no hand-eye images -> no hand-eye calibration (an earlier
-    ``calib/handeye.json`` is kept), and without a head camera's calibration no head-view check and no world;
+    ``calib/handeye.json`` is kept), and without a head camera's calibration no head-view check and no world (unless
+    ``world.head_keyframe`` names the keyframe a fixed camera took);
     no head-camera photo -> no head-view check; no tasks -> no demonstrations. Without object names the objects
     stage takes every object it finds."""
     where = where or SettingsFile(ws.config_file)
@@ -314,9 +315,10 @@ def plan_run(
             # the sample after a short training the board was not even found in it)
             reason = (f"no head-camera photo to compare the scene with (head_view.photo is not set); `m2m head-view -w "
                       f"{ws.root}` renders the head camera's view alone")  # fmt: skip
-        elif name == "world" and not head and cfg.world.sample is None:
+        elif name == "world" and not head and cfg.world.sample is None and cfg.world.head_keyframe is None:
             reason = (f"{no_head}; the world's head camera needs one: give handeye.images, .joints, .board and "
-                      ".intrinsics (`m2m init --handeye-images DIR --handeye-poses FILE ...`)")  # fmt: skip
+                      ".intrinsics (`m2m init --handeye-images DIR --handeye-poses FILE ...`), or world.head_keyframe "
+                      "(the keyframe of the capture a fixed camera took)")  # fmt: skip
         elif name == "generate" and plan.get("world"):
             reason = "no world (skipped above)"
         elif name == "generate" and not cfg.generate.task:

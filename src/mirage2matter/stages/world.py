@@ -13,7 +13,8 @@ from typing import Any
 import numpy as np
 
 from ..configs import ranged
-from ..robots import DEFAULT_ROBOT, is_spec_file
+from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
+from ..robots.kinematics import RobotKinematics
 from ..workspace import Workspace
 from ..world.config import CameraConfig, RandomizeConfig, RobotConfig, WorldConfigError
 from ..world.reconstruction import ReconstructionOptions
@@ -37,6 +38,9 @@ class Config:
     randomize         where the twin may put objects at each reset
     max_mm            largest accepted median distance (mm) from a part's opaque Gaussians to its mesh
     sample            build the world from this sample's ground truth instead of the reconstruction
+    head_keyframe     the head camera is the fixed camera that took this keyframe of the capture (e.g. right.jpg):
+                      its pose and intrinsics from align-scene's cameras, no head calibration needed (default:
+                      calibrate-handeye's head camera)
     """
 
     robot: str = field(default=DEFAULT_ROBOT, metadata=SHARED)
@@ -50,6 +54,7 @@ class Config:
     randomize: RandomizeConfig = field(default_factory=RandomizeConfig)
     max_mm: float = ranged(3.0, gt=0, le=1000)
     sample: Path | None = None
+    head_keyframe: str | None = None
 
     def options(self) -> ReconstructionOptions:
         """The library's options from these settings, each named (a renamed field fails here, not silently)."""
@@ -72,13 +77,49 @@ def _object_dirs(ws: Workspace) -> dict[str, Path]:
     return {n: ws.object_dir(n) for n in names}
 
 
-def _head_camera(ws: Workspace) -> CameraConfig:
+def _keyframe_camera(ws: Workspace, keyframe: str) -> CameraConfig:
+    """The camera that took ``keyframe``, fixed in the base frame (align-scene's cameras_base.json)."""
+    cameras = json.loads(ws.require(ws.cameras_base_file, "align-scene").read_text())
+    names = [c["name"] for c in cameras]
+    matches = [c for c in cameras if c["name"] == keyframe or Path(c["name"]).stem == Path(keyframe).stem]
+    if len(matches) != 1:
+        shown = ", ".join(names[:8]) + (", ..." if len(names) > 8 else "")
+        raise WorldConfigError(f"world.head_keyframe {keyframe!r}: not one of the capture's keyframes ({shown}); "
+                               "give the file name of the keyframe the head camera took")  # fmt: skip
+    c = matches[0]
+    return CameraConfig("base", np.asarray(c["T_world_cam"], np.float64), np.asarray(c["K"], np.float64),
+                        int(c["width"]), int(c["height"]))  # fmt: skip
+
+
+def _wrist_camera(ws: Workspace, robot: str) -> tuple[CameraConfig | None, str]:
+    """(the wrist camera calibrate-handeye calibrated, or None: the robot's default mount; the words for the line)."""
+    data = json.loads(ws.handeye_file.read_text()) if ws.handeye_file.is_file() else {}
+    if data.get("mount") != "wrist":
+        return None, "the wrist camera at the robot's default mount"
+    spec, link = get_robot(robot), str(data.get("link"))
+    if link not in RobotKinematics(robot).link_poses(np.asarray(spec.home)):
+        return None, (f"the wrist camera at the robot's default mount (calibrate-handeye's link {link!r} is not a "
+                      f"link of {spec.name}'s model: calibrate from joint angles, or name the link the poses are of)")
+    T = np.asarray(data[f"T_{link}_wristcam"], np.float64)
+    camera = CameraConfig(link, T, np.asarray(data["K"], np.float64), int(data["width"]), int(data["height"]))
+    return camera, f"the wrist camera as calibrated (on {link})"
+
+
+def _head_camera(ws: Workspace, keyframe: str | None = None) -> CameraConfig:
+    if keyframe is not None:
+        return _keyframe_camera(ws, keyframe)
+    if not ws.handeye_file.is_file():
+        raise WorldConfigError(f"{ws.handeye_file} not found: calibrate the head camera (`m2m calibrate-handeye "
+                               f"--mount head ... -w {ws.root}`), or give world.head_keyframe: the keyframe of the "
+                               "capture a fixed camera took")  # fmt: skip
     data = json.loads(ws.handeye_file.read_text())
     missing = [k for k in ("T_base_headcam", "K", "width", "height") if k not in data]
     if missing:
         raise WorldConfigError(
             f"{ws.handeye_file}: no {', '.join(missing)} (a head-camera calibration records T_base_headcam, K and "
-            f"the image size); rerun `m2m calibrate-handeye --mount head ... -w {ws.root}`"
+            f"the image size; this one is of a {data.get('mount', 'wrist')} camera); rerun `m2m calibrate-handeye "
+            f"--mount head ... -w {ws.root}`, or give world.head_keyframe: the keyframe of the capture a fixed camera "
+            "took"
         )
     T, K = np.asarray(data["T_base_headcam"], np.float64), np.asarray(data["K"], np.float64)
     if T.shape != (4, 4) or K.shape != (3, 3):
@@ -93,8 +134,13 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
         truth = [Input(Path(cfg.sample) / n, field="compose sample") for n in ("ground_truth.json", "gt")]
         return truth + optional + robot
     look = [Input(ws.robot_gaussians_dir / "robot.json")] if (ws.robot_gaussians_dir / "robot.json").is_file() else []
-    return [Input(ws.handeye_file, made_by="calibrate-handeye"), Input(ws.scene_ply, made_by="train-scene"),
-            Input(ws.objects_summary, made_by="objects"), *robot, *look]  # fmt: skip
+    if cfg.head_keyframe is not None:  # a wrist calibration, when there is one, still counts
+        cameras = [Input(ws.cameras_base_file, made_by="align-scene")] + \
+            ([Input(ws.handeye_file)] if ws.handeye_file.is_file() else [])  # fmt: skip
+    else:
+        cameras = [Input(ws.handeye_file, made_by="calibrate-handeye")]
+    return [*cameras, Input(ws.scene_ply, made_by="train-scene"), Input(ws.objects_summary, made_by="objects"),
+            *robot, *look]  # fmt: skip
 
 
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
@@ -107,10 +153,14 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         scene = ws.scene_ply if ws.scene_ply.is_file() else None
         world = sample_world(cfg.sample, ws.world_dir, scene_ply=scene, T_base_headcam=T, overwrite=True,
                              robot=cfg.robot)  # fmt: skip
+        cameras_note = ""
     else:
-        world = world_from_reconstruction(ws.world_dir, _head_camera(ws), ws.scene_ply, _object_dirs(ws),
-                                          cfg.options(), log)  # fmt: skip
-    robot_note = _robot_gaussians(ws, world, cfg)
+        wrist, cameras_note = _wrist_camera(ws, cfg.robot)
+        head = "the head camera: keyframe " + cfg.head_keyframe if cfg.head_keyframe else "the head camera calibrated"
+        cameras_note = f"; {head}, {cameras_note}"
+        world = world_from_reconstruction(ws.world_dir, _head_camera(ws, cfg.head_keyframe), ws.scene_ply,
+                                          _object_dirs(ws), cfg.options(), log, wrist=wrist)  # fmt: skip
+    robot_note = _robot_gaussians(ws, world, cfg) + cameras_note
     save_world(world.relocated(ws.world_dir, ws.committed.world_dir), ws.world_yaml, home=ws.committed.world_dir)
     write_world_ply(world)
     cons = {k: 1000 * v for k, v in consistency(world).items()}

@@ -2,8 +2,9 @@
 
 Inputs (typed, read by the ``world`` stage from what the earlier stages wrote):
 
-- the head camera (``CameraConfig``, from the hand-eye calibration: ``T_base_headcam``, ``K`` and image size);
-  the wrist camera gets the robot's default mount on its end-effector link (``default_wrist_camera``).
+- the head camera (``CameraConfig``, from the hand-eye calibration: ``T_base_headcam``, ``K`` and image size, or
+  the keyframe a fixed camera took); the wrist camera as calibrated (``wrist``), else the robot's default mount on
+  its end-effector link (``default_wrist_camera``).
 - object folders as the objects stage writes them (``{mesh.obj, collision/*.obj, gaussians.ply, align.json}``):
   one free object each, placed by ``align.json``'s ``sim3_obj_to_base`` (the same Sim3 for mesh and
   Gaussians), density from the objects stage. Placements are snapped vertically so the lowest collision
@@ -337,9 +338,11 @@ def world_from_reconstruction(
     object_dirs: dict[str, Path],
     options: ReconstructionOptions | None = None,
     log: Callable[[str], None] = lambda s: None,
+    wrist: CameraConfig | None = None,
 ) -> WorldConfig:
     """Build ``world_dir`` (world.yaml, scene.ply, button parts, reconstruction.json) from the head camera, the
-    scene splat and the object folders ``{name: folder}`` (see the module docstring). Returns the saved config."""
+    scene splat and the object folders ``{name: folder}`` (see the module docstring). Returns the saved config.
+    ``wrist``: the wrist camera as calibrated (default: the robot's own mount, ``default_wrist_camera``)."""
     opt = options or ReconstructionOptions()
     world_dir = Path(world_dir).resolve()
     world_dir.mkdir(parents=True, exist_ok=True)
@@ -433,7 +436,7 @@ def world_from_reconstruction(
     cfg = WorldConfig(
         root=world_dir,
         robot=opt.robot,
-        cameras={"head": head, "wrist": default_wrist_camera(robot=opt.robot.spec)},
+        cameras={"head": head, "wrist": wrist or default_wrist_camera(robot=opt.robot.spec)},
         scene_gaussians=out_scene,
         objects=objects,
         articulated=articulated,
