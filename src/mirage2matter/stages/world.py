@@ -97,6 +97,8 @@ def _wrist_camera(ws: Workspace, robot: str) -> tuple[CameraConfig | None, str]:
     if data.get("mount") != "wrist":
         return None, "the wrist camera at the robot's default mount"
     spec, link = get_robot(robot), str(data.get("link"))
+    if data.get("robot") not in (None, spec.name):
+        return None, f"the wrist camera at the robot's default mount (calibrate-handeye's is on {data['robot']})"
     if link not in RobotKinematics(robot).link_poses(np.asarray(spec.home)):
         return None, (f"the wrist camera at the robot's default mount (calibrate-handeye's link {link!r} is not a "
                       f"link of {spec.name}'s model: calibrate from joint angles, or name the link the poses are of)")
@@ -108,10 +110,6 @@ def _wrist_camera(ws: Workspace, robot: str) -> tuple[CameraConfig | None, str]:
 def _head_camera(ws: Workspace, keyframe: str | None = None) -> CameraConfig:
     if keyframe is not None:
         return _keyframe_camera(ws, keyframe)
-    if not ws.handeye_file.is_file():
-        raise WorldConfigError(f"{ws.handeye_file} not found: calibrate the head camera (`m2m calibrate-handeye "
-                               f"--mount head ... -w {ws.root}`), or give world.head_keyframe: the keyframe of the "
-                               "capture a fixed camera took")  # fmt: skip
     data = json.loads(ws.handeye_file.read_text())
     missing = [k for k in ("T_base_headcam", "K", "width", "height") if k not in data]
     if missing:
