@@ -274,6 +274,19 @@ class Workspace:
             return None
         return record.get("board") or {}, np.asarray(record["T_base_board"], np.float64)
 
+    def board_plane(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(centre [3], up normal [3]) of the calibration target's face in the base frame, as align-scene placed it: it
+        lies on the table; None without one."""
+        from .calib.board import target_from_json
+
+        board = self.board_on_table()
+        if board is None or not board[0]:
+            return None
+        target, T = target_from_json(board[0]), board[1]
+        local = target.points_board()
+        centre = T[:3, :3] @ ((local.min(axis=0) + local.max(axis=0)) / 2) + T[:3, 3]
+        return centre, (T[:3, 2] if T[2, 2] > 0 else -T[:3, 2])
+
     def posed_capture(self, frame: str = "auto") -> PosedCapture:
         """The keyframes' cameras and points. ``frame``: "base" (written by ``align-scene``; an error
         before it), "sfm" (the SfM model's own frame) or "auto" (base when aligned, else sfm)."""

@@ -100,13 +100,13 @@ def test_the_objects_stand_on_the_table_not_on_the_tins(capture):
     """SfM found no texture on the plain wooden table: its largest plane is the tops of two tins and a bottle, 4.5 cm
     up. The objects stage seeks the table beside the board, which lies on it, and finds objects on it."""
     from mirage2matter.objects.support import find_objects, fit_support_plane
-    from mirage2matter.stages.objects import _board_plane, _off_the_board
+    from mirage2matter.stages.objects import _off_the_board
     from mirage2matter.workspace import Workspace
 
     _, _, ws = capture
     w = Workspace(ws)
     points = _off_the_board(w, w.posed_capture(frame="base").points)
-    centre, normal = _board_plane(w)
+    centre, normal = w.board_plane()
     assert fit_support_plane(points).height(centre[None])[0] < -0.03  # the tins' tops, over the board
     plane = fit_support_plane(points, board=(centre, normal))
     assert abs(plane.height(centre[None])[0]) < 0.002 and plane.normal @ normal > np.cos(np.radians(2))

@@ -254,6 +254,26 @@ def test_head_camera_from_a_keyframe_and_the_wrist_camera_as_calibrated(recon_ws
     assert "link 'EE' is not a link of panda's model" in record["line"]
 
 
+def test_the_table_is_where_the_board_lies(recon_ws, tmp_path):
+    # a robot standing on a frame above its table (the public real capture's: 3.8 cm): the board, which lies on the
+    # table, gives its height; a board level with the base (its own thickness off) leaves the table at z = 0
+    ws, _ = recon_ws
+    new = tmp_path / "ws"
+    for sub in ("calib", "scene", "objects"):
+        shutil.copytree(ws / sub, new / sub)
+    board = json.loads((SAMPLE / "board.json").read_text())
+    for z, table_z in ((0.0005, 0.0), (-0.038, -0.038)):
+        T = np.eye(4)
+        T[:3, 3] = [0.3, -0.3, z]
+        (new / "calib" / "sim3_sfm_to_base.json").write_text(json.dumps({"T_base_board": T.tolist(), "board": board}))
+        record = run_stage(WORLD, Workspace(new), WORLD.config(), log=lambda s: None, force=True)[0]
+        cfg = load_world(new / "world")
+        assert cfg.table_z == pytest.approx(table_z, abs=2e-4)
+        # the banana rests on that table (its reconstruction stood on z = 0)
+        assert cfg.object("banana").placement.translation[2] == pytest.approx(table_z, abs=1e-6)
+    assert "the table 38.0 mm below the robot's base" in record["line"]
+
+
 def test_compose_cli_builds_the_world_from_the_workspace(recon_ws, tmp_path, capsys):
     ws, _ = recon_ws
     cli_ws = tmp_path / "ws"

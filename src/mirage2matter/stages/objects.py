@@ -34,7 +34,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     posed = ws.posed_capture(frame="base")
     cameras, images = pinhole_keyframes(posed.cameras, posed.image_dir)  # a camera's lens taken out up front
     lens = posed.cameras if any(c.has_distortion for c in posed.cameras) else None
-    _, targets = find_targets(cfg, cameras, _off_the_board(ws, posed.points), board=_board_plane(ws))
+    _, targets = find_targets(cfg, cameras, _off_the_board(ws, posed.points), board=ws.board_plane())
     robot_in_front(ws, cameras, targets)
     unknown = set(cfg.mesh) - {t.name for t in targets}
     if unknown:
@@ -77,19 +77,6 @@ def _off_the_board(ws: Workspace, points_base: np.ndarray) -> np.ndarray:
 
     board = _target_on_table(ws)
     return points_base if board is None else points_base[~on_target(points_base, *board)]
-
-
-def _board_plane(ws: Workspace) -> tuple[np.ndarray, np.ndarray] | None:
-    """(centre [3], up normal [3]) of the calibration target in the base frame, as align-scene placed it: it lies on
-    the table, so the support plane is sought beside it (objects.support.fit_support_plane); None without one."""
-    board = _target_on_table(ws)
-    if board is None:
-        return None
-    target, T = board
-    local = target.points_board()
-    centre = T[:3, :3] @ ((local.min(axis=0) + local.max(axis=0)) / 2) + T[:3, 3]
-    normal = T[:3, 2] if T[2, 2] > 0 else -T[:3, 2]
-    return centre, normal
 
 
 # A keyframe in which the robot stands in front of this share of the object's points or more is left out of its

@@ -6,7 +6,7 @@ the sample's ground truth instead (a stand-in to try the twin without reconstruc
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -75,6 +75,19 @@ def _object_dirs(ws: Workspace) -> dict[str, Path]:
                 raise WorldConfigError(f"{ws.object_dir(name) / f} not found: object {name!r} is incomplete; run "
                                        f"`m2m objects -w {ws.root}` again")  # fmt: skip
     return {n: ws.object_dir(n) for n in names}
+
+
+# The base frame's z = 0 is the surface the robot stands on. A board within this height of it lies on a table level
+# with the base (the difference is the board's own thickness: 0.5 mm on the samples); further off, the table is where
+# the board is (the public real capture's arm stands on a frame, its table 3.8 cm lower).
+TABLE_LEVEL_M = 0.005
+
+
+def _table_z(ws: Workspace) -> float:
+    """The table's height in the base frame (m): the board's, which lies on it, unless level with the base."""
+    plane = ws.board_plane()
+    z = 0.0 if plane is None else float(plane[0][2])
+    return z if abs(z) > TABLE_LEVEL_M else 0.0
 
 
 def _keyframe_camera(ws: Workspace, keyframe: str) -> CameraConfig:
@@ -156,8 +169,13 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         wrist, cameras_note = _wrist_camera(ws, cfg.robot)
         head = "the head camera: keyframe " + cfg.head_keyframe if cfg.head_keyframe else "the head camera calibrated"
         cameras_note = f"; {head}, {cameras_note}"
+        table_z = _table_z(ws)
+        if table_z:
+            side = "below" if table_z < 0 else "above"
+            cameras_note += f"; the table {1000 * abs(table_z):.1f} mm {side} the robot's base (where the board lies)"
         world = world_from_reconstruction(ws.world_dir, _head_camera(ws, cfg.head_keyframe), ws.scene_ply,
-                                          _object_dirs(ws), cfg.options(), log, wrist=wrist)  # fmt: skip
+                                          _object_dirs(ws), replace(cfg.options(), table_z=table_z), log,
+                                          wrist=wrist)  # fmt: skip
     robot_note = _robot_gaussians(ws, world, cfg) + cameras_note
     save_world(world.relocated(ws.world_dir, ws.committed.world_dir), ws.world_yaml, home=ws.committed.world_dir)
     write_world_ply(world)
