@@ -78,7 +78,7 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     g.add_argument("--intrinsics", type=Path, metavar="FILE", help="the capture camera's calibration (`m2m "
                    "intrinsics FILE` reads it); without it SfM estimates one")  # fmt: skip
     g.add_argument("--handeye-images", type=Path, metavar="DIR", help="the head camera's images of a board the robot "
-                   "holds (without them: no world, unless --world.head_keyframe names the keyframe a fixed camera "
+                   "holds (without them: no world, unless --world.head-keyframe names the keyframe a fixed camera "
                    "took)")  # fmt: skip
     g.add_argument("--handeye-poses", type=Path, metavar="FILE", help="the robot's joints per hand-eye image (JSON)")
     g.add_argument("--handeye-board", type=Path, metavar="FILE", help="the held board's spec (without it: --board)")
