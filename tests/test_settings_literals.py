@@ -42,7 +42,7 @@ SHARED = {
     ("video.py", "crf", 20),  # rollout / preview videos' quality, not the datasets' (VideoOptions)
     ("objects/matting.py", "max_gaussians", 60000),  # the matting pass's model, not the object's splat
     ("objects/splat.py", "crop_margin_px", 12),  # pixels, not a count of views or curve points
-    ("objects/support.py", "min_points", 12),  # points on a support plane
+    ("objects/support.py", "min_cluster_points", 12),  # SfM points in an object's cluster
     ("sample/handeye_capture.py", "views", 12),  # hand-eye calibration images, not curve points
     ("policy/augment.py", "hue_bands", 12),  # colour bands of the hue augmentation
     ("viewer/config.py", "thumbnail_px", 96),  # the viewer's thumbnails, not the policy's input
