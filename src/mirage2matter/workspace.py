@@ -274,18 +274,21 @@ class Workspace:
             return None
         return record.get("board") or {}, np.asarray(record["T_base_board"], np.float64)
 
-    def board_plane(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """(centre [3], up normal [3]) of the calibration target's face in the base frame, as align-scene placed it: it
-        lies on the table; None without one."""
+    def target_on_table(self):
+        """(the calibration target, as ``calib.board.target_from_json`` reads it; T_base_board [4,4]) as align-scene
+        placed it; None without one."""
         from .calib.board import target_from_json
 
         board = self.board_on_table()
-        if board is None or not board[0]:
-            return None
-        target, T = target_from_json(board[0]), board[1]
-        local = target.points_board()
-        centre = T[:3, :3] @ ((local.min(axis=0) + local.max(axis=0)) / 2) + T[:3, 3]
-        return centre, (T[:3, 2] if T[2, 2] > 0 else -T[:3, 2])
+        return None if board is None or not board[0] else (target_from_json(board[0]), board[1])
+
+    def board_plane(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(centre [3], up normal [3]) of the calibration target's face in the base frame (``calib.board.
+        target_plane``): it lies on the table; None without one."""
+        from .calib.board import target_plane
+
+        board = self.target_on_table()
+        return None if board is None else target_plane(*board)
 
     def posed_capture(self, frame: str = "auto") -> PosedCapture:
         """The keyframes' cameras and points. ``frame``: "base" (written by ``align-scene``; an error
@@ -303,12 +306,18 @@ class Workspace:
         points, colors = load_model_points(self.require(self.sfm_model, "sfm"))
         return PosedCapture(sorted(cameras, key=lambda c: c.name), points, colors, self.capture_dir, "sfm")
 
-    def _posed_base(self) -> PosedCapture:
+    def cameras_base(self) -> list:
+        """The keyframes' cameras (``geometry.camera.Camera``) in the base frame, as align-scene wrote them, by name."""
         from .geometry.camera import Camera
-        from .geometry.sim3 import Sim3
 
         path = self.require(self.cameras_base_file, "align-scene")
         cameras = [Camera.from_json(c, source=str(path)) for c in json.loads(path.read_text())]
+        return sorted(cameras, key=lambda c: c.name)
+
+    def _posed_base(self) -> PosedCapture:
+        from .geometry.sim3 import Sim3
+
+        cameras = self.cameras_base()
         points = np.load(self.require(self.points_base_file, "align-scene")).astype(np.float64).reshape(-1, 3)
         if self.colors_base_file.is_file():
             colors = np.load(self.colors_base_file).astype(np.uint8).reshape(-1, 3)
@@ -317,7 +326,7 @@ class Workspace:
         sim = None
         if self.alignment_file.is_file():
             sim = Sim3.from_json(json.loads(self.alignment_file.read_text())["sim3_sfm_to_base"])
-        return PosedCapture(sorted(cameras, key=lambda c: c.name), points, colors, self.capture_dir, "base", sim)
+        return PosedCapture(cameras, points, colors, self.capture_dir, "base", sim)
 
 
 @dataclass(frozen=True)

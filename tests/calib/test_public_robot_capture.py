@@ -105,7 +105,7 @@ def test_the_objects_stand_on_the_table_not_on_the_tins(capture):
 
     _, _, ws = capture
     w = Workspace(ws)
-    points = _off_the_board(w, w.posed_capture(frame="base").points)
+    points = _off_the_board(w.posed_capture(frame="base").points, w.target_on_table())
     centre, normal = w.board_plane()
     assert fit_support_plane(points).height(centre[None])[0] < -0.03  # the tins' tops, over the board
     plane = fit_support_plane(points, board=(centre, normal))

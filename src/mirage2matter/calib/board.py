@@ -38,7 +38,7 @@ from ..errors import M2MError
 from ..inputs import InputError, read_json
 
 __all__ = ["BoardError", "BoardSpec", "GridSpec", "MarkerSpec", "TARGET_KINDS", "board_frame_to_board_image",
-           "board_image_to_board_frame", "load_target", "margin_pixels", "target_from_json"]
+           "board_image_to_board_frame", "load_target", "margin_pixels", "target_from_json", "target_plane"]
 
 _FIELDS = ("squares_x", "squares_y", "square", "marker", "dictionary")
 
@@ -484,6 +484,15 @@ def on_target(points_base: np.ndarray, target: Any, T_base_target: np.ndarray, h
     grow = 1.5 * target.feature_size
     lo, hi = corners.min(axis=0) - grow, corners.max(axis=0) + grow
     return np.all((local[:, :2] >= lo) & (local[:, :2] <= hi), axis=1) & (np.abs(local[:, 2]) <= height)
+
+
+def target_plane(target: Any, T_base_target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(centre [3], up normal [3]) of the target's printed face in the base frame: the middle of its features' outline
+    and its z axis, turned up."""
+    T = np.asarray(T_base_target, np.float64)
+    local = target.points_board()
+    centre = T[:3, :3] @ ((local.min(axis=0) + local.max(axis=0)) / 2) + T[:3, 3]
+    return centre, (T[:3, 2] if T[2, 2] > 0 else -T[:3, 2])
 
 
 def target_from_json(data: Any, where: str = "target JSON"):

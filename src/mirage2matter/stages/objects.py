@@ -31,10 +31,14 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
 
 
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
+    from ..calib.board import target_plane
+
     posed = ws.posed_capture(frame="base")
     cameras, images = pinhole_keyframes(posed.cameras, posed.image_dir)  # a camera's lens taken out up front
     lens = posed.cameras if any(c.has_distortion for c in posed.cameras) else None
-    _, targets = find_targets(cfg, cameras, _off_the_board(ws, posed.points), board=ws.board_plane())
+    board = ws.target_on_table()
+    plane = None if board is None else target_plane(*board)
+    _, targets = find_targets(cfg, cameras, _off_the_board(posed.points, board), board=plane)
     robot_in_front(ws, cameras, targets)
     unknown = set(cfg.mesh) - {t.name for t in targets}
     if unknown:
@@ -61,21 +65,12 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     return {"objects": out, "details": lines, "line": f"{len(out)} objects: {', '.join(sorted(out))}"}
 
 
-def _target_on_table(ws: Workspace):
-    """(the calibration target, T_base_board [4,4]) as align-scene placed it; None without one."""
-    from ..calib.board import target_from_json
-
-    board = ws.board_on_table()
-    return None if board is None or not board[0] else (target_from_json(board[0]), board[1])
-
-
-def _off_the_board(ws: Workspace, points_base: np.ndarray) -> np.ndarray:
-    """The SfM points [N,3] without those on the calibration target (calib.board.on_target): the board is no object.
-    With the board beside the robot's base (on the bundled sample), 12 points over its pattern were the "object"
-    nearest the base, named for the first object the user listed."""
+def _off_the_board(points_base: np.ndarray, board) -> np.ndarray:
+    """The SfM points [N,3] without those on the calibration target (``board``: Workspace.target_on_table; None: no
+    target): the board is no object. With the board beside the robot's base (on the bundled sample), 12 points over
+    its pattern were the "object" nearest the base, named for the first object the user listed."""
     from ..calib.board import on_target
 
-    board = _target_on_table(ws)
     return points_base if board is None else points_base[~on_target(points_base, *board)]
 
 

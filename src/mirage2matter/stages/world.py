@@ -14,7 +14,7 @@ import numpy as np
 
 from ..configs import ranged
 from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
-from ..robots.kinematics import RobotKinematics
+from ..robots.kinematics import KinematicsError, RobotKinematics
 from ..workspace import Workspace
 from ..world.config import CameraConfig, RandomizeConfig, RobotConfig, WorldConfigError
 from ..world.reconstruction import ReconstructionOptions
@@ -91,51 +91,51 @@ def _table_z(ws: Workspace) -> float:
 
 
 def _keyframe_camera(ws: Workspace, keyframe: str) -> CameraConfig:
-    """The camera that took ``keyframe``, fixed in the base frame (align-scene's cameras_base.json)."""
-    cameras = json.loads(ws.require(ws.cameras_base_file, "align-scene").read_text())
-    names = [c["name"] for c in cameras]
-    matches = [c for c in cameras if c["name"] == keyframe or Path(c["name"]).stem == Path(keyframe).stem]
+    """The camera that took ``keyframe``, fixed in the base frame (align-scene's cameras)."""
+    cameras = ws.cameras_base()
+    matches = [c for c in cameras if c.name == keyframe or Path(c.name).stem == Path(keyframe).stem]
     if len(matches) != 1:
-        shown = ", ".join(names[:8]) + (", ..." if len(names) > 8 else "")
+        shown = ", ".join(c.name for c in cameras[:8]) + (", ..." if len(cameras) > 8 else "")
         raise WorldConfigError(f"world.head_keyframe {keyframe!r}: not one of the capture's keyframes ({shown}); "
                                "give the file name of the keyframe the head camera took")  # fmt: skip
     c = matches[0]
-    return CameraConfig("base", np.asarray(c["T_world_cam"], np.float64), np.asarray(c["K"], np.float64),
-                        int(c["width"]), int(c["height"]))  # fmt: skip
+    return CameraConfig("base", c.T_world_cam, c.K, c.width, c.height)
 
 
-def _wrist_camera(ws: Workspace, robot: str) -> tuple[CameraConfig | None, str]:
-    """(the wrist camera calibrate-handeye calibrated, or None: the robot's default mount; the words for the line)."""
-    data = json.loads(ws.handeye_file.read_text()) if ws.handeye_file.is_file() else {}
-    if data.get("mount") != "wrist":
+def _wrist_camera(handeye: dict[str, Any], robot: str) -> tuple[CameraConfig | None, str]:
+    """(the wrist camera calibrate-handeye calibrated (``handeye``: its handeye.json), or None: the robot's default
+    mount; the words for the line)."""
+    if handeye.get("mount") != "wrist":
         return None, "the wrist camera at the robot's default mount"
-    spec, link = get_robot(robot), str(data.get("link"))
-    if data.get("robot") not in (None, spec.name):
-        return None, f"the wrist camera at the robot's default mount (calibrate-handeye's is on {data['robot']})"
-    if link not in RobotKinematics(robot).link_poses(np.asarray(spec.home)):
+    spec, link = get_robot(robot), str(handeye.get("link"))
+    if handeye.get("robot") not in (None, spec.name):
+        return None, f"the wrist camera at the robot's default mount (calibrate-handeye's is on {handeye['robot']})"
+    try:
+        RobotKinematics(robot).chain(link)
+    except KinematicsError:
         return None, (f"the wrist camera at the robot's default mount (calibrate-handeye's link {link!r} is not a "
                       f"link of {spec.name}'s model: calibrate from joint angles, or name the link the poses are of)")
-    T = np.asarray(data[f"T_{link}_wristcam"], np.float64)
-    camera = CameraConfig(link, T, np.asarray(data["K"], np.float64), int(data["width"]), int(data["height"]))
-    return camera, f"the wrist camera as calibrated (on {link})"
+    T = np.asarray(handeye[f"T_{link}_wristcam"], np.float64)
+    K = np.asarray(handeye["K"], np.float64)
+    return CameraConfig(link, T, K, int(handeye["width"]), int(handeye["height"])), \
+        f"the wrist camera as calibrated (on {link})"  # fmt: skip
 
 
-def _head_camera(ws: Workspace, keyframe: str | None = None) -> CameraConfig:
+def _head_camera(ws: Workspace, handeye: dict[str, Any], keyframe: str | None = None) -> CameraConfig:
     if keyframe is not None:
         return _keyframe_camera(ws, keyframe)
-    data = json.loads(ws.handeye_file.read_text())
-    missing = [k for k in ("T_base_headcam", "K", "width", "height") if k not in data]
+    missing = [k for k in ("T_base_headcam", "K", "width", "height") if k not in handeye]
     if missing:
         raise WorldConfigError(
             f"{ws.handeye_file}: no {', '.join(missing)} (a head-camera calibration records T_base_headcam, K and "
-            f"the image size; this one is of a {data.get('mount', 'wrist')} camera); rerun `m2m calibrate-handeye "
+            f"the image size; this one is of a {handeye.get('mount', 'wrist')} camera); rerun `m2m calibrate-handeye "
             f"--mount head ... -w {ws.root}`, or give world.head_keyframe: the keyframe of the capture a fixed camera "
             "took"
         )
-    T, K = np.asarray(data["T_base_headcam"], np.float64), np.asarray(data["K"], np.float64)
+    T, K = np.asarray(handeye["T_base_headcam"], np.float64), np.asarray(handeye["K"], np.float64)
     if T.shape != (4, 4) or K.shape != (3, 3):
         raise WorldConfigError(f"{ws.handeye_file}: T_base_headcam must be 4x4 and K 3x3")
-    return CameraConfig("base", T, K, int(data["width"]), int(data["height"]))
+    return CameraConfig("base", T, K, int(handeye["width"]), int(handeye["height"]))
 
 
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
@@ -158,25 +158,25 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     from ..world import sample_world, save_world, world_from_reconstruction
     from ..world.compose import consistency, write_world_ply
 
+    he = json.loads(ws.handeye_file.read_text()) if ws.handeye_file.is_file() else {}
     if cfg.sample is not None:  # the sample's ground truth, over the workspace's scene and head camera if it has them
-        he = json.loads(ws.handeye_file.read_text()) if ws.handeye_file.is_file() else {}
         T = np.asarray(he["T_base_headcam"], np.float64) if "T_base_headcam" in he else None
         scene = ws.scene_ply if ws.scene_ply.is_file() else None
         world = sample_world(cfg.sample, ws.world_dir, scene_ply=scene, T_base_headcam=T, overwrite=True,
                              robot=cfg.robot)  # fmt: skip
-        cameras_note = ""
+        note = ""
     else:
-        wrist, cameras_note = _wrist_camera(ws, cfg.robot)
+        wrist, wrist_note = _wrist_camera(he, cfg.robot)
         head = "the head camera: keyframe " + cfg.head_keyframe if cfg.head_keyframe else "the head camera calibrated"
-        cameras_note = f"; {head}, {cameras_note}"
+        note = f"; {head}, {wrist_note}"
         table_z = _table_z(ws)
         if table_z:
             side = "below" if table_z < 0 else "above"
-            cameras_note += f"; the table {1000 * abs(table_z):.1f} mm {side} the robot's base (where the board lies)"
-        world = world_from_reconstruction(ws.world_dir, _head_camera(ws, cfg.head_keyframe), ws.scene_ply,
+            note += f"; the table {1000 * abs(table_z):.1f} mm {side} the robot's base (where the board lies)"
+        world = world_from_reconstruction(ws.world_dir, _head_camera(ws, he, cfg.head_keyframe), ws.scene_ply,
                                           _object_dirs(ws), replace(cfg.options(), table_z=table_z), log,
                                           wrist=wrist)  # fmt: skip
-    robot_note = _robot_gaussians(ws, world, cfg) + cameras_note
+    robot_note = _robot_gaussians(ws, world, cfg) + note
     save_world(world.relocated(ws.world_dir, ws.committed.world_dir), ws.world_yaml, home=ws.committed.world_dir)
     write_world_ply(world)
     cons = {k: 1000 * v for k, v in consistency(world).items()}
