@@ -238,6 +238,7 @@ def test_head_camera_from_a_keyframe_and_the_wrist_camera_as_calibrated(recon_ws
     bad = replace(WORLD.config(), head_keyframe="nowhere.jpg")
     with pytest.raises(WorldConfigError, match="'nowhere.jpg': not one of the capture's keyframes"):
         run_stage(WORLD, Workspace(new), bad, log=lambda s: None)
+    assert not (new / "world").exists()  # nothing half-written
     record = run_stage(WORLD, Workspace(new), replace(bad, head_keyframe="side.jpg"), log=lambda s: None)[0]
     cfg = load_world(new / "world")
     assert cfg.cameras["head"].mount == "base" and np.allclose(cfg.cameras["head"].T_mount_cam, head["T_base_headcam"])
