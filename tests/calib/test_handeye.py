@@ -136,3 +136,15 @@ def test_cli_writes_handeye_json_and_names_the_problem(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "found in only 0 of 18 images" in err and "0000.png" in err
     assert not (tmp_path / "x" / "calib" / "handeye.json").exists()
+
+
+def test_the_stage_says_where_the_world_will_mount_a_wrist_camera():
+    """Poses of a frame the robot's spec names mount on its link; of a frame nobody names: the world keeps the default
+    mount, said where the calibration is made."""
+    from mirage2matter.stages.handeye import Config, _mount_note
+
+    wrist = Config(mount="wrist", robot="panda")
+    assert _mount_note(wrist, "hand") == ""
+    assert _mount_note(wrist, "EE") == "; EE is on the model's hand (hand +103.4 mm along z)"
+    assert "'tool9' is neither a link of the robot's model nor a frame its spec names" in _mount_note(wrist, "tool9")
+    assert _mount_note(Config(mount="head", robot="panda"), "tool9") == ""

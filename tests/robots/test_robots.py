@@ -348,3 +348,60 @@ def test_the_composed_model_is_self_contained_and_its_visual_meshes_known():
     names = {Path(v).name.split("_", 1)[1] for v in visual}
     assert {"hand_0.obj", "finger_1.obj", "upperarm_0.obj", "wrist3.obj"} <= names
     assert not names & {"hand.stl", "finger_0.obj"}  # used by collision geoms: never decimated
+
+
+def test_the_pandas_named_frames_are_franka_s():
+    """The frames the Panda's spec names for what Franka's software calls the hand's frames: libfranka's EE at the
+    "ready" pose is where Franka documents it (0.307, 0, 0.487, pointing down), and franka_description's
+    panda_link8 / panda_hand agree with the links of that name in an independent model (pybullet's Panda URDF)."""
+    from mirage2matter.robots.kinematics import KinematicsError, RobotKinematics
+
+    spec, kin, urdf = get_robot("panda"), RobotKinematics("panda"), RobotKinematics(PANDA_URDF)
+    T_ee = kin.link_pose(np.asarray(spec.home), "EE")
+    assert np.allclose(T_ee[:3, 3], [0.307, 0.0, 0.487], atol=5e-4)
+    assert np.allclose(T_ee[:3, :3], np.diag([1.0, -1.0, -1.0]), atol=1e-3)
+    assert kin.frame("EE")[0] == "hand"
+    n, limits = kin.chain("EE")
+    assert n == 7 and np.array_equal(limits, kin.chain("hand")[1])
+    rng = np.random.default_rng(0)
+    for q in rng.uniform(limits[:, 0], limits[:, 1], (5, 7)):
+        for name in ("panda_link8", "panda_hand"):
+            assert np.allclose(kin.link_pose(q, name), urdf.link_pose(q, name), atol=1e-6), name
+        assert np.allclose(kin.link_pose(q, "fr3_hand_tcp"), kin.link_pose(q, "EE"))
+    with pytest.raises(KinematicsError, match="link 'tool9' not in panda.xml.*frames the robot's spec names: EE"):
+        kin.link_pose(spec.home, "tool9")
+
+
+BAD_FRAMES = [
+    ({"EE": {"link": "gopro", "xyz": [0, 0, 0.1]}}, "frames.EE.link", "'gopro' is not a link"),
+    ({"panda_hand": {"link": "panda_link8"}}, "frames.panda_hand", "is a link of the model already"),
+    ({"EE": {"link": "panda_hand", "xyz": [0, 0, 103.4]}}, "frames.EE.xyz", "units: mm"),
+    ({"EE": {"link": "panda_hand", "rpy": [0, 0, -45]}}, "frames.EE.rpy", "exceeds 2 pi: the angles are radians"),
+    ({"tcp": "EE"}, "frames.tcp", "'EE' is neither a link of the model nor a frame above"),
+]
+
+
+@pytest.mark.parametrize("frames,field,advice", BAD_FRAMES, ids=[b[1] + ":" + b[2][:20] for b in BAD_FRAMES])
+def test_a_bad_named_frame_is_named_with_its_field(tmp_path, frames, field, advice):
+    path = _write(tmp_path, {**_urdf_spec(), "frames": frames})
+    with pytest.raises(RobotSpecError, match=rf"{path}: {field}: .*{advice}"):
+        get_robot(str(path))
+
+
+def test_a_named_frame_turned_and_moved(tmp_path):
+    """A frame with a rotation (rpy as URDF: fixed axes x, y, z) and another name for it."""
+    from mirage2matter.robots.kinematics import RobotKinematics
+
+    frames = {"tool": {"link": "panda_hand", "xyz": [0.01, 0.02, 0.1], "rpy": [0.1, -0.2, 0.3]}, "tool_alias": "tool"}
+    path = _write(tmp_path, {**_urdf_spec(), "frames": frames})
+    spec, kin = get_robot(str(path)), RobotKinematics(str(path))
+    from scipy.spatial.transform import Rotation
+
+    T_hand_tool = np.eye(4)
+    T_hand_tool[:3, :3] = Rotation.from_euler("xyz", [0.1, -0.2, 0.3]).as_matrix()
+    T_hand_tool[:3, 3] = [0.01, 0.02, 0.1]
+    assert np.allclose(spec.frame("tool").T_link_frame, T_hand_tool)
+    q = np.asarray(spec.home)
+    assert np.allclose(kin.link_pose(q, "tool_alias"), kin.link_pose(q, "panda_hand") @ T_hand_tool)
+    assert spec.frame("tool").describe() == ("panda_hand +10.0 mm along x, +20.0 mm along y, +100.0 mm along z, "
+                                             "+5.7 deg about x, -11.5 deg about y, +17.2 deg about z")

@@ -246,13 +246,33 @@ def test_head_camera_from_a_keyframe_and_the_wrist_camera_as_calibrated(recon_ws
     w = cfg.cameras["wrist"]
     assert w.mount == "hand" and np.allclose(w.T_mount_cam, T_hand_cam) and np.allclose(w.K, K_wrist)
     assert "keyframe side.jpg" in record["line"] and "wrist camera as calibrated (on hand)" in record["line"]
-    # poses of a frame the model does not have (a controller's "EE"): the robot's own mount, said so
+    # a joints calibration records the model file it ran forward kinematics on: the same robot as "panda"
+    from mirage2matter.robots.kinematics import robot_model_file
+
+    (new / "calib" / "handeye.json").write_text(json.dumps({**wrist, "robot": robot_model_file("panda")}))
+    record = run_stage(WORLD, Workspace(new), replace(bad, head_keyframe="side"), log=lambda s: None, force=True)[0]
+    assert np.allclose(load_world(new / "world").cameras["wrist"].T_mount_cam, T_hand_cam), record["line"]
+    # poses of libfranka's end-effector frame "EE", which the Panda's spec names (the hand + 103.4 mm along z): the
+    # camera is mounted on the hand, the frame's offset composed in
     ee = {**wrist, "link": "EE", "T_EE_wristcam": wrist.pop("T_hand_wristcam")}
     (new / "calib" / "handeye.json").write_text(json.dumps(ee))
     record = run_stage(WORLD, Workspace(new), replace(bad, head_keyframe="side"), log=lambda s: None, force=True)[0]
+    w = load_world(new / "world").cameras["wrist"]
+    T_hand_ee = np.eye(4)
+    T_hand_ee[2, 3] = 0.1034
+    assert w.mount == "hand" and np.allclose(w.T_mount_cam, T_hand_ee @ T_hand_cam)
+    assert "wrist camera as calibrated (on EE: hand +103.4 mm along z)" in record["line"]
+    # poses of a frame neither the model nor its spec has: the robot's own mount, said so
+    tool9 = {**wrist, "link": "tool9", "T_tool9_wristcam": T_hand_cam.tolist()}
+    (new / "calib" / "handeye.json").write_text(json.dumps(tool9))
+    record = run_stage(WORLD, Workspace(new), replace(bad, head_keyframe="side"), log=lambda s: None, force=True)[0]
     assert load_world(new / "world").cameras["wrist"].mount == "hand"
     assert not np.allclose(load_world(new / "world").cameras["wrist"].T_mount_cam, T_hand_cam)
-    assert "link 'EE' is not a link of panda's model" in record["line"]
+    assert "link 'tool9' is neither a link of panda's model nor a frame its spec names" in record["line"]
+    # a calibration of another robot's model: the default mount, said so
+    (new / "calib" / "handeye.json").write_text(json.dumps({**ee, "robot": robot_model_file("ur5e")}))
+    record = run_stage(WORLD, Workspace(new), replace(bad, head_keyframe="side"), log=lambda s: None, force=True)[0]
+    assert "wrist camera at the robot's default mount (calibrate-handeye's is on" in record["line"]
 
 
 def test_the_table_is_where_the_board_lies(recon_ws, tmp_path):

@@ -23,8 +23,7 @@ from ..geometry.rotation import rotation_angle
 from ..geometry.sim3 import invert_rigid
 from ..inputs import InputError, check_joints, read_image_rgb, read_json
 from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
-from ..robots.kinematics import RobotKinematics
-from ..robots.model import ModelError, resolve_model
+from ..robots.kinematics import RobotKinematics, robot_model_file
 
 METHODS = ("tsai", "park", "horaud", "andreff", "daniilidis")
 
@@ -621,7 +620,7 @@ def calibrate_from_files(
             "give one pose per image"
         )
     named = spec.get("robot")
-    if robot and named and _robot_model(robot) != _robot_model(named):
+    if robot and named and robot_model_file(robot) != robot_model_file(named):
         # the pipeline's robot is a setting with a default: a joints file of another robot is a mistake to name, not
         # one to calibrate through (the wrong arm's kinematics give a wrong mount and no error)
         raise HandEyeError(f"{joints_file} names the robot {named!r} but the calibration was given {robot!r}; give "
@@ -695,8 +694,8 @@ def calibrate_from_files(
                            f"camera mount ({e}). Check that view's robot pose in {joints_file} (a joint mistyped or "
                            "logged at another moment), or remove the view from both") from None  # fmt: skip
     out = result.to_json(link, used)
-    out.update(robot=str(kin.path) if kin is not None else None, poses="joints" if use_joints else "ee",
-               skipped=skipped, board=board.to_json(), K=K.tolist(),
+    out.update(robot=str(kin.path) if kin is not None else robot_model_file(robot),
+               poses="joints" if use_joints else "ee", skipped=skipped, board=board.to_json(), K=K.tolist(),
                lens_corrected=bool(not isinstance(camera, np.ndarray) and camera.has_distortion))  # fmt: skip
     return result, out
 
@@ -707,11 +706,3 @@ def _image_size(camera) -> tuple[int | None, int | None]:
     return camera.width, camera.height
 
 
-def _robot_model(robot: str) -> str:
-    """The model file a robot reference comes down to (a registered name, a spec file, or a model file itself)."""
-    if is_spec_file(robot) or not Path(str(robot)).suffix:
-        robot = get_robot(robot).model
-    try:
-        return str(resolve_model(robot))
-    except ModelError:
-        return str(robot)

@@ -15,7 +15,7 @@ from ..errors import M2MError
 from . import DEFAULT_ROBOT, get_robot, is_spec_file
 from .model import ModelError, load_model, resolve_model
 
-__all__ = ["KinematicsError", "RobotKinematics", "resolve_robot_path"]
+__all__ = ["KinematicsError", "RobotKinematics", "resolve_robot_path", "robot_model_file"]
 
 
 def resolve_robot_path(robot: str | os.PathLike) -> Path:
@@ -27,6 +27,17 @@ def resolve_robot_path(robot: str | os.PathLike) -> Path:
         raise FileNotFoundError(str(e)) from None
 
 
+def robot_model_file(robot: str | os.PathLike) -> str:
+    """The model file a robot reference comes down to (a registered name, a spec file, or a model file itself): two
+    references to one robot compare equal (a calibration records the model file, a workspace the robot's name)."""
+    if is_spec_file(robot) or not Path(str(robot)).suffix:
+        robot = get_robot(robot).model
+    try:
+        return str(resolve_model(robot))
+    except ModelError:
+        return str(robot)
+
+
 class KinematicsError(M2MError, ValueError):
     """A robot model, link or joint vector the kinematics cannot use."""
 
@@ -35,7 +46,8 @@ class RobotKinematics:
     """Link poses T_base_link [4,4] for joint vectors q; the model's world frame is the robot base.
 
     ``robot``: a robot (a registered name or a robot spec file: its model, its end-effector link as the default
-    link) or a model file (MJCF/URDF, or a path in Genesis' bundled assets); default: the default robot.
+    link, its named frames) or a model file (MJCF/URDF, or a path in Genesis' bundled assets); default: the default
+    robot. Wherever a link is named, a frame the spec names (libfranka's "EE") serves too.
     """
 
     def __init__(self, robot: str | os.PathLike | None = None) -> None:
@@ -44,6 +56,8 @@ class RobotKinematics:
         robot = DEFAULT_ROBOT if robot is None else robot
         spec = get_robot(robot) if is_spec_file(robot) or not Path(str(robot)).suffix else None
         self.default_link: str | None = spec.ee_link if spec is not None else None
+        self.frames = dict(spec.frames) if spec is not None else {}
+        self.home = np.asarray(spec.home, np.float64) if spec is not None else None
         try:
             self.path = resolve_model(spec.model if spec is not None else robot)
             self._model = load_model(self.path)
@@ -56,15 +70,29 @@ class RobotKinematics:
     def n_joints(self) -> int:
         return self._model.nq
 
-    def chain(self, link: str) -> tuple[int, np.ndarray]:
-        """(n, limits [n,2]): the joint values up to ``link`` (the first n of q move it) and their limits
-        (+-inf where a joint is unlimited)."""
+    def frame(self, name: str) -> tuple[str, np.ndarray]:
+        """(link, T_link_frame [4,4]): a link of the model is itself; a frame the robot's spec names is fixed to one
+        (KinematicsError naming both kinds otherwise)."""
+        self._body(name if name not in self.frames else self.frames[name].link)
+        if name in self.frames:
+            return self.frames[name].link, self.frames[name].T_link_frame
+        return name, np.eye(4)
+
+    def _body(self, link: str) -> int:
         m = self._model
         try:
-            body = m.body(link).id
+            return m.body(link).id
         except KeyError:
             names = [m.body(i).name for i in range(m.nbody)]
-            raise KinematicsError(f"link {link!r} not in {self.path.name}; links: {', '.join(names)}") from None
+            frames = f"; frames the robot's spec names: {', '.join(self.frames)}" if self.frames else ""
+            raise KinematicsError(f"link {link!r} not in {self.path.name}; links: {', '.join(names)}{frames}") \
+                from None  # fmt: skip
+
+    def chain(self, link: str) -> tuple[int, np.ndarray]:
+        """(n, limits [n,2]): the joint values up to ``link`` (a link or a named frame: the first n of q move it)
+        and their limits (+-inf where a joint is unlimited)."""
+        m = self._model
+        body = self._body(self.frame(link)[0])
         n = 0
         while body > 0:
             for j in range(m.body_jntadr[body], m.body_jntadr[body] + m.body_jntnum[body]):
@@ -78,8 +106,8 @@ class RobotKinematics:
         return n, limits
 
     def link_pose(self, q: np.ndarray, link: str | None = None) -> np.ndarray:
-        """T_base_link [4,4] at joint positions q [n] (n <= n_joints; the rest stay at 0); default link: the
-        robot's end-effector link."""
+        """T_base_link [4,4] at joint positions q [n] (n <= n_joints; the rest stay at 0) of a link or a named frame;
+        default link: the robot's end-effector link."""
         if link is None:
             if self.default_link is None:
                 raise KinematicsError(f"{self.path.name}: name the link (a bare model file has no end-effector link)")
@@ -87,13 +115,40 @@ class RobotKinematics:
         q = np.asarray(q, dtype=np.float64).ravel()
         if q.size > self._model.nq:
             raise KinematicsError(f"{q.size} joint values given, the model {self.path.name} has {self._model.nq}")
-        try:
-            body = self._model.body(link).id
-        except KeyError:
-            names = [self._model.body(i).name for i in range(self._model.nbody)]
-            raise KinematicsError(f"link {link!r} not in {self.path.name}; links: {', '.join(names)}") from None
+        parent, T_link_frame = self.frame(link)
+        body = self._body(parent)
         self._forward(q)
-        return self._pose(body)
+        return self._pose(body) @ T_link_frame
+
+    def inverse(self, T_base_link: np.ndarray, link: str | None = None, q0: np.ndarray | None = None,
+                margin: float = 0.0, tol: float = 1e-7) -> np.ndarray | None:
+        """Joint values [n] (the chain's, see :meth:`chain`) putting ``link`` (a link or a named frame; default: the
+        end-effector link) at ``T_base_link`` [4,4], at least ``margin`` inside every joint limit; None when no
+        start gets every residual (metres, and 0.2 x the rotation matrix's entries) under ``tol``. ``q0``: where to
+        start (the arm's rest pose for a spec's robot, else zeros); a second start beside it. Logged poses are
+        rounded: a ``tol`` of 1e-5 takes them (10 um)."""
+        from scipy.optimize import least_squares
+
+        link = link if link is not None else self.default_link
+        if link is None:
+            raise KinematicsError(f"{self.path.name}: name the link (a bare model file has no end-effector link)")
+        n, limits = self.chain(link)
+        lo, hi = limits[:, 0] + margin, limits[:, 1] - margin
+        start = np.zeros(n) if q0 is None and self.home is None else np.asarray(q0 if q0 is not None else self.home)
+        start = np.r_[start, np.zeros(max(0, n - start.size))][:n]
+        T_target = np.asarray(T_base_link, dtype=np.float64)
+
+        def residual(q: np.ndarray) -> np.ndarray:
+            T = self.link_pose(q, link)
+            # the whole matrix difference: an antisymmetric-part residual would also vanish at a half turn
+            return np.concatenate([T[:3, 3] - T_target[:3, 3], 0.2 * (T[:3, :3] - T_target[:3, :3]).ravel()])
+
+        best = None
+        for s in (start, start + 0.3 * np.sign(np.sin(np.arange(n) + 1.0))):
+            sol = least_squares(residual, np.clip(s, lo, hi), bounds=(lo, hi), xtol=1e-12, ftol=1e-12)
+            if best is None or sol.cost < best.cost:
+                best = sol
+        return best.x if np.max(np.abs(best.fun)) < tol else None
 
     def link_poses(self, q: np.ndarray) -> dict[str, np.ndarray]:
         """{link: T_base_link [4,4]} of every link (body) at joint positions q [n] (n <= n_joints; the rest 0), from

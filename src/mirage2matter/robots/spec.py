@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import M2MError
 
-__all__ = ["CameraMount", "RobotError", "RobotSpec", "RobotSpecError"]
+__all__ = ["CameraMount", "NamedFrame", "RobotError", "RobotSpec", "RobotSpecError"]
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,40 @@ class CameraMount:
         from ..geometry.camera import look_at_pose  # not at import: the command line imports robots, not torch
 
         return look_at_pose(eye=self.eye, target=self.target, up=self.up)
+
+
+@dataclass(frozen=True)
+class NamedFrame:
+    """A frame fixed to a link of the model under a name the model does not have: what a controller or another
+    description calls a pose (libfranka's end effector "EE", a flange, franka_ros's ``panda_hand_tcp``), so robot
+    poses logged in it (hand-eye) resolve to a link.
+
+    link  the model's link it is fixed to
+    xyz   its origin in the link's frame (m)
+    rpy   its rotation in the link's frame (rad; fixed axes x, y, z: R = Rz(yaw) Ry(pitch) Rx(roll), as URDF)
+    """
+
+    link: str
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @property
+    def T_link_frame(self) -> np.ndarray:
+        """[4,4] the frame's pose in the link's frame."""
+        (cr, cp, cy), (sr, sp, sy) = np.cos(self.rpy), np.sin(self.rpy)
+        T = np.eye(4)
+        T[:3, :3] = [[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]]  # fmt: skip
+        T[:3, 3] = self.xyz
+        return T
+
+    def describe(self) -> str:
+        """E.g. "hand + 103.4 mm along z"."""
+        moved = [f"{1000 * v:+.1f} mm along {a}" for a, v in zip("xyz", self.xyz, strict=True) if abs(v) > 5e-5]
+        turned = [f"{math.degrees(v):+.1f} deg about {a}" for a, v in zip("xyz", self.rpy, strict=True)
+                  if abs(v) > 1e-6]
+        return self.link + (" " + ", ".join(moved + turned) if moved or turned else "")
 
 
 @dataclass(frozen=True)
@@ -82,6 +116,8 @@ class RobotSpec:
     home_closing_axis   xy direction (base frame) of the fingers' closing axis at home: top-down grasps with
                         the closing axis near it need the least wrist rotation (see ``home_closing_yaw``)
     cameras             (name, mount) of the cameras on the robot ("wrist": the default hand camera)
+    frames              (name, frame) of frames fixed to the model's links under other names (a controller's
+                        end-effector frame), for robot poses logged in them
     finger_state_names  names of the finger entries of ``observation.state``
     source              the spec file it was read from (None: made in code)
     provenance          (quantity, where its values came from: "model", "spec" or "default") for the limits and
@@ -118,6 +154,7 @@ class RobotSpec:
     home_closing_axis: tuple[float, float]
     cameras: tuple[tuple[str, CameraMount], ...]
     finger_state_names: tuple[str, ...]
+    frames: tuple[tuple[str, NamedFrame], ...] = ()
     source: Path | None = None
     provenance: tuple[tuple[str, str], ...] = field(default=(), compare=False)
 
@@ -167,6 +204,10 @@ class RobotSpec:
         have = [n for n, _ in self.cameras]
         raise KeyError(f"robot {self.name!r} has no {name!r} camera mount (its cameras: {have}); add cameras.{name} "
                        "to its spec file")  # fmt: skip
+
+    def frame(self, name: str) -> NamedFrame | None:
+        """The named frame ``name`` (None: the spec names no such frame; it may still be a link of the model)."""
+        return dict(self.frames).get(name)
 
     @property
     def wrist_camera(self) -> CameraMount:

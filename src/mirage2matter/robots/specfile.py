@@ -41,6 +41,9 @@ the closing axis at home. The robots shipped with the package are such files (``
     cameras:
       wrist: {link: gripper_hand, eye: [0.07, 0, 0], target: [0, 0, 0.14], up: [1, 0, 0], fov_deg: 70,
               width: 640, height: 480}  # look-at in the link's frame (m)
+    frames:                             # names the model does not have, fixed to its links: robot poses logged
+      EE: {link: gripper_hand, xyz: [0, 0, 0.1034], rpy: [0, 0, 0]}   # in them (hand-eye) resolve to the link
+      tool0: gripper_hand               # another name for a link (or for a frame above)
 
 Every problem is a :class:`RobotSpecError` naming the file, the field and what to do: a model without the
 named joints or links, joints out of the model's order, a model with no gripper, a home outside the limits.
@@ -58,7 +61,7 @@ import numpy as np
 
 from ..inputs import InputError, read_json, read_yaml
 from .model import ModelError, ModelInfo, compose_model, genesis_assets_dir, load_model, model_info, resolve_model
-from .spec import CameraMount, RobotSpec, RobotSpecError
+from .spec import CameraMount, NamedFrame, RobotSpec, RobotSpecError
 
 __all__ = [
     "ACCELERATION_PER_VELOCITY",
@@ -83,7 +86,7 @@ DEFAULTS = {"pad_half_width": 0.01, "grasp_force": 20.0, "coupling": 0.0, "tip_c
 _NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]*$")
 MAX_OFFSET_M = 0.5  # a tool centre or a camera mount this far from its link is in other units (103.4: mm)
 TOP_KEYS = {"name", "robot_type", "units", "model", "arm", "gripper", "end_effector", "control", "limits",
-            "cameras"}
+            "cameras", "frames"}
 NO_GRIPPER_HELP = (
     "a robot here needs a gripper: name its finger joints (gripper.joints), or fit one to an arm without: "
     "model: {arm: ARM_FILE, gripper: xml/franka_emika_panda/hand.xml, mount: SITE_OR_LINK_AT_THE_FLANGE}"
@@ -325,6 +328,30 @@ def _camera(r: _Reader, data: Any, field: str, bodies: tuple[str, ...]) -> Camer
     return CameraMount(link=link, eye=eye, target=target, up=up, fov_deg=fov, width=size[0], height=size[1])
 
 
+def _frames(r: _Reader, data: Any, bodies: tuple[str, ...]) -> tuple[tuple[str, NamedFrame], ...]:
+    """``frames``: {NAME: {link, xyz, rpy}} or {NAME: LINK_OR_EARLIER_FRAME} (another name for it)."""
+    out: dict[str, NamedFrame] = {}
+    for name, v in r.mapping(data, "frames").items():
+        field = f"frames.{name}"
+        if not isinstance(name, str) or not name or name in bodies:
+            raise r.error(field, f"{name!r} is a link of the model already; a frame needs a name the model lacks")
+        if isinstance(v, str):
+            if v not in bodies and v not in out:
+                raise r.error(field, f"{v!r} is neither a link of the model nor a frame above (links: {list(bodies)})")
+            out[name] = out[v] if v in out else NamedFrame(link=v)
+            continue
+        d = r.mapping(v, field, {"link", "xyz", "rpy"})
+        link = r.string(d.get("link"), f"{field}.link")
+        if link not in bodies:
+            raise r.error(f"{field}.link", f"{link!r} is not a link of the model (links: {list(bodies)})")
+        xyz = r.offset(d.get("xyz", [0, 0, 0]), f"{field}.xyz", link, MAX_OFFSET_M)
+        rpy = r.vector(d.get("rpy", [0, 0, 0]), f"{field}.rpy", 3)
+        if max(abs(a) for a in rpy) > 2 * math.pi + 1e-9:
+            raise r.error(f"{field}.rpy", f"{list(rpy)} exceeds 2 pi: the angles are radians")
+        out[name] = NamedFrame(link=link, xyz=xyz, rpy=rpy)  # type: ignore[arg-type]
+    return tuple(out.items())
+
+
 def spec_from_dict(data: Any, source: str | os.PathLike | None = None) -> RobotSpec:
     """The :class:`RobotSpec` of a spec file's content ``data`` (see the module docstring); relative model paths
     resolve against ``source``'s folder. :class:`RobotSpecError` naming the field on any problem."""
@@ -463,6 +490,7 @@ def spec_from_dict(data: Any, source: str | os.PathLike | None = None) -> RobotS
 
     cams_d = r.mapping(d.get("cameras"), "cameras")
     cameras = tuple((str(k), _camera(r, v, f"cameras.{k}", info.bodies)) for k, v in cams_d.items())
+    frames = _frames(r, d.get("frames"), info.bodies)
 
     shoulder, reach, T_home = _kinematics(info, arm, ee_link, home, limits)
     axis = (T_home[:3, :3] @ closing)[:2]
@@ -480,7 +508,7 @@ def spec_from_dict(data: Any, source: str | os.PathLike | None = None) -> RobotS
             tcp_position=tcp, tcp_approach=tuple(approach.tolist()), tcp_closing=tuple(closing.tolist()),
             tip_depth=tip_depth, max_grasp_width=max_width, pad_half_width=pad, min_grasp_height=min_h,
             grasp_force=force, home_closing_axis=(float(axis[0]), float(axis[1])), cameras=cameras,
-            finger_state_names=state_names, source=src,
+            finger_state_names=state_names, frames=frames, source=src,
             provenance=tuple((k, "+".join(sorted(v))) for k, v in provenance.items()),
         )  # fmt: skip
     except ValueError as e:

@@ -222,25 +222,6 @@ def _visible(cfg: HandEyeCaptureConfig, T_cam_board: np.ndarray, margin_px: floa
     return bool(np.all((uv > margin_px) & (uv < np.array([cfg.width, cfg.height]) - margin_px)))
 
 
-def _ik(kin, link: str, T_target: np.ndarray, q0: np.ndarray, limits: np.ndarray) -> np.ndarray | None:
-    """Joint angles [n] putting ``link`` at ``T_target`` (None when out of reach)."""
-    from scipy.optimize import least_squares
-
-    lo, hi = limits[:, 0] + 0.02, limits[:, 1] - 0.02  # room for the reported joints' errors
-
-    def residual(q: np.ndarray) -> np.ndarray:
-        T = kin.link_pose(q, link)
-        # the whole matrix difference: an antisymmetric-part residual would also vanish at a half turn
-        return np.concatenate([T[:3, 3] - T_target[:3, 3], 0.2 * (T[:3, :3] - T_target[:3, :3]).ravel()])
-
-    best = None
-    for start in (q0, q0 + 0.3 * np.sign(np.sin(np.arange(len(q0)) + 1.0))):
-        sol = least_squares(residual, np.clip(start, lo, hi), bounds=(lo, hi), xtol=1e-12, ftol=1e-12)
-        if best is None or sol.cost < best.cost:
-            best = sol
-    return best.x if np.max(np.abs(best.fun)) < 1e-7 else None
-
-
 def make_handeye_capture(out_dir: str | Path, cfg: HandEyeCaptureConfig = HandEyeCaptureConfig(), log=print) -> dict:
     """Write the capture into the NEW folder ``out_dir`` (atomically): images/NNNN.png, joints.json (the reported
     joints and the hand poses they give), intrinsics.json (K + distortion), board.json, ground_truth.json.
@@ -276,7 +257,7 @@ def make_handeye_capture(out_dir: str | Path, cfg: HandEyeCaptureConfig = HandEy
                 T_hand = Y @ np.linalg.inv(T_cb) @ np.linalg.inv(X)
             else:  # base <- board = base <- cam . cam <- board;  base <- hand = that . board <- hand
                 T_hand = X @ T_cb @ np.linalg.inv(Y)
-            q = _ik(kin, link, T_hand, q_home, limits)
+            q = kin.inverse(T_hand, link, q_home, margin=0.02)  # room for the reported joints' errors
             if q is None:
                 continue
             q_true = q

@@ -15,6 +15,8 @@ from ..atomic import atomic_write
 from ..calib.board import load_target
 from ..calib.handeye import HandEyeError, calibrate_from_files
 from ..geometry.camera import load_intrinsics
+from ..robots import DEFAULT_ROBOT
+from ..robots.kinematics import KinematicsError, RobotKinematics
 from ..workspace import Workspace
 from .base import SHARED, Input, Log
 
@@ -36,8 +38,9 @@ class Config:
     robot       the robot: a registered name (panda, ur5e), a robot spec file or a bare model file (MJCF/URDF)
                 (default: the joints file's, else the default robot). In a workspace: the pipeline's robot (m2m.yaml's
                 top-level robot); giving it here changes it for every stage
-    link        the link holding the board (head) or the camera (wrist) (default: the joints file's, else the
-                robot's end-effector link)
+    link        the link holding the board (head) or the camera (wrist), or a frame the robot's spec names (the
+                Panda's: libfranka's "EE", franka_ros's panda_hand ...) (default: the joints file's, else the robot's
+                end-effector link)
     refine      auto: pose_error or none, whichever has the lower leave-one-out corner error; pose_error: refine on
                 the corner pixels with each view's robot pose error modelled (~1 mm / 0.1 deg); exact: refine taking
                 the robot poses as exact (wrong on real arms, kept to compare); none: the closed form
@@ -89,6 +92,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
                "none": ""}[result.refine]  # fmt: skip
     how = f"{cfg.mount}, {cfg.method}{refined}, from {out['poses']}"
     outliers = f"; views that stand out: {', '.join(out['outlier_views'])}" if out["outlier_views"] else ""
+    outliers += _mount_note(cfg, out["link"])
     return {
         "views": len(out["per_view"]), "skipped": len(out["skipped"]), "refine": result.refine,
         "loo_px_median": out["loo_px_median"], "loo_px_p90": out["loo_px_p90"], "outlier_views": out["outlier_views"],
@@ -97,6 +101,20 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         f"leave-one-out corner error {out['loo_px_median']:.2f} px median, {out['loo_px_p90']:.2f} px p90; loop "
         f"residual {out['residual_deg_median']:.3f} deg / {out['residual_mm_median']:.2f} mm{outliers}",
     }  # fmt: skip
+
+
+def _mount_note(cfg: Config, link: str) -> str:
+    """Where the world will mount a wrist camera calibrated on ``link`` (poses of a frame the model lacks: nowhere,
+    said here, where the calibration is made, rather than only when the world is composed)."""
+    if cfg.mount != "wrist":
+        return ""
+    kin = RobotKinematics(cfg.robot or DEFAULT_ROBOT)
+    try:
+        parent, _ = kin.frame(link)
+    except KinematicsError:
+        return (f"; {link!r} is neither a link of the robot's model nor a frame its spec names: the world keeps the "
+                "robot's default wrist camera (add the frame to the robot spec's frames:)")  # fmt: skip
+    return "" if parent == link else f"; {link} is on the model's {parent} ({kin.frames[link].describe()})"
 
 
 def compare(ws: Workspace, cfg: Config, gt: dict) -> dict[str, Any]:

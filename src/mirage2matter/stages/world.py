@@ -14,7 +14,7 @@ import numpy as np
 
 from ..configs import ranged
 from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
-from ..robots.kinematics import KinematicsError, RobotKinematics
+from ..robots.kinematics import KinematicsError, RobotKinematics, robot_model_file
 from ..workspace import Workspace
 from ..world.config import CameraConfig, RandomizeConfig, RobotConfig, WorldConfigError
 from ..world.reconstruction import ReconstructionOptions
@@ -104,21 +104,25 @@ def _keyframe_camera(ws: Workspace, keyframe: str) -> CameraConfig:
 
 def _wrist_camera(handeye: dict[str, Any], robot: str) -> tuple[CameraConfig | None, str]:
     """(the wrist camera calibrate-handeye calibrated (``handeye``: its handeye.json), or None: the robot's default
-    mount; the words for the line)."""
+    mount; the words for the line). Poses of a frame the robot's spec names (libfranka's "EE") mount the camera on
+    that frame's link."""
     if handeye.get("mount") != "wrist":
         return None, "the wrist camera at the robot's default mount"
     spec, link = get_robot(robot), str(handeye.get("link"))
-    if handeye.get("robot") not in (None, spec.name):
+    # handeye.json records the robot's model file (older ones: none for end-effector poses)
+    if handeye.get("robot") is not None and robot_model_file(handeye["robot"]) != robot_model_file(robot):
         return None, f"the wrist camera at the robot's default mount (calibrate-handeye's is on {handeye['robot']})"
     try:
-        RobotKinematics(robot).chain(link)
+        parent, T_link_frame = RobotKinematics(robot).frame(link)
     except KinematicsError:
-        return None, (f"the wrist camera at the robot's default mount (calibrate-handeye's link {link!r} is not a "
-                      f"link of {spec.name}'s model: calibrate from joint angles, or name the link the poses are of)")
-    T = np.asarray(handeye[f"T_{link}_wristcam"], np.float64)
+        return None, (f"the wrist camera at the robot's default mount (calibrate-handeye's link {link!r} is neither a "
+                      f"link of {spec.name}'s model nor a frame its spec names: calibrate from joint angles, or add "
+                      "the frame to the robot's spec (frames:)")  # fmt: skip
+    T = T_link_frame @ np.asarray(handeye[f"T_{link}_wristcam"], np.float64)
     K = np.asarray(handeye["K"], np.float64)
-    return CameraConfig(link, T, K, int(handeye["width"]), int(handeye["height"])), \
-        f"the wrist camera as calibrated (on {link})"  # fmt: skip
+    on = link if parent == link else f"{link}: {spec.frame(link).describe()}"
+    return CameraConfig(parent, T, K, int(handeye["width"]), int(handeye["height"])), \
+        f"the wrist camera as calibrated (on {on})"  # fmt: skip
 
 
 def _head_camera(ws: Workspace, handeye: dict[str, Any], keyframe: str | None = None) -> CameraConfig:
