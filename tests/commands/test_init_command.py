@@ -85,9 +85,12 @@ def test_inputs_inside_the_workspace_are_written_relative_to_it(tmp_path, capsys
          "--robot: unknown robot 'robbie'; known robots: panda"),
         (["--video", f"{S}/scene.mp4", "--board", f"{S}/board.json", "--scene.minutes", "0"],
          r"section scene: train-scene: give a positive --minutes budget .*\(flag --scene\.\*\)"),
+        ([*SAMPLE_FLAGS[:20], "--handeye.link", "hnd"],
+         r"--handeye.link: .*joints.json: the views give joint angles, so forward kinematics must reach the link: "
+         r"link 'hnd' not in panda.xml; links: .*hand.*; frames the robot's spec names: EE"),
     ],
     ids=["missing files", "video is a folder", "no capture", "no board", "not a board", "hand-eye half given",
-         "not intrinsics", "unknown robot", "a stage refuses a value"],  # fmt: skip
+         "not intrinsics", "unknown robot", "a stage refuses a value", "hand-eye link unknown"],  # fmt: skip
 )
 def test_bad_inputs_are_named_by_their_flag_and_nothing_is_written(tmp_path, capsys, flags, message):
     import re

@@ -23,7 +23,7 @@ from ..geometry.rotation import rotation_angle
 from ..geometry.sim3 import invert_rigid
 from ..inputs import InputError, check_joints, read_image_rgb, read_json
 from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
-from ..robots.kinematics import RobotKinematics, robot_model_file
+from ..robots.kinematics import KinematicsError, RobotKinematics, robot_model_file
 
 METHODS = ("tsai", "park", "horaud", "andreff", "daniilidis")
 
@@ -586,6 +586,25 @@ def check_poses_file(joints_file: str | Path) -> None:
                 ok = False
             if not ok:
                 raise HandEyeError(f"{where}: {key} must be finite numbers, got {view[key]!r}")
+
+
+def check_poses_link(joints_file: str | Path, robot: str | None = None, link: str | None = None,
+                     poses: str = "auto") -> None:
+    """Where the views give joint angles (``poses``, as :func:`calibrate_from_files` decides), the link forward
+    kinematics reaches (``link``, else the file's, else the robot's end-effector link) must be a link of the robot's
+    model or a frame its spec names: what ``m2m init`` checks before anything runs (the stage would fail after the
+    capture's stages). HandEyeError naming both otherwise."""
+    spec, views, _ = _read_poses_file(joints_file)
+    if poses == "ee" or (poses == "auto" and not all("joints" in v for v in views)):
+        return  # end-effector poses: any frame calibrates (the world says where it can mount it)
+    robot = robot or spec.get("robot") or DEFAULT_ROBOT
+    names_robot = is_spec_file(robot) or not Path(str(robot)).suffix
+    link = link or spec.get("link") or get_robot(robot if names_robot else DEFAULT_ROBOT).ee_link
+    try:
+        RobotKinematics(robot).frame(str(link))
+    except KinematicsError as e:
+        raise HandEyeError(f"{joints_file}: the views give joint angles, so forward kinematics must reach the link: "
+                           f"{e}; set the file's \"link\" or --handeye.link") from None  # fmt: skip
 
 
 def calibrate_from_files(

@@ -187,10 +187,19 @@ def _problems(cfg: Any, args: argparse.Namespace) -> list[tuple[str, str]]:
     return [(f, m) for f, m in out if f not in missing or m.endswith(": not found")]
 
 
+def _robot_known(robot: str) -> bool:
+    """Whether ``robot`` reads (when it does not, the robot's own check says why, once)."""
+    try:
+        get_robot(robot)
+    except M2MError:
+        return False
+    return True
+
+
 def _reads(cfg: Any) -> list[tuple[str, Any]]:
     """(field, a check that reads what it names as its stage will) for every input init can read."""
     from ..calib.board import load_target
-    from ..calib.handeye import check_poses_file
+    from ..calib.handeye import check_poses_file, check_poses_link
     from ..geometry.camera import load_intrinsics
     from ..sim.tasks import parse_task
 
@@ -215,6 +224,9 @@ def _reads(cfg: Any) -> list[tuple[str, Any]]:
             checks.append((field, images(folder, "image")))
     if cfg.robot.lower() != "none":
         checks.append(("robot", lambda: get_robot(cfg.robot)))
+        if exists(cfg.handeye.joints):
+            checks.append(("handeye.link", lambda: _robot_known(cfg.robot) and check_poses_link(
+                cfg.handeye.joints, cfg.robot, cfg.handeye.link, cfg.handeye.poses)))  # fmt: skip
     checks += [(f"generate.task[{i}]", lambda t=t: parse_task(t)) for i, t in enumerate(cfg.generate.task)]
     checks += [(f"objects.names[{i}]", lambda n=n: check_name(n.partition("=")[0], f"object name {n!r}"))
                for i, n in enumerate(cfg.objects.names)]  # fmt: skip
