@@ -89,6 +89,27 @@ def test_image_folder(tmp_path):
     assert all(r["timestamp"] is None for r in recs)
 
 
+def test_a_fixed_cameras_image_is_always_a_keyframe(tmp_path):
+    """A fixed camera's image among the orbit's (the world's head camera): blurred and beside its window's sharper
+    frame, and a view of the same spot as the keyframe before it (no parallax), it is kept all the same."""
+    src = tmp_path / "imgs"
+    src.mkdir()
+    tex = _texture()
+    for i in range(12):
+        cv2.imwrite(str(src / f"img_{i:02d}.png"), _frame(tex, 3 * i, i % 3 != 1))
+    cv2.imwrite(str(src / "img_04b.png"), _frame(tex, 12, True))  # the fixed camera: img_04's view, blurred
+    cfg = CaptureConfig(max_keyframes=4, min_keyframes=2, image_format="png")
+    picked = [r["file"] for r in extract_keyframes(src, tmp_path / "c", cfg)]
+    assert "img_04b.png" not in picked  # the picking alone drops it (its window's sharp frame, img_04, wins)
+    recs = extract_keyframes(src, tmp_path / "c", cfg, keep=("img_04b.jpg",))  # a stem names it too
+    assert [r["file"] for r in recs] == ["img_01.png", "img_04.png", "img_04b.png", "img_07.png", "img_10.png"]
+    assert load_keyframes(tmp_path / "c")["dropped_low_parallax"] == []
+    with pytest.raises(CaptureError, match=r"no image named 'right.jpg' \(img_00.png, img_01.png"):
+        extract_keyframes(src, tmp_path / "c", cfg, keep=("right.jpg",))
+    with pytest.raises(CaptureError, match="a video; right.jpg must name images of an image folder"):
+        extract_keyframes(_video(tmp_path / "v.mp4"), tmp_path / "c", cfg, keep=("right.jpg",))
+
+
 def test_static_camera_is_rejected_for_lack_of_parallax(tmp_path):
     video = _video(tmp_path / "v.mp4", static=True, sharp=set(range(40)))
     with pytest.raises(CaptureError, match="parallax"):

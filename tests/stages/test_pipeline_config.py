@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -154,9 +155,20 @@ def test_stages_whose_optional_inputs_are_absent_are_skipped_with_the_reason(tmp
     assert plan["head_view"].startswith("no head-camera calibration")
     assert "the world's head camera needs one: give handeye.images" in plan["world"]
     assert plan["generate"] == "no world (skipped above)"
-    # a keyframe a fixed camera took is the world's head camera
-    plan = plan_run(ws, _plain(tmp_path, world={"head_keyframe": "right.jpg"}))
+    # a keyframe a fixed camera took is the world's head camera: the pipeline's setting, which capture keeps
+    images = tmp_path / "images"
+    images.mkdir()
+    for name in ("0001.jpg", "right.jpg"):
+        shutil.copy(SAMPLE / "head_view.png", images / name)
+    fixed = _plain(tmp_path, head_keyframe="right.jpg", capture={"source": images})
+    assert fixed.world.head_keyframe == fixed.capture.head_keyframe == "right.jpg"
+    plan = plan_run(ws, fixed)
     assert plan["world"] is None and plan["head_view"].startswith("no head-camera calibration")
+    # checked at the door: an image the folder lacks, or a video (its frames are the moving camera's)
+    with pytest.raises(ConfigError, match="head_keyframe 'left.jpg': no such image in .*images; put the fixed"):
+        plan_run(ws, replace(fixed, head_keyframe="left.jpg"))
+    with pytest.raises(ConfigError, match="head_keyframe 'right.jpg': the capture is a video .*scene.mp4"):
+        plan_run(ws, _plain(tmp_path, head_keyframe="right.jpg"))
     # a head camera calibrated earlier (by hand): kept, and the stages after it run; no tasks -> no demonstrations
     ws.handeye_file.parent.mkdir(parents=True)
     ws.handeye_file.write_text("{}")

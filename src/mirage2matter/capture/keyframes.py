@@ -225,10 +225,34 @@ def _write_image(path: Path, rgb: np.ndarray, config: CaptureConfig) -> None:
         raise OSError(f"cannot write keyframe {path}")
 
 
+def _kept_images(src: _Source, source: Path, keep: tuple[str, ...]) -> list[int]:
+    """The image folder's indices of the images ``keep`` names (a file name, or its stem); CaptureError naming one
+    the folder lacks, or a video (whose frames are the moving camera's)."""
+    if not keep:
+        return []
+    if not isinstance(src, _FolderSource):
+        raise CaptureError(f"{source}: a video; {', '.join(keep)} must name images of an image folder (a fixed "
+                           "camera's photo put beside the capture's images)")  # fmt: skip
+    out = []
+    for name in keep:
+        hits = [i for i, f in enumerate(src.files) if f.name == name or f.stem == Path(name).stem]
+        if len(hits) != 1:
+            shown = ", ".join(f.name for f in src.files[:8]) + (", ..." if len(src.files) > 8 else "")
+            raise CaptureError(f"{source}: {'no' if not hits else 'more than one'} image named {name!r} ({shown}); "
+                               "put the fixed camera's image in the folder, or name it as it is there")  # fmt: skip
+        out.append(hits[0])
+    return out
+
+
 def extract_keyframes(
-    source: str | os.PathLike[str], out_dir: str | os.PathLike[str], config: CaptureConfig | None = None
+    source: str | os.PathLike[str], out_dir: str | os.PathLike[str], config: CaptureConfig | None = None,
+    keep: tuple[str, ...] = (),
 ) -> list[dict[str, Any]]:
     """Pick keyframes from a video file or an image folder and write them to ``out_dir``.
+
+    ``keep``: images of an image folder (file names, or stems) that are keyframes whatever their sharpness or
+    parallax, beside the picked ones (a fixed camera's photo among the moving camera's: its view is not one the
+    orbit's parallax test applies to).
 
     Writes ``out_dir/<name>.jpg|png`` and ``out_dir/keyframes.json`` (source, frame size, config,
     and per keyframe: file, frame_index, timestamp in s (None for folders), sharpness), replacing
@@ -241,6 +265,7 @@ def extract_keyframes(
     config.validate()
     source, out_dir = Path(source), Path(out_dir)
     src = _open_source(source)
+    forced = _kept_images(src, source, tuple(keep))
 
     # Pass 1: score every frame (only scores are kept, so memory does not grow with the video).
     scores: list[float] = []
@@ -263,6 +288,7 @@ def extract_keyframes(
         )
     arr = np.asarray(scores)
     candidates = [int(w.start + np.argmax(arr[w.start : w.stop])) for w in _windows(n, config)]
+    candidates = sorted(set(candidates) | set(forced))
 
     # Pass 2: re-read the candidates, drop those without parallax to the previous keyframe, and
     # write the rest into a temporary sibling folder, renamed onto out_dir when complete.
@@ -275,12 +301,13 @@ def extract_keyframes(
         seen = 0
         for i, rgb in src.frames(set(candidates)):
             seen += 1
-            grey = _analysis_grey(rgb)
-            if config.min_parallax_px > 0 and prev_grey is not None:
-                if _median_flow(prev_grey, grey) < config.min_parallax_px:
-                    dropped.append(i)
-                    continue
-            prev_grey = grey
+            if i not in forced:  # a fixed camera's image neither takes nor breaks the orbit's parallax test
+                grey = _analysis_grey(rgb)
+                if config.min_parallax_px > 0 and prev_grey is not None:
+                    if _median_flow(prev_grey, grey) < config.min_parallax_px:
+                        dropped.append(i)
+                        continue
+                prev_grey = grey
             kept.append(i)
             names[i] = f"frame_{i:06d}.{ext}" if isinstance(src, _VideoSource) else f"{src.files[i].stem}.{ext}"
             _write_image(tmp / names[i], rgb, config)

@@ -36,10 +36,11 @@ SHORT = {
     "board_pose": "board_pose", "handeye_images": "handeye.images", "handeye_poses": "handeye.joints",
     "handeye_board": "handeye.board", "handeye_intrinsics": "handeye.intrinsics", "head_photo": "head_view.photo",
     "objects": "objects.names", "task": "generate.task", "episodes": "generate.episodes",
-    "capture_joints": "capture_joints",
+    "capture_joints": "capture_joints", "head_keyframe": "head_keyframe",
 }  # fmt: skip
 
-OWN_FLAGS = ("board", "board_pose", "capture_joints", "capture_moves")  # the pipeline's settings with init's own flags
+# the pipeline's settings with init's own flags
+OWN_FLAGS = ("board", "board_pose", "capture_joints", "capture_moves", "head_keyframe")
 
 EXAMPLE = """example:
   m2m init -w ws --video table.mp4 --board board.json --intrinsics phone.json \\
@@ -74,15 +75,15 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
     g.add_argument("--board", type=Path, default=argparse.SUPPRESS, metavar="FILE",
                    help="spec JSON of the calibration target at the robot base (from `m2m board`)")
     g.add_argument("--board-pose", type=Path, default=argparse.SUPPRESS, metavar="FILE",
-                   help="a JSON with T_base_board when the target is not centred on the base with its x along base x")
+                   help="T_base_board (JSON): a target not centred on the base")
     g.add_argument("--intrinsics", type=Path, metavar="FILE", help="the capture camera's calibration (`m2m "
                    "intrinsics FILE` reads it); without it SfM estimates one")  # fmt: skip
     g.add_argument("--handeye-images", type=Path, metavar="DIR", help="the head camera's images of a board the robot "
-                   "holds (without them: no world, unless --world.head-keyframe names the keyframe a fixed camera "
-                   "took)")  # fmt: skip
+                   "holds (without them or --head-keyframe: no world)")  # fmt: skip
     g.add_argument("--handeye-poses", type=Path, metavar="FILE", help="the robot's joints per hand-eye image (JSON)")
     g.add_argument("--handeye-board", type=Path, metavar="FILE", help="the held board's spec (without it: --board)")
     g.add_argument("--handeye-intrinsics", type=Path, metavar="FILE", help="the head camera's calibration")
+    g.add_argument("--head-keyframe", metavar="IMAGE", help="or: the image in --images a fixed head camera took")
     g.add_argument("--head-photo", type=Path, metavar="FILE", help="a photo the head camera took of the table, "
                    "for the head-view check")  # fmt: skip
     g.add_argument("--objects", nargs="+", metavar="NAME", help="the objects on the table, nearest the base first "
@@ -97,8 +98,8 @@ def register(sub: argparse._SubParsersAction, full: bool = True) -> None:
                    help="the robot's joint angles while you filmed (radians, as it logged them; default: its home "
                    "pose)")  # fmt: skip
     g.add_argument("--capture-move", nargs="+", type=float, action="append", dest="capture_moves",
-                   default=argparse.SUPPRESS, metavar="FRAME RAD", help="you moved the robot while filming: the video "
-                   "frame from which on it stood at these joint angles; repeatable")  # fmt: skip
+                   default=argparse.SUPPRESS, metavar="FRAME RAD", help="you moved the robot while filming: from "
+                   "this frame on it stood here (repeatable)")  # fmt: skip
 
     p.add_argument("--force", action="store_true", help="replace the workspace's m2m.yaml if it has one")
     add_settings(p, full)  # every field as --<stage>.<field> (when full: imports every stage's libraries)

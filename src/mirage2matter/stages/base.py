@@ -18,7 +18,7 @@ import json
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -161,6 +161,9 @@ class PipelineSettings:
             folder's image N, in name order) it stood at these joints; capture_joints holds before the first move
     head_photo_joints  the robot's arm joints (radians) in the head camera's photo, where train-scene masks it
             out and head-view draws it. Default: the capture joints
+    head_keyframe  a fixed camera's image put in the capture's image folder (e.g. right.jpg): always a keyframe,
+            and the world's head camera (its pose and intrinsics from align-scene's cameras: no head calibration
+            needed). Default: calibrate-handeye's head camera
     """
 
     robot: str = DEFAULT_ROBOT
@@ -171,6 +174,7 @@ class PipelineSettings:
     capture_moves: dict[int, list[float]] | None = ranged(None, ge=-1000, le=1000,
                                                           metadata={"metavar": "FRAME=RAD,..."})
     head_photo_joints: list[float] | None = ranged(None, ge=-1000, le=1000, metadata={"metavar": "RAD"})
+    head_keyframe: str | None = field(default=None, metadata={"metavar": "IMAGE"})
 
 
 ADDED_LATER = {"fingerprint": "when_set"}

@@ -8,17 +8,20 @@ from typing import Any
 
 from ..capture import CaptureConfig, CaptureError, extract_keyframes
 from ..workspace import Workspace
-from .base import Input, Log
+from .base import ADDED_LATER, SHARED, Input, Log
 
 
 @dataclass
 class Config(CaptureConfig):
     """capture settings (besides the keyframe picking ones below).
 
-    source   the video (mp4/mov/mkv) or folder of images to pick keyframes from
+    source         the video (mp4/mov/mkv) or folder of images to pick keyframes from
+    head_keyframe  a fixed camera's image in the image folder: always a keyframe, whatever its sharpness or
+                   parallax (the pipeline's: the world's head camera)
     """
 
     source: Path | None = field(default=None, metadata={"positional": True})
+    head_keyframe: str | None = field(default=None, metadata={**SHARED, **ADDED_LATER})
 
     def validate(self) -> None:
         super().validate()
@@ -32,8 +35,10 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
 
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     picking = CaptureConfig(**{f.name: getattr(cfg, f.name) for f in fields(CaptureConfig)})
-    records = extract_keyframes(cfg.source, ws.capture_dir, picking)
-    return {"keyframes": len(records), "line": f"{len(records)} keyframes from {cfg.source}"}
+    keep = (cfg.head_keyframe,) if cfg.head_keyframe is not None and Path(cfg.source).is_dir() else ()
+    records = extract_keyframes(cfg.source, ws.capture_dir, picking, keep=keep)
+    kept = f" (with {cfg.head_keyframe}, the fixed camera's)" if keep else ""
+    return {"keyframes": len(records), "line": f"{len(records)} keyframes from {cfg.source}{kept}"}
 
 
 def outputs(ws: Workspace, cfg: Config) -> list[Path]:

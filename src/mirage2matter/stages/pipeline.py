@@ -289,7 +289,7 @@ def plan_run(
 
     Optional inputs make stages optional: no hand-eye images -> no hand-eye calibration (an earlier
     ``calib/handeye.json`` is kept), and without a head camera's calibration no head-view check and no world (unless
-    ``world.head_keyframe`` names the keyframe a fixed camera took);
+    ``head_keyframe`` names the keyframe a fixed camera took);
     no head-camera photo -> no head-view check; no tasks -> no demonstrations. Without object names the objects
     stage takes every object it finds."""
     where = where or SettingsFile(ws.config_file)
@@ -315,9 +315,9 @@ def plan_run(
             # the sample after a short training the board was not even found in it)
             reason = (f"no head-camera photo to compare the scene with (head_view.photo is not set); `m2m head-view -w "
                       f"{ws.root}` renders the head camera's view alone")  # fmt: skip
-        elif name == "world" and not head and cfg.world.sample is None and cfg.world.head_keyframe is None:
+        elif name == "world" and not head and cfg.world.sample is None and cfg.head_keyframe is None:
             reason = (f"{no_head}; the world's head camera needs one: give handeye.images, .joints, .board and "
-                      ".intrinsics (`m2m init --handeye-images DIR --handeye-poses FILE ...`), or world.head_keyframe "
+                      ".intrinsics (`m2m init --handeye-images DIR --handeye-poses FILE ...`), or head_keyframe "
                       "(the keyframe of the capture a fixed camera took)")  # fmt: skip
         elif name == "generate" and plan.get("world"):
             reason = "no world (skipped above)"
@@ -332,6 +332,23 @@ def plan_run(
             except M2MError as e:
                 raise ConfigError(f"{where.at(name)}: section {name}: {e}", name) from None
     return plan
+
+
+def _check_head_keyframe(cfg: PipelineConfig, where: SettingsFile, names: list[str]) -> None:
+    """``head_keyframe`` names an image of the capture's image folder (before the capture's stages run for minutes
+    and the world cannot find it)."""
+    name, source = cfg.head_keyframe, cfg.capture.source
+    if name is None or source is None or not ({"capture", "world"} & set(names)) or not Path(source).exists():
+        return  # an imported capture's own names; a missing source is named by the file check
+    if not Path(source).is_dir():
+        raise ConfigError(f"{where.at('head_keyframe')}: head_keyframe {name!r}: the capture is a video ({source}), "
+                          "whose frames are the moving camera's; put the fixed camera's image in a folder with the "
+                          "capture's images (capture.source: that folder), or remove head_keyframe",
+                          "head_keyframe")  # fmt: skip
+    images = [p for p in Path(source).iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png")]
+    if not any(p.name == name or p.stem == Path(name).stem for p in images):
+        raise ConfigError(f"{where.at('head_keyframe')}: head_keyframe {name!r}: no such image in {source}; put the "
+                          "fixed camera's image there, or give its name as it is there", "head_keyframe")  # fmt: skip
 
 
 def _check_required(cfg: PipelineConfig, where: SettingsFile, names: list[str]) -> None:
@@ -351,6 +368,7 @@ def _check_required(cfg: PipelineConfig, where: SettingsFile, names: list[str]) 
         raise ConfigError(f"{at('robot')}: robot: none, but the world needs one; name the robot at the base (`m2m "
                           "init --robot NAME`), or run --until an earlier stage", "robot")  # fmt: skip
     imports = cfg.sfm.from_transforms is not None or cfg.sfm.from_colmap is not None
+    _check_head_keyframe(cfg, where, names)
     if "capture" in names and cfg.capture.source is None and not imports:
         raise ConfigError(f"{at('capture.source')}: capture.source: no video or image folder; give the capture (`m2m "
                           "init --video FILE` or `--images DIR`), or import posed images with sfm.from_transforms or "

@@ -40,7 +40,7 @@ class Config:
     sample            build the world from this sample's ground truth instead of the reconstruction
     head_keyframe     the head camera is the fixed camera that took this keyframe of the capture (e.g. right.jpg):
                       its pose and intrinsics from align-scene's cameras, no head calibration needed (default:
-                      calibrate-handeye's head camera)
+                      calibrate-handeye's head camera). The pipeline's (capture keeps that image as a keyframe)
     """
 
     robot: str = field(default=DEFAULT_ROBOT, metadata=SHARED)
@@ -54,7 +54,7 @@ class Config:
     randomize: RandomizeConfig = field(default_factory=RandomizeConfig)
     max_mm: float = ranged(3.0, gt=0, le=1000)
     sample: Path | None = None
-    head_keyframe: str | None = None
+    head_keyframe: str | None = field(default=None, metadata=SHARED)
 
     def options(self) -> ReconstructionOptions:
         """The library's options from these settings, each named (a renamed field fails here, not silently)."""
@@ -96,7 +96,7 @@ def _keyframe_camera(ws: Workspace, keyframe: str) -> CameraConfig:
     matches = [c for c in cameras if c.name == keyframe or Path(c.name).stem == Path(keyframe).stem]
     if len(matches) != 1:
         shown = ", ".join(c.name for c in cameras[:8]) + (", ..." if len(cameras) > 8 else "")
-        raise WorldConfigError(f"world.head_keyframe {keyframe!r}: not one of the capture's keyframes ({shown}); "
+        raise WorldConfigError(f"head_keyframe {keyframe!r}: not one of the capture's keyframes ({shown}); "
                                "give the file name of the keyframe the head camera took")  # fmt: skip
     c = matches[0]
     return CameraConfig("base", c.T_world_cam, c.K, c.width, c.height)
@@ -133,8 +133,8 @@ def _head_camera(ws: Workspace, handeye: dict[str, Any], keyframe: str | None = 
         raise WorldConfigError(
             f"{ws.handeye_file}: no {', '.join(missing)} (a head-camera calibration records T_base_headcam, K and "
             f"the image size; this one is of a {handeye.get('mount', 'wrist')} camera); rerun `m2m calibrate-handeye "
-            f"--mount head ... -w {ws.root}`, or give world.head_keyframe: the keyframe of the capture a fixed camera "
-            "took"
+            f"--mount head ... -w {ws.root}`, or give head_keyframe (m2m.yaml, at the top): the keyframe of the "
+            "capture a fixed camera took"
         )
     T, K = np.asarray(handeye["T_base_headcam"], np.float64), np.asarray(handeye["K"], np.float64)
     if T.shape != (4, 4) or K.shape != (3, 3):
