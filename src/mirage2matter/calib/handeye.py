@@ -593,8 +593,12 @@ def check_poses_link(joints_file: str | Path, robot: str | None = None, link: st
     """Where the views give joint angles (``poses``, as :func:`calibrate_from_files` decides), the link forward
     kinematics reaches (``link``, else the file's, else the robot's end-effector link) must be a link of the robot's
     model or a frame its spec names: what ``m2m init`` checks before anything runs (the stage would fail after the
-    capture's stages). HandEyeError naming both otherwise."""
-    spec, views, _ = _read_poses_file(joints_file)
+    capture's stages). HandEyeError naming both otherwise; a file that does not read is :func:`check_poses_file`'s to
+    name."""
+    try:
+        spec, views, _ = _read_poses_file(joints_file)
+    except HandEyeError:
+        return
     if poses == "ee" or (poses == "auto" and not all("joints" in v for v in views)):
         return  # end-effector poses: any frame calibrates (the world says where it can mount it)
     robot = robot or spec.get("robot") or DEFAULT_ROBOT
