@@ -21,7 +21,7 @@ class Config(CaptureConfig):
     """
 
     source: Path | None = field(default=None, metadata={"positional": True})
-    head_keyframe: str | None = field(default=None, metadata={**SHARED, **ADDED_LATER})
+    head_keyframe: str | None = field(default=None, metadata={**SHARED, **ADDED_LATER, "metavar": "IMAGE"})
 
     def validate(self) -> None:
         super().validate()

@@ -54,7 +54,7 @@ class Config:
     randomize: RandomizeConfig = field(default_factory=RandomizeConfig)
     max_mm: float = ranged(3.0, gt=0, le=1000)
     sample: Path | None = None
-    head_keyframe: str | None = field(default=None, metadata=SHARED)
+    head_keyframe: str | None = field(default=None, metadata={**SHARED, "metavar": "IMAGE"})
 
     def options(self) -> ReconstructionOptions:
         """The library's options from these settings, each named (a renamed field fails here, not silently)."""
