@@ -21,7 +21,13 @@ def test_lists_and_shows_robots(capsys):
     assert shown["velocity_limit"] == list(spec.velocity_limit) and shown["state_names"] == list(spec.state_names)
     assert shown["provenance"]["acceleration_limit"] == "default" and shown["reach"] == pytest.approx(spec.reach)
     assert main(["robot", "panda"]) == 0
-    assert "joint7" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "joint7" in out and "frames       EE: hand +103.4 mm along z; flange: link7 +107.0 mm along z;" in out
+    assert main(["robot", "panda", "--json"]) == 0  # its named frames too
+    assert json.loads(capsys.readouterr().out)["frames"]["EE"] == {"link": "hand", "xyz": [0.0, 0.0, 0.1034],
+                                                                   "rpy": [0.0, 0.0, 0.0]}  # fmt: skip
+    assert main(["robot", "--json"]) == 0
+    assert set(json.loads(capsys.readouterr().out)) == set(ROBOTS)
 
 
 def test_a_bad_spec_file_is_a_clear_error(tmp_path, capsys):

@@ -29,7 +29,7 @@ def _jsonable(spec) -> dict:
     out = {}
     for f in dataclasses.fields(spec):
         v = getattr(spec, f.name)
-        if f.name == "cameras":
+        if f.name in ("cameras", "frames"):
             v = {n: dataclasses.asdict(m) for n, m in v}
         elif f.name == "provenance":
             v = dict(v)
@@ -76,5 +76,7 @@ def run(args: argparse.Namespace) -> int:
     for name, m in s.cameras:
         print(f"  camera       {name}: on {m.link}, eye {list(m.eye)}, looking at {list(m.target)}, "
               f"{m.width}x{m.height}, {m.fov_deg:g} deg")  # fmt: skip
+    if s.frames:  # the names a controller logs poses in (hand-eye), on the model's links
+        print("  frames       " + "; ".join(f"{n}: {f.describe()}" for n, f in s.frames))
     print(f"  datasets     observation.state {list(s.state_names)}; action {list(s.action_names)}")
     return 0
