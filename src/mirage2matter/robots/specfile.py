@@ -42,7 +42,8 @@ the closing axis at home. The robots shipped with the package are such files (``
       wrist: {link: gripper_hand, eye: [0.07, 0, 0], target: [0, 0, 0.14], up: [1, 0, 0], fov_deg: 70,
               width: 640, height: 480}  # look-at in the link's frame (m)
     frames:                             # names the model does not have, fixed to its links: robot poses logged
-      EE: {link: gripper_hand, xyz: [0, 0, 0.1034], rpy: [0, 0, 0]}   # in them (hand-eye) resolve to the link
+      EE: {link: gripper_hand, xyz: [0, 0, 0.1034], rpy: [0, 0, 0]}   # in them (hand-eye) resolve to the link;
+                                        # e.g. the controller's TCP as set on its pendant
       tool0: gripper_hand               # another name for a link (or for a frame above)
 
 Every problem is a :class:`RobotSpecError` naming the file, the field and what to do: a model without the
