@@ -588,6 +588,18 @@ def check_poses_file(joints_file: str | Path) -> None:
                 raise HandEyeError(f"{where}: {key} must be finite numbers, got {view[key]!r}")
 
 
+def _robot_link_joints(spec: dict, views: list[dict], robot: str | None, link: str | None,
+                       poses: str) -> tuple[str, str, bool]:
+    """(the robot, the link, whether the views' joint angles are used) as the settings and the poses file decide: the
+    given robot, else the file's, else the default robot (a name, a spec file or a model file); the given link, else
+    the file's, else the robot's end-effector link; joint angles when ``poses`` says so, or ("auto") when every view
+    has them."""
+    robot = robot or spec.get("robot") or DEFAULT_ROBOT
+    names_robot = is_spec_file(robot) or not Path(str(robot)).suffix
+    link = link or spec.get("link") or get_robot(robot if names_robot else DEFAULT_ROBOT).ee_link
+    return robot, link, poses == "joints" or (poses == "auto" and all("joints" in v for v in views))
+
+
 def check_poses_link(joints_file: str | Path, robot: str | None = None, link: str | None = None,
                      poses: str = "auto") -> None:
     """Where the views give joint angles (``poses``, as :func:`calibrate_from_files` decides), the link forward
@@ -599,11 +611,9 @@ def check_poses_link(joints_file: str | Path, robot: str | None = None, link: st
         spec, views, _ = _read_poses_file(joints_file)
     except HandEyeError:
         return
-    if poses == "ee" or (poses == "auto" and not all("joints" in v for v in views)):
+    robot, link, use_joints = _robot_link_joints(spec, views, robot, link, poses)
+    if not use_joints:
         return  # end-effector poses: any frame calibrates (the world says where it can mount it)
-    robot = robot or spec.get("robot") or DEFAULT_ROBOT
-    names_robot = is_spec_file(robot) or not Path(str(robot)).suffix
-    link = link or spec.get("link") or get_robot(robot if names_robot else DEFAULT_ROBOT).ee_link
     try:
         RobotKinematics(robot).frame(str(link))
     except KinematicsError as e:
@@ -648,12 +658,8 @@ def calibrate_from_files(
         # one to calibrate through (the wrong arm's kinematics give a wrong mount and no error)
         raise HandEyeError(f"{joints_file} names the robot {named!r} but the calibration was given {robot!r}; give "
                            f"the robot the images show (`--robot`, or m2m.yaml's top-level robot)")  # fmt: skip
-    robot = robot or named or DEFAULT_ROBOT  # a robot (name, spec file) or a model file
-    names_robot = is_spec_file(robot) or not Path(str(robot)).suffix
-    link = link or spec.get("link") or get_robot(robot if names_robot else DEFAULT_ROBOT).ee_link
-    have_joints = all("joints" in v for v in views)
-    use_joints = poses == "joints" or (poses == "auto" and have_joints)
-    if use_joints and not have_joints:
+    robot, link, use_joints = _robot_link_joints(spec, views, robot, link, poses)
+    if use_joints and not all("joints" in v for v in views):
         missing = next(i for i, v in enumerate(views) if "joints" not in v)
         raise HandEyeError(f"{joints_file}: views[{missing}] has no 'joints'; give joints for every view or "
                            "end-effector poses (poses: ee)")  # fmt: skip
