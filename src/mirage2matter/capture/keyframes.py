@@ -35,7 +35,9 @@ __all__ = [
     "CaptureConfig",
     "CaptureError",
     "extract_keyframes",
+    "image_files",
     "load_keyframes",
+    "names_image",
     "sharpness",
 ]
 
@@ -151,12 +153,23 @@ class _VideoSource(_Source):
                 return
 
 
+def image_files(folder: Path) -> list[Path]:
+    """The images of an image-folder capture, in name order: what keyframes are picked from."""
+    return sorted(p for p in Path(folder).iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+
+
+def names_image(file_name: str, name: str) -> bool:
+    """Whether ``name`` names the image ``file_name``: its file name, or its stem (a source's right.png is the
+    keyframe right.jpg, and either name gives it)."""
+    return file_name == name or Path(file_name).stem == Path(name).stem
+
+
 class _FolderSource(_Source):
     kind = "images"
 
     def __init__(self, path: Path) -> None:
         self.path = path
-        self.files = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+        self.files = image_files(path)
         if not self.files:
             raise CaptureError(f"{path}: no images ({', '.join(IMAGE_SUFFIXES)}) in this folder")
         self.size: tuple[int, int] | None = None
@@ -235,7 +248,7 @@ def _kept_images(src: _Source, source: Path, keep: tuple[str, ...]) -> list[int]
                            "camera's photo put beside the capture's images)")  # fmt: skip
     out = []
     for name in keep:
-        hits = [i for i, f in enumerate(src.files) if f.name == name or f.stem == Path(name).stem]
+        hits = [i for i, f in enumerate(src.files) if names_image(f.name, name)]
         if len(hits) != 1:
             shown = ", ".join(f.name for f in src.files[:8]) + (", ..." if len(src.files) > 8 else "")
             raise CaptureError(f"{source}: {'no' if not hits else 'more than one'} image named {name!r} ({shown}); "

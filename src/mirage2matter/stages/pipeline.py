@@ -345,8 +345,9 @@ def _check_head_keyframe(cfg: PipelineConfig, where: SettingsFile, names: list[s
                           "whose frames are the moving camera's; put the fixed camera's image in a folder with the "
                           "capture's images (capture.source: that folder), or remove head_keyframe",
                           "head_keyframe")  # fmt: skip
-    images = [p for p in Path(source).iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png")]
-    if not any(p.name == name or p.stem == Path(name).stem for p in images):
+    from ..capture.keyframes import image_files, names_image
+
+    if not any(names_image(p.name, name) for p in image_files(Path(source))):
         raise ConfigError(f"{where.at('head_keyframe')}: head_keyframe {name!r}: no such image in {source}; put the "
                           "fixed camera's image there, or give its name as it is there", "head_keyframe")  # fmt: skip
 

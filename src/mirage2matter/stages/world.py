@@ -92,8 +92,10 @@ def _table_z(ws: Workspace) -> float:
 
 def _keyframe_camera(ws: Workspace, keyframe: str) -> CameraConfig:
     """The camera that took ``keyframe``, fixed in the base frame (align-scene's cameras)."""
+    from ..capture.keyframes import names_image
+
     cameras = ws.cameras_base()
-    matches = [c for c in cameras if c.name == keyframe or Path(c.name).stem == Path(keyframe).stem]
+    matches = [c for c in cameras if names_image(c.name, keyframe)]
     if len(matches) != 1:
         shown = ", ".join(c.name for c in cameras[:8]) + (", ..." if len(cameras) > 8 else "")
         raise WorldConfigError(f"head_keyframe {keyframe!r}: not one of the capture's keyframes ({shown}); "
