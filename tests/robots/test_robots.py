@@ -395,10 +395,14 @@ def test_a_named_frame_turned_and_moved(tmp_path):
     frames = {"tool": {"link": "panda_hand", "xyz": [0.01, 0.02, 0.1], "rpy": [0.1, -0.2, 0.3]}, "tool_alias": "tool"}
     path = _write(tmp_path, {**_urdf_spec(), "frames": frames})
     spec, kin = get_robot(str(path)), RobotKinematics(str(path))
-    from scipy.spatial.transform import Rotation
+    def turn(axis: int, a: float) -> np.ndarray:  # about one axis, right-handed
+        R, i, j = np.eye(3), (axis + 1) % 3, (axis + 2) % 3
+        R[i, i] = R[j, j] = np.cos(a)
+        R[i, j], R[j, i] = -np.sin(a), np.sin(a)
+        return R
 
     T_hand_tool = np.eye(4)
-    T_hand_tool[:3, :3] = Rotation.from_euler("xyz", [0.1, -0.2, 0.3]).as_matrix()
+    T_hand_tool[:3, :3] = turn(2, 0.3) @ turn(1, -0.2) @ turn(0, 0.1)  # URDF's rpy: Rz(yaw) Ry(pitch) Rx(roll)
     T_hand_tool[:3, 3] = [0.01, 0.02, 0.1]
     assert np.allclose(spec.frame("tool").T_link_frame, T_hand_tool)
     q = np.asarray(spec.home)

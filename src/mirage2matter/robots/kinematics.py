@@ -73,9 +73,10 @@ class RobotKinematics:
     def frame(self, name: str) -> tuple[str, np.ndarray]:
         """(link, T_link_frame [4,4]): a link of the model is itself; a frame the robot's spec names is fixed to one
         (KinematicsError naming both kinds otherwise)."""
-        self._body(name if name not in self.frames else self.frames[name].link)
-        if name in self.frames:
-            return self.frames[name].link, self.frames[name].T_link_frame
+        frame = self.frames.get(name)
+        if frame is not None:  # its link is the model's: the spec file was checked against the model
+            return frame.link, frame.T_link_frame
+        self._body(name)  # a link of the model, or an error naming links and frames
         return name, np.eye(4)
 
     def _body(self, link: str) -> int:
@@ -134,8 +135,11 @@ class RobotKinematics:
             raise KinematicsError(f"{self.path.name}: name the link (a bare model file has no end-effector link)")
         n, limits = self.chain(link)
         lo, hi = limits[:, 0] + margin, limits[:, 1] - margin
-        start = np.zeros(n) if q0 is None and self.home is None else np.asarray(q0 if q0 is not None else self.home)
-        start = np.r_[start, np.zeros(max(0, n - start.size))][:n]
+        start = np.zeros(n)
+        given = q0 if q0 is not None else self.home
+        if given is not None:
+            given = np.asarray(given, np.float64).ravel()[:n]
+            start[: given.size] = given
         T_target = np.asarray(T_base_link, dtype=np.float64)
 
         def residual(q: np.ndarray) -> np.ndarray:

@@ -66,11 +66,10 @@ class NamedFrame:
     @property
     def T_link_frame(self) -> np.ndarray:
         """[4,4] the frame's pose in the link's frame."""
-        (cr, cp, cy), (sr, sp, sy) = np.cos(self.rpy), np.sin(self.rpy)
+        from scipy.spatial.transform import Rotation
+
         T = np.eye(4)
-        T[:3, :3] = [[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]]  # fmt: skip
+        T[:3, :3] = Rotation.from_euler("xyz", self.rpy).as_matrix()  # fixed axes, as hand-eye's rpy poses
         T[:3, 3] = self.xyz
         return T
 
