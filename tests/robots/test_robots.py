@@ -378,6 +378,7 @@ BAD_FRAMES = [
     ({"EE": {"link": "panda_hand", "xyz": [0, 0, 103.4]}}, "frames.EE.xyz", "units: mm"),
     ({"EE": {"link": "panda_hand", "rpy": [0, 0, -45]}}, "frames.EE.rpy", "exceeds 2 pi: the angles are radians"),
     ({"tcp": "EE"}, "frames.tcp", "'EE' is neither a link of the model nor a frame above"),
+    ({7: "panda_hand"}, "frames.7", "a frame's name is text"),
 ]
 
 

@@ -334,7 +334,9 @@ def _frames(r: _Reader, data: Any, bodies: tuple[str, ...]) -> tuple[tuple[str, 
     out: dict[str, NamedFrame] = {}
     for name, v in r.mapping(data, "frames").items():
         field = f"frames.{name}"
-        if not isinstance(name, str) or not name or name in bodies:
+        if not isinstance(name, str) or not name:
+            raise r.error(field, f"{name!r}: a frame's name is text (the name poses are logged under)")
+        if name in bodies:
             raise r.error(field, f"{name!r} is a link of the model already; a frame needs a name the model lacks")
         if isinstance(v, str):
             if v not in bodies and v not in out:
