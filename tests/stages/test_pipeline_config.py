@@ -169,6 +169,14 @@ def test_stages_whose_optional_inputs_are_absent_are_skipped_with_the_reason(tmp
         plan_run(ws, replace(fixed, head_keyframe="left.jpg"))
     with pytest.raises(ConfigError, match="head_keyframe 'right.jpg': the capture is a video .*scene.mp4"):
         plan_run(ws, _plain(tmp_path, head_keyframe="right.jpg"))
+    # the capture stage run on its own (`m2m capture`) refuses it too, and writes nothing
+    from mirage2matter.capture import CaptureError
+    from mirage2matter.stages import get_stage, run_stage
+
+    video = _plain(tmp_path, head_keyframe="right.jpg").capture
+    with pytest.raises(CaptureError, match="scene.mp4: a video; right.jpg must name images of an image folder"):
+        run_stage(get_stage("capture"), ws, video, log=lambda s: None)
+    assert not ws.capture_dir.exists()
     # a head camera calibrated earlier (by hand): kept, and the stages after it run; no tasks -> no demonstrations
     ws.handeye_file.parent.mkdir(parents=True)
     ws.handeye_file.write_text("{}")

@@ -35,7 +35,7 @@ def inputs(ws: Workspace, cfg: Config) -> list[Input]:
 
 def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     picking = CaptureConfig(**{f.name: getattr(cfg, f.name) for f in fields(CaptureConfig)})
-    keep = (cfg.head_keyframe,) if cfg.head_keyframe is not None and Path(cfg.source).is_dir() else ()
+    keep = (cfg.head_keyframe,) if cfg.head_keyframe is not None else ()  # a video refuses it, naming why
     records = extract_keyframes(cfg.source, ws.capture_dir, picking, keep=keep)
     kept = f" (with {cfg.head_keyframe}, the fixed camera's)" if keep else ""
     return {"keyframes": len(records), "line": f"{len(records)} keyframes from {cfg.source}{kept}"}
