@@ -110,6 +110,44 @@ def test_joints_and_end_effector_poses_give_the_same_mount(tmp_path):
         assert deg < 1e-3 and mm < 1e-2, (form, deg, mm)
 
 
+def test_poses_in_a_controller_s_base_frame(tmp_path):
+    """A controller may report the hand's poses in a base frame of its own (UR's is the model's base turned 180 deg
+    about z): the poses file names it (base_frame), and the head camera comes out where joint angles put it; the
+    rotation given as a rotation vector (UR's rx, ry, rz). Without base_frame the camera is turned with the frame."""
+    import yaml
+
+    from mirage2matter.robots import get_robot
+    from mirage2matter.robots.kinematics import RobotKinematics
+
+    spec = yaml.safe_load(get_robot("panda").source.read_text())
+    spec["frames"]["turned_base"] = {"link": "link0", "rpy": [0.0, 0.0, 1.2]}
+    robot = tmp_path / "panda_turned.yaml"
+    robot.write_text(yaml.safe_dump(spec))
+    T_base_turned = RobotKinematics(str(robot)).link_pose(np.zeros(0), "turned_base")
+    joints = json.loads((SAMPLE / "handeye" / "joints.json").read_text())
+    board, cam = BoardSpec.load(SAMPLE / "handeye" / "board.json"), load_intrinsics(SAMPLE / "ground_truth.json",
+                                                                                    keys=("head_camera",))  # fmt: skip
+    images = SAMPLE / "handeye" / "images"
+    ref, _ = calibrate_from_files(images, SAMPLE / "handeye" / "joints.json", board, cam, refine="none")
+    views = []
+    for v in joints["views"]:
+        T = np.linalg.inv(T_base_turned) @ np.asarray(v["T_base_hand"])
+        views.append({"image": v["image"], "position": T[:3, 3].tolist(),
+                      "rotation_vector": Rotation.from_matrix(T[:3, :3]).as_rotvec().tolist()})  # fmt: skip
+    path = tmp_path / "poses.json"
+    for base_frame, turned_deg, tol in (("turned_base", 0.0, 1e-3), (None, np.degrees(1.2), 0.1)):
+        named = {"base_frame": base_frame} if base_frame else {}
+        path.write_text(json.dumps({"link": "hand", "views": views} | named))
+        result, out = calibrate_from_files(images, path, board, cam, robot=str(robot), refine="none")
+        deg, _ = _errors(result.T, ref.T)
+        assert out["base_frame"] == base_frame and abs(deg - turned_deg) < tol, (base_frame, deg)
+    for base_frame, match in (("hand", "base_frame 'hand' moves with the first 7 joints"),
+                              ("PolyScope", "base_frame: link 'PolyScope' not in")):  # fmt: skip
+        path.write_text(json.dumps({"link": "hand", "views": views, "base_frame": base_frame}))
+        with pytest.raises(HandEyeError, match=match):
+            calibrate_from_files(images, path, board, cam, robot=str(robot), refine="none")
+
+
 def test_bad_pose_files_are_clear_errors(tmp_path):
     joints = json.loads((SAMPLE / "handeye" / "joints.json").read_text())
     board, cam = BoardSpec.load(SAMPLE / "handeye" / "board.json"), load_intrinsics(SAMPLE / "ground_truth.json",

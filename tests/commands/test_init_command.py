@@ -3,6 +3,7 @@ m2m.yaml names; every input checked before anything is written."""
 
 from __future__ import annotations
 
+import json
 import shutil
 
 import pytest
@@ -100,6 +101,20 @@ def test_bad_inputs_are_named_by_their_flag_and_nothing_is_written(tmp_path, cap
     err = capsys.readouterr().err
     assert err.startswith("m2m: error: ") and re.search(message, err), err
     assert not ws.exists()
+
+
+def test_init_refuses_a_poses_base_frame_the_robot_lacks(tmp_path, capsys):
+    """End-effector poses in a base frame (base_frame) the robot neither has nor names: refused at the door, naming
+    the file and the frame."""
+    views = json.loads((SAMPLE / "handeye" / "joints.json").read_text())["views"]
+    poses = tmp_path / "poses.json"
+    poses.write_text(json.dumps({"link": "hand", "base_frame": "PolyScope",
+                                 "views": [{"image": v["image"], "T_base_hand": v["T_base_hand"]} for v in views]}))
+    flags = [str(poses) if f.endswith("joints.json") else f for f in SAMPLE_FLAGS]
+    assert main(["init", "-w", str(tmp_path / "ws"), *flags]) == 2
+    err = capsys.readouterr().err
+    assert "poses.json: base_frame: link 'PolyScope' not in panda.xml" in err, err
+    assert not (tmp_path / "ws").exists()
 
 
 def test_init_takes_the_robots_joint_state_while_filming(tmp_path, capsys):

@@ -372,6 +372,44 @@ def test_the_pandas_named_frames_are_franka_s():
         kin.link_pose(spec.home, "tool9")
 
 
+# Universal Robots' published DH parameters of the UR5e: base (the controller's) -> tool0, in metres and radians
+UR5E_DH = {"d": [0.1625, 0, 0, 0.1333, 0.0997, 0.0996], "a": [0, -0.425, -0.3922, 0, 0, 0],
+           "alpha": [np.pi / 2, 0, 0, np.pi / 2, -np.pi / 2, 0]}  # fmt: skip
+
+
+def _ur5e_dh(q: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    for theta, d, a, alpha in zip(q, UR5E_DH["d"], UR5E_DH["a"], UR5E_DH["alpha"], strict=True):
+        ct, st, ca, sa = np.cos(theta), np.sin(theta), np.cos(alpha), np.sin(alpha)
+        T = T @ np.array([[ct, -st * ca, st * sa, a * ct], [st, ct * ca, -ct * sa, a * st], [0, sa, ca, d],
+                          [0, 0, 0, 1]])  # fmt: skip
+    return T
+
+
+def test_the_ur5e_s_named_frames_are_universal_robots():
+    """tool0 in ur_base (what UR's controller reports as the TCP pose with no TCP offset, in its base frame) agrees
+    with UR's published DH kinematics at random joint states: the same rotation, the position within the model's
+    mm-rounded link lengths; flange and base_link sit as ur_description's fixed joints put them."""
+    from scipy.spatial.transform import Rotation
+
+    from mirage2matter.robots.kinematics import RobotKinematics
+
+    kin = RobotKinematics("ur5e")
+    n, limits = kin.chain("tool0")
+    assert n == 6 and kin.chain("ur_base")[0] == 0 and kin.frame("base_link")[0] == "base"
+    rng = np.random.default_rng(0)
+    for q in rng.uniform(np.maximum(limits[:, 0], -np.pi), np.minimum(limits[:, 1], np.pi), (20, 6)):
+        T_base_tool0 = np.linalg.inv(kin.link_pose(q, "ur_base")) @ kin.link_pose(q, "tool0")
+        T_dh = _ur5e_dh(q)
+        assert np.allclose(T_base_tool0[:3, :3], T_dh[:3, :3], atol=1e-9)
+        assert np.linalg.norm(T_base_tool0[:3, 3] - T_dh[:3, 3]) < 2e-3  # 1.0 mm median, 1.5 max: mm-rounded lengths
+        T_flange_tool0 = np.linalg.inv(kin.link_pose(q, "flange")) @ kin.link_pose(q, "tool0")
+        assert np.allclose(T_flange_tool0[:3, :3], Rotation.from_euler("xyz", [np.pi / 2, 0, np.pi / 2]).as_matrix())
+        assert np.allclose(T_flange_tool0[:3, 3], 0)
+    T_base_link_ur_base = np.linalg.inv(kin.link_pose(q, "base_link")) @ kin.link_pose(q, "ur_base")
+    assert np.allclose(T_base_link_ur_base, np.diag([-1.0, -1.0, 1.0, 1.0]), atol=1e-12)
+
+
 BAD_FRAMES = [
     ({"EE": {"link": "gopro", "xyz": [0, 0, 0.1]}}, "frames.EE.link", "'gopro' is not a link"),
     ({"panda_hand": {"link": "panda_link8"}}, "frames.panda_hand", "is a link of the model already"),

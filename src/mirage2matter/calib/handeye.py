@@ -472,7 +472,9 @@ POSES_HELP = (
     "rad), 'views': [one per image: {'image': NAME, "
     "and either 'joints': [angles] (forward kinematics of the robot model), or the link's pose in the base: "
     "'T_base_link' (or 'T_base_<link>') 4x4, or 'position' [x, y, z] with 'quaternion_xyzw' or 'quaternion_wxyz' "
-    "[4] or 'rpy' [roll, pitch, yaw] (fixed axes x, y, z: R = Rz(yaw) Ry(pitch) Rx(roll), as ROS)}]}"
+    "[4] or 'rpy' [roll, pitch, yaw] (fixed axes x, y, z: R = Rz(yaw) Ry(pitch) Rx(roll), as ROS) or "
+    "'rotation_vector' [rx, ry, rz] (axis times angle, as UR's controller)}], 'base_frame': FRAME (optional: the frame "
+    "the poses are in, a link or named frame fixed to the base, e.g. the UR5e's ur_base; default the model's base)}"
 )
 
 
@@ -522,10 +524,10 @@ def hand_pose_from_view(view: dict, link: str, units: dict[str, str], where: str
     if "position" not in view:
         return None
     p = _numbers(view["position"], 3, where, "position") * scale
-    rot_keys = [k for k in ("quaternion_xyzw", "quaternion_wxyz", "rpy", "quaternion") if k in view]
+    rot_keys = [k for k in ("quaternion_xyzw", "quaternion_wxyz", "rpy", "rotation_vector", "quaternion") if k in view]
     if len(rot_keys) != 1:
-        raise HandEyeError(f"{where}: a position needs exactly one of quaternion_xyzw, quaternion_wxyz or rpy "
-                           f"(found {rot_keys or 'none'})")  # fmt: skip
+        raise HandEyeError(f"{where}: a position needs exactly one of quaternion_xyzw, quaternion_wxyz, rpy or "
+                           f"rotation_vector (found {rot_keys or 'none'})")  # fmt: skip
     key = rot_keys[0]
     if key == "quaternion":
         raise HandEyeError(f"{where}: 'quaternion' is ambiguous (x, y, z, w as ROS and scipy, or w, x, y, z as "
@@ -535,6 +537,12 @@ def hand_pose_from_view(view: dict, link: str, units: dict[str, str], where: str
         if units["rotation"] == "rad" and np.abs(rpy).max() > 2 * np.pi + 1e-6:
             raise HandEyeError(f"{where}: rpy {rpy.tolist()} exceeds 2 pi: degrees? set units.rotation to 'deg'")
         R = Rotation.from_euler("xyz", rpy, degrees=units["rotation"] == "deg").as_matrix()
+    elif key == "rotation_vector":
+        rv = _numbers(view[key], 3, where, key)
+        if units["rotation"] == "rad" and np.linalg.norm(rv) > 2 * np.pi + 1e-6:
+            raise HandEyeError(f"{where}: rotation_vector {rv.tolist()} turns more than 2 pi: degrees? set "
+                               "units.rotation to 'deg'")  # fmt: skip
+        R = Rotation.from_rotvec(rv, degrees=units["rotation"] == "deg").as_matrix()
     else:
         q = _numbers(view[key], 4, where, key)
         if abs(np.linalg.norm(q) - 1.0) > 1e-2:
@@ -579,7 +587,8 @@ def check_poses_file(joints_file: str | Path) -> None:
             if not isinstance(q, list) or not q:
                 raise HandEyeError(f"{where}: joints must be a list of numbers, got {q!r}")
             _numbers(q, len(q), where, "joints" + (" (degrees)" if units["joints"] == "deg" else ""))
-        for key in [k for k in view if k == "position" or str(k).startswith(("T_base_", "quaternion", "rpy"))]:
+        for key in [k for k in view
+                    if k == "position" or str(k).startswith(("T_base_", "quaternion", "rpy", "rotation_vector"))]:
             try:
                 ok = np.isfinite(np.asarray(view[key], dtype=np.float64)).all()
             except (TypeError, ValueError):
@@ -600,6 +609,26 @@ def _robot_link_joints(spec: dict, views: list[dict], robot: str | None, link: s
     return robot, link, poses == "joints" or (poses == "auto" and all("joints" in v for v in views))
 
 
+def base_frame_pose(robot: str, spec: dict, where: str) -> np.ndarray | None:
+    """T_base_frame [4,4] of the poses file's ``base_frame`` (the frame its end-effector poses are in; a robot's
+    controller may report them in its own base frame, as UR's does), or None when the file names none. It must be a
+    link or a named frame that no joint moves (HandEyeError naming it otherwise)."""
+    name = spec.get("base_frame")
+    if name is None:
+        return None
+    if not isinstance(name, str) or not name:
+        raise HandEyeError(f"{where}: base_frame must be the name of a frame, got {name!r}")
+    kin = RobotKinematics(robot)
+    try:
+        n, _ = kin.chain(name)
+    except KinematicsError as e:
+        raise HandEyeError(f"{where}: base_frame: {e}") from None
+    if n:
+        raise HandEyeError(f"{where}: base_frame {name!r} moves with the first {n} joints; the poses' frame must be "
+                           "fixed to the robot's base (a controller's base frame, such as the UR5e's ur_base)")
+    return kin.link_pose(np.zeros(0), name)
+
+
 def check_poses_link(joints_file: str | Path, robot: str | None = None, link: str | None = None,
                      poses: str = "auto") -> None:
     """Where the views give joint angles (``poses``, as :func:`calibrate_from_files` decides), the link forward
@@ -613,6 +642,7 @@ def check_poses_link(joints_file: str | Path, robot: str | None = None, link: st
         return
     robot, link, use_joints = _robot_link_joints(spec, views, robot, link, poses)
     if not use_joints:
+        base_frame_pose(robot, spec, str(joints_file))
         return  # end-effector poses: any frame calibrates (the world says where it can mount it)
     try:
         RobotKinematics(robot).frame(str(link))
@@ -663,10 +693,12 @@ def calibrate_from_files(
         missing = next(i for i, v in enumerate(views) if "joints" not in v)
         raise HandEyeError(f"{joints_file}: views[{missing}] has no 'joints'; give joints for every view or "
                            "end-effector poses (poses: ee)")  # fmt: skip
-    kin = None
+    kin, T_base_frame = None, None
     if use_joints:
         kin = RobotKinematics(robot)
         n_chain, limits = kin.chain(link)
+    else:
+        T_base_frame = base_frame_pose(robot, spec, str(joints_file))
     w, h = _image_size(camera)
     used, skipped, T_links, observations = [], [], [], []
     for i, view in enumerate(views):
@@ -695,6 +727,8 @@ def calibrate_from_files(
                 hint = (f" ({', '.join(other)} is another link's pose: set the file's \"link\" or --link to "
                         f"{other[0].removeprefix('T_base_')!r})" if other else "")  # fmt: skip
                 raise HandEyeError(f"{where}: no pose of link {link!r}{hint}; expected {POSES_HELP}")
+            if T_base_frame is not None:
+                T_link = T_base_frame @ T_link
         image = read_image_rgb(path, "board image")
         if w is not None and image.shape[:2] != (h, w):
             raise HandEyeError(f"{path} is {image.shape[1]}x{image.shape[0]} but the intrinsics are for {w}x{h}; give "
@@ -724,7 +758,8 @@ def calibrate_from_files(
                            "logged at another moment), or remove the view from both") from None  # fmt: skip
     out = result.to_json(link, used)
     out.update(robot=str(kin.path) if kin is not None else robot_model_file(robot),
-               poses="joints" if use_joints else "ee", skipped=skipped, board=board.to_json(), K=K.tolist(),
+               poses="joints" if use_joints else "ee", base_frame=None if use_joints else spec.get("base_frame"),
+               skipped=skipped, board=board.to_json(), K=K.tolist(),
                lens_corrected=bool(not isinstance(camera, np.ndarray) and camera.has_distortion))  # fmt: skip
     return result, out
 
