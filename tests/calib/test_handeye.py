@@ -139,12 +139,19 @@ def test_cli_writes_handeye_json_and_names_the_problem(tmp_path, capsys):
 
 
 def test_the_stage_says_where_the_world_will_mount_a_wrist_camera():
-    """Poses of a frame the robot's spec names mount on its link; of a frame nobody names: the world keeps the default
-    mount, said where the calibration is made."""
+    """In the world's own words: poses of a link or of a frame the robot's spec names mount on the link; of a frame
+    nobody names: the world keeps the default mount, said where the calibration is made."""
     from mirage2matter.stages.handeye import Config, _mount_note
 
     wrist = Config(mount="wrist", robot="panda")
-    assert _mount_note(wrist, "hand") == ""
-    assert _mount_note(wrist, "EE") == "; EE is on the model's hand (hand +103.4 mm along z)"
-    assert "'tool9' is neither a link of the robot's model nor a frame its spec names" in _mount_note(wrist, "tool9")
-    assert _mount_note(Config(mount="head", robot="panda"), "tool9") == ""
+
+    def calibration(link: str) -> dict:
+        return {"mount": "wrist", "link": link, f"T_{link}_wristcam": np.eye(4).tolist(), "K": np.eye(3).tolist(),
+                "width": 640, "height": 480}  # fmt: skip
+
+    assert _mount_note(wrist, calibration("hand")) == "; in the world: the wrist camera as calibrated (on hand)"
+    assert _mount_note(wrist, calibration("EE")) == ("; in the world: the wrist camera as calibrated (on EE: hand "
+                                                     "+103.4 mm along z)")  # fmt: skip
+    assert ("default mount (calibrate-handeye's link 'tool9' is neither a link of panda's model nor a frame its spec "
+            "names") in _mount_note(wrist, calibration("tool9"))  # fmt: skip
+    assert _mount_note(Config(mount="head", robot="panda"), calibration("tool9")) == ""

@@ -63,10 +63,10 @@ def test_the_world_mounts_the_wrist_camera_on_the_hand(capture):
     says, that camera lands where SfM and the marker put the view's keyframe (the robot's default mount does not)."""
     from mirage2matter.robots import get_robot
     from mirage2matter.robots.kinematics import RobotKinematics
-    from mirage2matter.stages.world import _wrist_camera
+    from mirage2matter.world.cameras import calibrated_wrist_camera
 
     data, he, ws = capture
-    camera, line = _wrist_camera(json.loads((he / "calib" / "handeye.json").read_text()), "panda")
+    camera, line = calibrated_wrist_camera(json.loads((he / "calib" / "handeye.json").read_text()), "panda")
     assert camera is not None and camera.mount == "hand", line
     spec, kin = get_robot("panda"), RobotKinematics("panda")
     keyframes = {c["name"].split(".")[0]: np.asarray(c["T_world_cam"])

@@ -16,7 +16,6 @@ from ..calib.board import load_target
 from ..calib.handeye import HandEyeError, calibrate_from_files
 from ..geometry.camera import load_intrinsics
 from ..robots import DEFAULT_ROBOT
-from ..robots.kinematics import KinematicsError, RobotKinematics
 from ..workspace import Workspace
 from .base import SHARED, Input, Log
 
@@ -92,7 +91,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
                "none": ""}[result.refine]  # fmt: skip
     how = f"{cfg.mount}, {cfg.method}{refined}, from {out['poses']}"
     outliers = f"; views that stand out: {', '.join(out['outlier_views'])}" if out["outlier_views"] else ""
-    outliers += _mount_note(cfg, out["link"])
+    outliers += _mount_note(cfg, out)
     return {
         "views": len(out["per_view"]), "skipped": len(out["skipped"]), "refine": result.refine,
         "loo_px_median": out["loo_px_median"], "loo_px_p90": out["loo_px_p90"], "outlier_views": out["outlier_views"],
@@ -103,18 +102,15 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
     }  # fmt: skip
 
 
-def _mount_note(cfg: Config, link: str) -> str:
-    """Where the world will mount a wrist camera calibrated on ``link`` (poses of a frame the model lacks: nowhere,
-    said here, where the calibration is made, rather than only when the world is composed)."""
+def _mount_note(cfg: Config, handeye: dict[str, Any]) -> str:
+    """What the world will do with the wrist camera calibrated so (``handeye``: the calibration's handeye.json), in
+    the world's own words: a calibration it cannot mount is said here, where it is made, not only when the world is
+    composed."""
+    from ..world.cameras import calibrated_wrist_camera
+
     if cfg.mount != "wrist":
         return ""
-    kin = RobotKinematics(cfg.robot or DEFAULT_ROBOT)
-    try:
-        parent, _ = kin.frame(link)
-    except KinematicsError:
-        return (f"; {link!r} is neither a link of the robot's model nor a frame its spec names: the world keeps the "
-                "robot's default wrist camera (add the frame to the robot spec's frames:)")  # fmt: skip
-    return "" if parent == link else f"; {link} is on the model's {parent} ({kin.frames[link].describe()})"
+    return f"; in the world: {calibrated_wrist_camera(handeye, cfg.robot or DEFAULT_ROBOT)[1]}"
 
 
 def compare(ws: Workspace, cfg: Config, gt: dict) -> dict[str, Any]:

@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 
 from ..configs import ranged
-from ..robots import DEFAULT_ROBOT, get_robot, is_spec_file
-from ..robots.kinematics import KinematicsError, RobotKinematics, robot_model_file
+from ..robots import DEFAULT_ROBOT, is_spec_file
 from ..workspace import Workspace
+from ..world.cameras import calibrated_wrist_camera
 from ..world.config import CameraConfig, RandomizeConfig, RobotConfig, WorldConfigError
 from ..world.reconstruction import ReconstructionOptions
 from .base import SHARED, Input, Log
@@ -104,29 +104,6 @@ def _keyframe_camera(ws: Workspace, keyframe: str) -> CameraConfig:
     return CameraConfig("base", c.T_world_cam, c.K, c.width, c.height)
 
 
-def _wrist_camera(handeye: dict[str, Any], robot: str) -> tuple[CameraConfig | None, str]:
-    """(the wrist camera calibrate-handeye calibrated (``handeye``: its handeye.json), or None: the robot's default
-    mount; the words for the line). Poses of a frame the robot's spec names (libfranka's "EE") mount the camera on
-    that frame's link."""
-    if handeye.get("mount") != "wrist":
-        return None, "the wrist camera at the robot's default mount"
-    spec, link = get_robot(robot), str(handeye.get("link"))
-    # handeye.json records the robot's model file (older ones: none for end-effector poses)
-    if handeye.get("robot") is not None and robot_model_file(handeye["robot"]) != robot_model_file(robot):
-        return None, f"the wrist camera at the robot's default mount (calibrate-handeye's is on {handeye['robot']})"
-    try:
-        parent, T_link_frame = RobotKinematics(robot).frame(link)
-    except KinematicsError:
-        return None, (f"the wrist camera at the robot's default mount (calibrate-handeye's link {link!r} is neither a "
-                      f"link of {spec.name}'s model nor a frame its spec names: calibrate from joint angles, or add "
-                      "the frame to the robot's spec (frames:)")  # fmt: skip
-    T = T_link_frame @ np.asarray(handeye[f"T_{link}_wristcam"], np.float64)
-    K = np.asarray(handeye["K"], np.float64)
-    on = link if parent == link else f"{link}: {spec.frame(link).describe()}"
-    return CameraConfig(parent, T, K, int(handeye["width"]), int(handeye["height"])), \
-        f"the wrist camera as calibrated (on {on})"  # fmt: skip
-
-
 def _head_camera(ws: Workspace, handeye: dict[str, Any], keyframe: str | None = None) -> CameraConfig:
     if keyframe is not None:
         return _keyframe_camera(ws, keyframe)
@@ -172,7 +149,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
                              robot=cfg.robot)  # fmt: skip
         note = ""
     else:
-        wrist, wrist_note = _wrist_camera(he, cfg.robot)
+        wrist, wrist_note = calibrated_wrist_camera(he, cfg.robot)
         head = "the head camera: keyframe " + cfg.head_keyframe if cfg.head_keyframe else "the head camera calibrated"
         note = f"; {head}, {wrist_note}"
         table_z = _table_z(ws)
