@@ -38,8 +38,8 @@ class Config:
                 (default: the joints file's, else the default robot). In a workspace: the pipeline's robot (m2m.yaml's
                 top-level robot); giving it here changes it for every stage
     link        the link holding the board (head) or the camera (wrist), or a frame the robot's spec names (the
-                Panda's: libfranka's "EE", franka_ros's panda_hand ...) (default: the joints file's, else the robot's
-                end-effector link)
+                Panda's: libfranka's "EE", franka_ros's panda_hand ...; the UR5e's: UR's tool0, flange) (default: the
+                joints file's, else the robot's end-effector link)
     refine      auto: pose_error or none, whichever has the lower leave-one-out corner error; pose_error: refine on
                 the corner pixels with each view's robot pose error modelled (~1 mm / 0.1 deg); exact: refine taking
                 the robot poses as exact (wrong on real arms, kept to compare); none: the closed form
