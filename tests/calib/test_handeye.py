@@ -155,3 +155,17 @@ def test_the_stage_says_where_the_world_will_mount_a_wrist_camera():
     assert ("default mount (calibrate-handeye's link 'tool9' is neither a link of panda's model nor a frame its spec "
             "names") in _mount_note(wrist, calibration("tool9"))  # fmt: skip
     assert _mount_note(Config(mount="head", robot="panda"), calibration("tool9")) == ""
+
+
+def test_head_poses_in_the_model_s_base_on_a_robot_with_another_base_frame_are_questioned():
+    """A UR's controller logs poses in its own base (ur_base, the model's turned 180 deg): a head camera calibrated
+    from end-effector poses with no base_frame says so; joint angles, a base_frame given, a wrist camera or a robot
+    whose spec names no such frame (the Panda) say nothing."""
+    from mirage2matter.stages.handeye import Config, _base_frame_note
+
+    ur, ee = Config(mount="head", robot="ur5e"), {"poses": "ee"}
+    assert "if the controller logged them in base_link or ur_base, set the poses file's base_frame" in \
+        _base_frame_note(ur, ee)  # fmt: skip
+    assert _base_frame_note(ur, {"poses": "joints"}) == _base_frame_note(ur, {**ee, "base_frame": "ur_base"}) == ""
+    assert _base_frame_note(Config(mount="wrist", robot="ur5e"), ee) == ""
+    assert _base_frame_note(Config(mount="head", robot="panda"), ee) == ""

@@ -16,6 +16,7 @@ from ..calib.board import load_target
 from ..calib.handeye import HandEyeError, calibrate_from_files
 from ..geometry.camera import load_intrinsics
 from ..robots import DEFAULT_ROBOT
+from ..robots.kinematics import RobotKinematics
 from ..workspace import Workspace
 from .base import SHARED, Input, Log
 
@@ -91,7 +92,7 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
                "none": ""}[result.refine]  # fmt: skip
     how = f"{cfg.mount}, {cfg.method}{refined}, from {out['poses']}"
     outliers = f"; views that stand out: {', '.join(out['outlier_views'])}" if out["outlier_views"] else ""
-    outliers += _mount_note(cfg, out)
+    outliers += _mount_note(cfg, out) + _base_frame_note(cfg, out)
     return {
         "views": len(out["per_view"]), "skipped": len(out["skipped"]), "refine": result.refine,
         "loo_px_median": out["loo_px_median"], "loo_px_p90": out["loo_px_p90"], "outlier_views": out["outlier_views"],
@@ -100,6 +101,19 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         f"leave-one-out corner error {out['loo_px_median']:.2f} px median, {out['loo_px_p90']:.2f} px p90; loop "
         f"residual {out['residual_deg_median']:.3f} deg / {out['residual_mm_median']:.2f} mm{outliers}",
     }  # fmt: skip
+
+
+def _base_frame_note(cfg: Config, handeye: dict[str, Any]) -> str:
+    """A head camera from end-effector poses read in the model's base frame, on a robot whose spec names other frames
+    fixed to its base (the UR5e's ur_base, its controller's): poses logged in one of those turn the camera, silently
+    (a wrist camera's mount does not depend on it)."""
+    if cfg.mount != "head" or handeye.get("poses") != "ee" or handeye.get("base_frame"):
+        return ""
+    kin = RobotKinematics(cfg.robot or DEFAULT_ROBOT)
+    others = [n for n in kin.frames
+              if kin.chain(n)[0] == 0 and not np.allclose(kin.link_pose(np.zeros(0), n), np.eye(4))]
+    return (f"; the poses were read in the model's base frame: if the controller logged them in {' or '.join(others)}, "
+            "set the poses file's base_frame" if others else "")  # fmt: skip
 
 
 def _mount_note(cfg: Config, handeye: dict[str, Any]) -> str:
