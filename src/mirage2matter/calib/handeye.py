@@ -620,13 +620,14 @@ def base_frame_pose(robot: str, spec: dict, where: str) -> np.ndarray | None:
         raise HandEyeError(f"{where}: base_frame must be the name of a frame, got {name!r}")
     kin = RobotKinematics(robot)
     try:
-        n, _ = kin.chain(name)
+        T_base_frame = kin.fixed_pose(name)
     except KinematicsError as e:
         raise HandEyeError(f"{where}: base_frame: {e}") from None
-    if n:
+    if T_base_frame is None:
+        n = kin.chain(name)[0]
         raise HandEyeError(f"{where}: base_frame {name!r} moves with the first {n} joints; the poses' frame must be "
                            "fixed to the robot's base (a controller's base frame, such as the UR5e's ur_base)")
-    return kin.link_pose(np.zeros(0), name)
+    return T_base_frame
 
 
 def check_poses_link(joints_file: str | Path, robot: str | None = None, link: str | None = None,

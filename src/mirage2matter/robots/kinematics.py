@@ -106,6 +106,10 @@ class RobotKinematics:
                 limits[a] = m.jnt_range[j]
         return n, limits
 
+    def fixed_pose(self, link: str) -> np.ndarray | None:
+        """T_base_link [4,4] of a link or named frame that no joint moves (a controller's base frame), else None."""
+        return None if self.chain(link)[0] else self.link_pose(np.zeros(0), link)
+
     def link_pose(self, q: np.ndarray, link: str | None = None) -> np.ndarray:
         """T_base_link [4,4] at joint positions q [n] (n <= n_joints; the rest stay at 0) of a link or a named frame;
         default link: the robot's end-effector link."""

@@ -110,8 +110,7 @@ def _base_frame_note(cfg: Config, handeye: dict[str, Any]) -> str:
     if cfg.mount != "head" or handeye.get("poses") != "ee" or handeye.get("base_frame"):
         return ""
     kin = RobotKinematics(cfg.robot or DEFAULT_ROBOT)
-    others = [n for n in kin.frames
-              if kin.chain(n)[0] == 0 and not np.allclose(kin.link_pose(np.zeros(0), n), np.eye(4))]
+    others = [n for n in kin.frames if (T := kin.fixed_pose(n)) is not None and not np.allclose(T, np.eye(4))]
     return (f"; the poses were read in the model's base frame: if the controller logged them in {' or '.join(others)}, "
             "set the poses file's base_frame" if others else "")  # fmt: skip
 
