@@ -212,6 +212,8 @@ def check_config(cfg: EnvConfig, dt: float = 0.01) -> None:
             f"the world has no calibrated camera {', '.join(missing) or '(none asked for)'} (cameras: "
             f"{sorted(world.cameras) or 'none'}); calibrate it (`m2m calibrate-handeye`) and compose the world again"
         )
+    if cfg.size[0] % 2:
+        raise EnvError(f"frames {cfg.size[0]} px wide: the simulator's cameras need an even width (224, 128, 96...)")
     cfg.task.check(world)
     if cfg.renderer == "ground_truth" and (
         cfg.ground_truth is None or not (cfg.ground_truth / "ground_truth.json").is_file()

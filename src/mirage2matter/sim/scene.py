@@ -41,6 +41,7 @@ from ..world.config import LightConfig
 __all__ = [
     "RenderScene",
     "SceneLook",
+    "SimCamera",
     "add_camera",
     "add_ground_plane",
     "add_robot",
@@ -158,21 +159,49 @@ def add_robot(
 
 
 # ---- cameras -------------------------------------------------------------------------------------------------
-def add_camera(scene: Any, width: int, height: int, fy: float, near: float, far: float) -> Any:
+@dataclass
+class SimCamera:
+    """A Genesis camera drawing ``res`` (width, height) pixels. Genesis reads its framebuffer back in rows of whole
+    4-byte words and a row of RGB pixels whose width is not a multiple of 4 overruns its buffer (the process aborts
+    in malloc: seen at 98 and 130 px); such a camera renders ``2 * x0`` px wider, cropped back about its centre."""
+
+    camera: Any
+    res: tuple[int, int]
+    x0: int = 0
+
+    @property
+    def intrinsics(self) -> np.ndarray:
+        """[3,3] K of the cropped image (Genesis', centres at +0.5 like ours)."""
+        K = np.array(self.camera.intrinsics, dtype=np.float64, copy=True)
+        K[0, 2] -= self.x0
+        return K
+
+
+def add_camera(scene: Any, width: int, height: int, fy: float, near: float, far: float) -> SimCamera:
     """A camera of ``width`` x ``height`` pixels and focal length ``fy`` (px; fx = fy, principal point centred)
-    to an unbuilt ``scene``; pose it at each render (:func:`render_view`)."""
+    to an unbuilt ``scene``; pose it at each render (:func:`render_view`). ValueError for an odd width (the padded
+    render could not be cropped about its centre)."""
+    if int(width) % 2:
+        raise ValueError(f"a camera {width} px wide: the simulator's cameras need an even width (frames of 224, 128, "
+                         "96 px...)")  # fmt: skip
+    x0 = (-int(width) % 4) // 2
     fov_deg = math.degrees(2.0 * math.atan(0.5 * height / fy))
-    return scene.add_camera(
-        res=(int(width), int(height)), pos=(1.0, 0.0, 1.0), lookat=(0.0, 0.0, 0.0), fov=fov_deg, near=near, far=far,
-        GUI=False,
+    camera = scene.add_camera(
+        res=(int(width) + 2 * x0, int(height)), pos=(1.0, 0.0, 1.0), lookat=(0.0, 0.0, 0.0), fov=fov_deg, near=near,
+        far=far, GUI=False,
     )  # fmt: skip
+    return SimCamera(camera, (int(width), int(height)), x0)
 
 
-def render_view(camera: Any, T_base_cam: np.ndarray, **what: bool) -> tuple:
+def render_view(camera: SimCamera, T_base_cam: np.ndarray, **what: bool) -> tuple:
     """Genesis' ``(rgb, depth, segmentation, normal)`` render of ``camera`` posed at ``T_base_cam`` [4,4] (OpenCV
     axes); ``what`` picks the outputs (``rgb=True, depth=True, segmentation=True``)."""
-    camera.set_pose(transform=np.asarray(T_base_cam, dtype=np.float64) @ GL_TO_CV)
-    return camera.render(force_render=True, **what)
+    camera.camera.set_pose(transform=np.asarray(T_base_cam, dtype=np.float64) @ GL_TO_CV)
+    out = camera.camera.render(force_render=True, **what)
+    if not camera.x0:
+        return out
+    x0, w = camera.x0, camera.res[0]
+    return tuple(None if a is None else np.asarray(a)[:, x0 : x0 + w] for a in out)
 
 
 # ---- a scene that is posed and drawn -------------------------------------------------------------------------

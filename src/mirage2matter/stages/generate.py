@@ -98,6 +98,8 @@ class Config:
             raise GenerateError("generate: out names one dataset folder; give one task with it")
         if self.episodes < 1 or self.workers < 1 or self.size < 2 or self.fps < 1:
             raise GenerateError("generate: episodes, workers and fps must be >= 1, size >= 2")
+        if self.size % 2:
+            raise GenerateError(f"generate: size {self.size}: the simulator's cameras need an even width (224, 128...)")
         if not 0.0 <= self.object_shrink < 1.0:
             raise GenerateError(f"generate: object_shrink must be in [0, 1), got {self.object_shrink}")
         if not 0.0 <= self.table_texture < 1.0:
