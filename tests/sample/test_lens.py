@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from mirage2matter.geometry.camera import Camera
-from mirage2matter.sample.lens import LENSES, lens_rays, pinhole_cover, resample_through_lens
+from mirage2matter.render.lens import lens_rays, pinhole_cover, resample_through_lens
+from mirage2matter.sample.lens import LENSES
 
 PHONE = LENSES["phone"]
 

@@ -230,8 +230,9 @@ def test_head_camera_from_a_keyframe_and_the_wrist_camera_as_calibrated(recon_ws
     T_hand_cam = np.eye(4)
     T_hand_cam[:3, 3] = [0.05, 0.0, 0.04]
     K_wrist = [[600.0, 0, 424], [0, 600.0, 240], [0, 0, 1]]
+    lens = {"k1": -0.05, "k2": 0.01, "p1": 0.0, "p2": 0.0, "k3": 0.0}
     wrist = {"mount": "wrist", "link": "hand", "T_hand_wristcam": T_hand_cam.tolist(), "K": K_wrist, "width": 848,
-             "height": 480}
+             "height": 480, "distortion": lens}
     (new / "calib" / "handeye.json").write_text(json.dumps(wrist))
     with pytest.raises(WorldConfigError, match="head_keyframe"):
         from_workspace(new)  # the only calibration is the wrist camera's
@@ -245,7 +246,9 @@ def test_head_camera_from_a_keyframe_and_the_wrist_camera_as_calibrated(recon_ws
     assert np.allclose(cfg.cameras["head"].K, K_side) and cfg.cameras["head"].width == 640
     w = cfg.cameras["wrist"]
     assert w.mount == "hand" and np.allclose(w.T_mount_cam, T_hand_cam) and np.allclose(w.K, K_wrist)
+    assert w.distortion == lens and cfg.cameras["head"].distortion == {}  # the world draws the wrist lens
     assert "keyframe side.jpg" in record["line"] and "wrist camera as calibrated (on hand)" in record["line"]
+    assert "; wrist drawn through the calibrated lens" in record["line"]
     # a joints calibration records the model file it ran forward kinematics on: the same robot as "panda"
     from mirage2matter.robots.kinematics import robot_model_file
 

@@ -29,6 +29,7 @@ from ..configs import ranged
 from ..datagen import task_slug
 from ..env.config import GROUND_TRUTH_TEXTURE_FILTER, hybrid_options
 from ..env.episode_cache import load_or_record_episodes
+from ..env.lens import LensFrames
 from ..policy.data import IMAGE_PREFIX, STATE_KEY
 from ..stages import eval_policy
 from ..workspace import Workspace
@@ -50,7 +51,8 @@ def record_expert_pairs(
     from ..env.twin_env import TwinEnv
 
     env = TwinEnv(world, task, size=size, hybrid=hybrid)
-    gt = GroundTruthFrames(env.twin, Path(sample_dir), env.config.cameras, env.config.size)
+    gt = LensFrames.like(env.renderer, env.config.size,
+                         lambda size: GroundTruthFrames(env.twin, Path(sample_dir), env.config.cameras, size))
     try:
         return [_record_one(env, gt, int(seed)) for seed in seeds]
     finally:

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..env.config import EnvError, HybridOptions, check_config
 from ..env.hybrid import splat_parts
+from ..env.lens import lens_plan
 from ..env.robot_proxy import render_robot_file
 from ..errors import M2MError
 from ..render.splat_server import SplatServer
@@ -178,9 +179,11 @@ def _splat_server(world: WorldConfig, source, cfg: GenerateConfig, log: Callable
     """A splat server for the run's workers: one slot per worker, the workers' splat settings and cameras."""
 
     workers = max(cfg.run.workers, 1)
+    plan = lens_plan(source.env_config())  # cameras with a lens are drawn wider, then resampled (env.lens)
+    size = plan.render_size if plan is not None else tuple(source.episode.size)
     server = SplatServer(splat_parts(world, objects=source.hybrid.objects == "gaussians",
                                      robot=source.hybrid.robot_gaussians(world)), source.hybrid.splat,
-                         slots=workers, cameras=len(source.episode.cameras), size=tuple(source.episode.size),
+                         slots=workers, cameras=len(source.episode.cameras), size=size,
                          background=source.hybrid.background, table_z=world.table_z)  # fmt: skip
     handle = server.start()
     log(f"splat server: {server.stats['gaussians']:,} Gaussians, {workers} slot(s), pid {handle.pid}")

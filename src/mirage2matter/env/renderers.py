@@ -19,6 +19,7 @@ import numpy as np
 
 from .config import EnvConfig, EnvError
 from .hybrid import build_hybrid
+from .lens import LensFrames, lens_plan
 
 if TYPE_CHECKING:
     from ..sim.twin import Twin
@@ -55,8 +56,12 @@ RENDERERS: dict[str, RendererBuilder] = {"hybrid": build_hybrid, "ground_truth":
 
 
 def build_renderer(cfg: EnvConfig) -> tuple[Twin, FrameRenderer]:
-    """The twin and the renderer named by ``cfg.renderer``."""
+    """The twin and the renderer named by ``cfg.renderer``, its frames through each camera's lens (``env.lens``)."""
     builder = RENDERERS.get(cfg.renderer)
     if builder is None:
         raise EnvError(f"unknown renderer {cfg.renderer!r}; renderers: {', '.join(RENDERERS)}")
-    return builder(cfg)
+    plan = lens_plan(cfg)  # cameras as calibrated: a lens, an off-centre principal point
+    if plan is None:
+        return builder(cfg)
+    twin, inner = builder(plan.render_config(cfg))
+    return twin, LensFrames(inner, plan)

@@ -27,6 +27,7 @@ import numpy as np
 from ..atomic import atomic_dir
 from ..calib.board import BoardSpec, board_frame_to_board_image
 from ..errors import M2MError
+from ..render.lens import lens_rays
 from ..robots import DEFAULT_ROBOT, get_robot
 from ..robots.kinematics import RobotKinematics
 
@@ -127,7 +128,6 @@ class _Rays:
 
     def __init__(self, cfg: HandEyeCaptureConfig, supersample: int = 2) -> None:
         from ..geometry.camera import Camera
-        from .lens import lens_rays
 
         k1, k2, p1, p2, k3 = cfg.distortion
         camera = Camera(cfg.K(), np.eye(4), cfg.width, cfg.height, distortion={"k1": k1, "k2": k2, "p1": p1,

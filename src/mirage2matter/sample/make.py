@@ -36,6 +36,7 @@ from ..atomic import atomic_dir
 from ..calib.board import BoardSpec, GridSpec, MarkerSpec
 from ..errors import M2MError
 from ..inputs import read_yaml
+from ..render.lens import lens_rays, pinhole_cover, resample_through_lens
 from ..robots import DEFAULT_ROBOT, get_robot
 from ..robots.surface import check_capture_joints, robot_surface
 from ..video import write_video
@@ -275,7 +276,6 @@ def make_sample(out: str | Path, config: SampleConfig = SampleConfig(), log: Cal
 
     from ..world.sample_assets import board_asset, build_assets, export_assets, ground_truth_entries
     from ..world.sample_robot_look import ROBOT_LOOK_PREFIX, capture_joints_for, robot_look_assets
-    from .lens import lens_rays, pinhole_cover, resample_through_lens
     from .render import RenderConfig, SampleRenderer, default_T_base_headcam, sample_handeye_configurations
 
     t_start = time.perf_counter()

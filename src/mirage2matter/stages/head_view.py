@@ -133,23 +133,21 @@ def photo_joint_state(spec: RobotSpec, head_photo_joints: list[float] | None, ca
 
 def head_camera(ws: Workspace, who: str, photo: np.ndarray | None = None, photo_path: Path | None = None):
     """The calibrated head camera (``geometry.camera.Camera``: K, T_base_headcam, image size, lens) from
-    calibrate-handeye's result. ``photo`` [H,W,3], one the camera took (``photo_path``), gives the size when the
-    calibration has none and must match it otherwise; ``who`` names the user in the errors."""
-    from ..geometry.camera import Camera
+    calibrate-handeye's result (``world.cameras.calibrated_head_camera``). ``photo`` [H,W,3], one the camera took
+    (``photo_path``), gives the size when the calibration has none and must match it otherwise; ``who`` names the
+    user in the errors."""
+    from ..world.cameras import calibrated_head_camera
 
-    he = json.loads(ws.handeye_file.read_text())
-    if he.get("mount") != "head":
-        raise WorkspaceError(f"{ws.handeye_file}: mount is {he.get('mount')!r}; {who} needs a head camera (`m2m "
-                             "calibrate-handeye --mount head`)")  # fmt: skip
-    width, height = he.get("width"), he.get("height")
-    if width is None:
-        if photo is None:
-            raise WorkspaceError(f"{ws.handeye_file} has no image size; give a head-camera photo (--photo)")
-        height, width = photo.shape[:2]
-    if photo is not None and photo.shape[:2] != (height, width):
+    size = None if photo is None else (photo.shape[1], photo.shape[0])
+    cam, why = calibrated_head_camera(json.loads(ws.handeye_file.read_text()), size)
+    if cam is None:
+        photo_advice = "; or give a head-camera photo (--photo)" if why.endswith("image size") else ""
+        raise WorkspaceError(f"{ws.handeye_file}: {why}; {who} needs a head camera (`m2m calibrate-handeye --mount "
+                             f"head`){photo_advice}")  # fmt: skip
+    if photo is not None and photo.shape[:2] != (cam.height, cam.width):
         raise WorkspaceError(f"{photo_path} is {photo.shape[1]}x{photo.shape[0]} but the head camera is "
-                             f"{width}x{height}; give a photo the head camera took")  # fmt: skip
-    return Camera(he["K"], he["T_base_headcam"], width, height, "head", he.get("distortion") or {})
+                             f"{cam.width}x{cam.height}; give a photo the head camera took")  # fmt: skip
+    return cam
 
 
 def _scene_trained_on(ws: Workspace, photo: Path) -> bool:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,6 +19,9 @@ from ..world.cameras import calibrated_wrist_camera
 from ..world.config import CameraConfig, RandomizeConfig, RobotConfig, WorldConfigError
 from ..world.reconstruction import ReconstructionOptions
 from .base import SHARED, Input, Log
+
+if TYPE_CHECKING:
+    from ..geometry.camera import Camera
 
 
 @dataclass
@@ -100,25 +103,27 @@ def _keyframe_camera(ws: Workspace, keyframe: str) -> CameraConfig:
         shown = ", ".join(c.name for c in cameras[:8]) + (", ..." if len(cameras) > 8 else "")
         raise WorldConfigError(f"head_keyframe {keyframe!r}: not one of the capture's keyframes ({shown}); "
                                "give the file name of the keyframe the head camera took")  # fmt: skip
-    c = matches[0]
-    return CameraConfig("base", c.T_world_cam, c.K, c.width, c.height)
+    return _fixed_camera(matches[0])
 
 
 def _head_camera(ws: Workspace, handeye: dict[str, Any], keyframe: str | None = None) -> CameraConfig:
+    from ..world.cameras import calibrated_head_camera
+
     if keyframe is not None:
         return _keyframe_camera(ws, keyframe)
-    missing = [k for k in ("T_base_headcam", "K", "width", "height") if k not in handeye]
-    if missing:
+    cam, why = calibrated_head_camera(handeye)
+    if cam is None:
         raise WorldConfigError(
-            f"{ws.handeye_file}: no {', '.join(missing)} (a head-camera calibration records T_base_headcam, K and "
-            f"the image size; this one is of a {handeye.get('mount', 'wrist')} camera); rerun `m2m calibrate-handeye "
-            f"--mount head ... -w {ws.root}`, or give head_keyframe (m2m.yaml, at the top): the keyframe of the "
-            "capture a fixed camera took"
+            f"{ws.handeye_file}: {why} (a head-camera calibration records T_base_headcam, K and the image size); "
+            f"rerun `m2m calibrate-handeye --mount head ... -w {ws.root}`, or give head_keyframe (m2m.yaml, at the "
+            "top): the keyframe of the capture a fixed camera took"
         )
-    T, K = np.asarray(handeye["T_base_headcam"], np.float64), np.asarray(handeye["K"], np.float64)
-    if T.shape != (4, 4) or K.shape != (3, 3):
-        raise WorldConfigError(f"{ws.handeye_file}: T_base_headcam must be 4x4 and K 3x3")
-    return CameraConfig("base", T, K, int(handeye["width"]), int(handeye["height"]))
+    return _fixed_camera(cam)
+
+
+def _fixed_camera(cam: Camera) -> CameraConfig:
+    """A camera fixed in the base frame (``cam.T_world_cam`` is T_base_cam), its lens kept: the world draws it."""
+    return CameraConfig("base", cam.T_world_cam, cam.K, cam.width, cam.height, cam.distortion_json())
 
 
 def inputs(ws: Workspace, cfg: Config) -> list[Input]:
@@ -159,6 +164,8 @@ def run(ws: Workspace, cfg: Config, log: Log) -> dict[str, Any]:
         world = world_from_reconstruction(ws.world_dir, _head_camera(ws, he, cfg.head_keyframe), ws.scene_ply,
                                           _object_dirs(ws), replace(cfg.options(), table_z=table_z), log,
                                           wrist=wrist)  # fmt: skip
+    lensed = [c for c, cam in world.cameras.items() if cam.distortion]
+    note += f"; {' and '.join(lensed)} drawn through the calibrated lens" if lensed else ""
     robot_note = _robot_gaussians(ws, world, cfg) + note
     save_world(world.relocated(ws.world_dir, ws.committed.world_dir), ws.world_yaml, home=ws.committed.world_dir)
     write_world_ply(world)

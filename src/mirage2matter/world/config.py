@@ -19,7 +19,7 @@ import math
 import os
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
@@ -30,6 +30,9 @@ from ..errors import M2MError
 from ..geometry.sim3 import Sim3
 from ..inputs import NAME_RE, InputError, check_image_size, check_intrinsics, check_joints, read_yaml
 from ..robots import DEFAULT_ROBOT, RobotError, RobotSpec, get_robot, is_spec_file
+
+if TYPE_CHECKING:
+    from ..geometry.camera import Camera
 
 __all__ = [
     "ArticulatedConfig",
@@ -71,6 +74,19 @@ def _rigid(value: Any, where: str) -> np.ndarray:
     if np.abs(R.T @ R - np.eye(3)).max() > 1e-5 or np.linalg.det(R) < 0 or np.abs(T[3] - [0, 0, 0, 1]).max() > 1e-9:
         raise WorldConfigError(f"{where}: not a rigid transform (rotation must be orthonormal, last row 0 0 0 1)")
     return T
+
+
+def _lens(value: Any, where: str) -> dict[str, Any]:
+    """A camera's lens as world.yaml gives it (our camera JSON's ``distortion``); {} for none."""
+    from ..geometry.camera import Camera, CameraFormatError
+
+    if value is None:
+        return {}
+    try:
+        cam = Camera(np.eye(3), np.eye(4), 1, 1, distortion=value)
+    except CameraFormatError as e:
+        raise WorldConfigError(f"{where}: {e}") from None
+    return cam.distortion_json() if cam.has_distortion else {}
 
 
 def _sim3(value: Any, where: str) -> Sim3:
@@ -222,13 +238,25 @@ class RobotConfig:
 @dataclass
 class CameraConfig:
     """A camera rigidly mounted on ``mount`` ("base" or a robot link): ``T_mount_cam`` [4,4] (OpenCV axes),
-    intrinsics ``K`` [3,3] (pixel centres at +0.5) for ``width`` x ``height`` pixels."""
+    intrinsics ``K`` [3,3] (pixel centres at +0.5) for ``width`` x ``height`` pixels, and its lens: ``distortion``
+    as our camera JSON writes it (``geometry.camera.Camera.distortion_json``; {}: a pinhole). The environment draws
+    a camera with a lens through it (``env.lens``)."""
 
     mount: str
     T_mount_cam: np.ndarray
     K: np.ndarray
     width: int
     height: int
+    distortion: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.distortion = _lens(self.distortion or None, "camera distortion")  # zero coefficients: a pinhole
+
+    def lens_camera(self) -> Camera:
+        """The camera's intrinsics and lens as a ``geometry.camera.Camera`` (pose: its mount)."""
+        from ..geometry.camera import Camera
+
+        return Camera(self.K, self.T_mount_cam, self.width, self.height, distortion=dict(self.distortion))
 
 
 @dataclass
@@ -375,7 +403,7 @@ class WorldConfig:
         cameras = {}
         for name, c in _check_keys(data.get("cameras") or {}, None, "cameras").items():
             where = f"cameras.{name}"
-            c = _check_keys(c, {"mount", "T_mount_cam", "K", "width", "height"}, where)
+            c = _check_keys(c, {"mount", "T_mount_cam", "K", "width", "height", "distortion"}, where)
             for key in ("mount", "T_mount_cam", "K", "width", "height"):
                 if key not in c:
                     raise WorldConfigError(f"{where}: missing {key!r}")
@@ -386,7 +414,7 @@ class WorldConfig:
                 raise WorldConfigError(str(e)) from None
             cameras[str(name)] = CameraConfig(
                 mount=str(c["mount"]), T_mount_cam=_rigid(c["T_mount_cam"], f"{where}.T_mount_cam"), K=K,
-                width=width, height=height,
+                width=width, height=height, distortion=_lens(c.get("distortion"), f"{where}.distortion"),
             )  # fmt: skip
         scene = _check_keys(data.get("scene") or {}, {"gaussians"}, "scene")
 
@@ -502,6 +530,7 @@ class WorldConfig:
                     "K": np.asarray(c.K).tolist(),
                     "width": int(c.width),
                     "height": int(c.height),
+                    **({"distortion": dict(c.distortion)} if c.distortion else {}),
                 }
                 for name, c in self.cameras.items()
             },
