@@ -74,11 +74,13 @@ def test_a_world_of_centred_pinholes_has_no_plan_and_a_fisheye_too_wide_is_refus
         lens_plan(make_config(wide, "grasp banana", size=SIZE))
 
 
-def test_frames_through_the_lens_are_the_wide_pinhole_read_where_opencv_puts_each_ray(world, tmp_path):
+@pytest.mark.parametrize("renderer", ["hybrid", pytest.param("ground_truth", marks=pytest.mark.slow)])
+def test_frames_through_the_lens_are_the_wide_pinhole_read_where_opencv_puts_each_ray(world, tmp_path, renderer,
+                                                                                     sample_dir):  # fmt: skip
     """The head camera made a calibrated wide-angle one (K_WIDE, LENS): its frames against an independent
     reference, a centred pinhole frame of the same focal length rendered directly, twice as wide, read where OpenCV's
     undistortion puts each frame pixel's ray. The frames the renderers drew before (the centred pinhole of the same
-    vertical field of view) are far from it."""
+    vertical field of view) are far from it. Both renderers: the hybrid one and the sample's ground truth."""
     from mirage2matter.env.config import Randomization
     from mirage2matter.env.twin_env import TwinEnv
     from mirage2matter.world.config import save_world
@@ -97,7 +99,9 @@ def test_frames_through_the_lens_are_the_wide_pinhole_read_where_opencv_puts_eac
     still = Randomization(camera_deg=0.0, camera_m=0.0)
 
     def first_frame(w, size):
-        env = TwinEnv(w, "grasp banana", size=size, cameras=("head",), randomization=still)
+        truth = sample_dir if renderer == "ground_truth" else None
+        env = TwinEnv(w, "grasp banana", size=size, cameras=("head",), randomization=still, renderer=renderer,
+                      ground_truth=truth)  # fmt: skip
         try:
             return env.reset(seed=3)[0]["observation.images.head"]
         finally:
