@@ -45,6 +45,28 @@ def test_policy_takes_any_image_size_and_checks_observations(tiny_run):
         policy({**obs, "observation.images.head": obs["observation.images.head"].astype(np.float32)})
 
 
+def test_a_live_camera_s_image_is_cropped_about_its_centre_to_the_training_frames_aspect(tiny_run):
+    """A policy trained on 64 x 48 head frames (and square wrist ones) given a camera's whole image of another
+    aspect sees its centre crop of the frames' aspect (as a world draws frames: env.lens), not the image squashed."""
+    from mirage2matter.policy.data import resize_area
+
+    _, out, _, _ = tiny_run
+    policy = load_policy(out)
+    assert policy.frame_sizes == {"head": (64, 48), "wrist": (32, 32)} and policy.spec.image_size == 32
+    obs = _obs(np.random.default_rng(3))
+    wide = np.random.default_rng(4).integers(0, 256, (96, 256, 3), dtype=np.uint8)  # 2.67:1 against 4:3
+    tall = np.random.default_rng(5).integers(0, 256, (200, 64, 3), dtype=np.uint8)
+    for image, centre in ((wide, wide[:, 64:192]), (tall, tall[76:124])):
+        chunk = policy.predict_chunk({**obs, "observation.images.head": image})
+        np.testing.assert_array_equal(chunk, policy.predict_chunk({**obs, "observation.images.head": centre}))
+        squashed = resize_area(image, policy.spec.image_size)  # what the policy took before: the image squashed
+        assert not np.allclose(chunk, policy.predict_chunk({**obs, "observation.images.head": squashed}))
+    # a policy saved before the frames' sizes were recorded squashes, as it was trained to
+    policy.frame_sizes = {}
+    np.testing.assert_array_equal(policy.predict_chunk({**obs, "observation.images.head": wide}),
+                                  policy.predict_chunk({**obs, "observation.images.head": resize_area(wide, 32)}))
+
+
 def test_temporal_ensembling_and_replanning(tiny_run):
     _, out, _, _ = tiny_run
     k = 4  # the tiny run's chunk

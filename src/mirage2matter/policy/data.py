@@ -86,6 +86,8 @@ class Demonstrations:
     lengths   int64 [E] frames of each episode
     tasks     [E] each episode's language instruction
     sources   [E] (dataset folder, episode_index within it)
+    frame_sizes  camera -> (width, height) of the datasets' frames before the resize (None where they differ): a
+              live camera's image is cropped to that aspect about its centre before the same resize (``camera_frame``)
     """
 
     meta: DatasetMeta
@@ -96,6 +98,7 @@ class Demonstrations:
     lengths: np.ndarray
     tasks: list[str] = field(default_factory=list)
     sources: list[tuple[str, int]] = field(default_factory=list)
+    frame_sizes: dict[str, tuple[int, int] | None] = field(default_factory=dict)
 
     @property
     def n_frames(self) -> int:
@@ -116,6 +119,21 @@ class Demonstrations:
 
 
 # ---- pure helpers ---------------------------------------------------------------------------------
+def camera_frame(image: np.ndarray, frame_size: tuple[int, int] | None) -> np.ndarray:
+    """A live camera's image [H, W, 3] as the policy's training frames of ``frame_size`` (width, height) show it:
+    cropped about its centre to their aspect (the frames a world draws are the camera's image at full height, cropped
+    about its centre: ``env.lens``), before the resize. None, or the same aspect to a pixel: the image itself."""
+    if frame_size is None:
+        return image
+    h, w = image.shape[:2]
+    aspect = frame_size[0] / frame_size[1]
+    cw, ch = (round(h * aspect), h) if w / h > aspect else (w, round(w / aspect))
+    if abs(cw - w) < 1 and abs(ch - h) < 1:
+        return image
+    x0, y0 = (w - cw) // 2, (h - ch) // 2
+    return image[y0 : y0 + ch, x0 : x0 + cw]
+
+
 def resize_area(image: np.ndarray, size: int) -> np.ndarray:
     """uint8 [H, W, 3] -> uint8 [size, size, 3] with an area filter (the aspect ratio is not kept: train and
     deployment squash alike). Used for the datasets' frames and for live observations, so both match."""
@@ -377,6 +395,7 @@ def load_episodes(
     if not episodes:
         raise PolicyError(f"{', '.join(map(str, dirs))}: no episodes to train on")
     lengths = np.array([len(ep["state"]) for ep in episodes], np.int64)
+    sizes = {c: {_frame_size(_read_info(d), c) for d in dirs} for c in first.cameras}
     return Demonstrations(
         meta=first,
         images={c: np.concatenate([ep["images"][c] for ep in episodes]) for c in first.cameras},
@@ -386,4 +405,11 @@ def load_episodes(
         lengths=lengths,
         tasks=[ep["task"] for ep in episodes],
         sources=sources,
+        frame_sizes={c: next(iter(s)) if len(s) == 1 else None for c, s in sizes.items()},
     )
+
+
+def _frame_size(info: dict[str, Any], camera: str) -> tuple[int, int] | None:
+    """(width, height) of a dataset's frames of ``camera`` (its info.json's video shape [H, W, 3]), None if unsaid."""
+    shape = info["features"][IMAGE_PREFIX + camera].get("shape")
+    return (int(shape[1]), int(shape[0])) if shape and len(shape) == 3 else None

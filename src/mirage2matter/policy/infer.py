@@ -3,7 +3,8 @@ PolicyEnsemble``, several trained policies whose chunks are combined (averaged, 
 callables.
 
 Observations have exactly the keys of our datasets: ``observation.images.<camera>`` (uint8 [H, W, 3], any
-size: resized inside with the training's area filter) and ``observation.state`` (float [S]). The network
+size: the camera's whole image, cropped inside about its centre to the training frames' aspect and resized with the
+training's area filter) and ``observation.state`` (float [S]). The network
 predicts K actions per observation; a :class:`ChunkedPolicy` either runs it every step and averages all predictions
 made for the current step (ACT's temporal ensembling: weights exp(-m i), i = 0 the oldest, so the executed
 trajectory stays smooth while each new observation still pulls it), or re-plans every n steps and executes
@@ -23,7 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from .data import IMAGE_PREFIX, STATE_KEY, DatasetMeta, PolicyError, resize_area
+from .data import IMAGE_PREFIX, STATE_KEY, DatasetMeta, PolicyError, camera_frame, resize_area
 from .model import ModelSpec, VisuomotorPolicy
 from .train import CHECKPOINT_FILE, CHECKPOINT_FORMAT, POLICY_FILE, resolve_device
 
@@ -110,8 +111,12 @@ class Policy(ChunkedPolicy):
         device: torch.device,
         replan_every: int | None = None,
         ensemble_decay: float = 0.1,
+        frame_sizes: Mapping[str, Sequence[int] | None] | None = None,
     ) -> None:
         self.model = model.eval()
+        # the training frames' (width, height) per camera: a live image is cropped to their aspect first (None: a
+        # policy saved before they were recorded, or trained on frames of several shapes: the image is squashed)
+        self.frame_sizes = {c: tuple(s) if s else None for c, s in (frame_sizes or {}).items()}
         self.spec = model.spec
         self.meta = meta
         self.source = source
@@ -168,6 +173,7 @@ class Policy(ChunkedPolicy):
             im = np.asarray(obs[IMAGE_PREFIX + cam])
             if im.ndim != 3 or im.shape[2] != 3 or im.dtype != np.uint8:
                 raise PolicyError(f"{IMAGE_PREFIX + cam} must be uint8 [H, W, 3], got {im.dtype} {list(im.shape)}")
+            im = camera_frame(im, self.frame_sizes.get(cam))
             x = torch.from_numpy(resize_area(im, s).transpose(2, 0, 1).copy()).float().div_(255.0)
             images[cam] = x[None].to(self.device).contiguous(memory_format=torch.channels_last)
         state = np.asarray(obs[STATE_KEY], np.float32).reshape(-1)
@@ -302,7 +308,7 @@ def load_policy(
     model = model.to(dev).to(memory_format=torch.channels_last)
     if ensemble_decay is None:
         ensemble_decay = float(blob.get("inference", {}).get("ensemble_decay", 0.1))
-    policy = Policy(model, meta, stats, path, dev, replan_every, ensemble_decay)
+    policy = Policy(model, meta, stats, path, dev, replan_every, ensemble_decay, blob.get("frame_sizes"))
     policy.check_matches(robot_type, state_names, action_names, fps, cameras)
     return policy
 

@@ -341,8 +341,9 @@ class PolicyTrainer:
     def policy(self, summary: dict[str, Any]) -> dict[str, Any]:
         """What ``policy.pt`` holds: the EMA weights, the model spec, the datasets' meta and normalisation."""
         trained = {k: summary[k] for k in ("steps", "episodes", "frames")}
-        return policy_blob(self.ema, self.spec, self.demos.meta.to_json(), self.stats,
-                           {"inference": {"ensemble_decay": 0.1}, "trained": trained})  # fmt: skip
+        extra = {"inference": {"ensemble_decay": 0.1}, "trained": trained,
+                 "frame_sizes": {c: list(s) if s else None for c, s in self.demos.frame_sizes.items()}}
+        return policy_blob(self.ema, self.spec, self.demos.meta.to_json(), self.stats, extra)
 
     def summary(self, run_start: int, run_steps: int, run_s: float) -> dict[str, Any]:
         """summary.json: what was trained on, how fast (``run_steps`` steps in ``run_s`` seconds this session, from
