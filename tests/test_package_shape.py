@@ -387,3 +387,17 @@ def test_each_engine_is_imported_by_one_package():
                 if owner is not None and _package(m) != owner:
                     wrong.append(f"{_rel(p)}:{n.lineno} imports {name} (only {owner}/ does)")
     assert not wrong, "\n".join(wrong)
+
+
+def test_no_lazy_name_is_its_own_submodule_s_name():
+    """A package's lazy name that is also its submodule's name (render's ``composite``) hands out the module once any
+    code has imported the submodule directly: which one a caller got depended on import order."""
+    import importlib
+
+    for init in sorted(PKG.rglob("__init__.py")):
+        if "_LAZY = " not in init.read_text():
+            continue
+        package = ".".join(init.parent.relative_to(PKG.parent).parts)
+        lazy = importlib.import_module(package)._LAZY
+        clashes = [name for name, sub in lazy.items() if name == sub]
+        assert not clashes, f"{package}: lazy names that are their submodule's name: {clashes}"

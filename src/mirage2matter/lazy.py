@@ -20,8 +20,8 @@ def lazy_names(package: str, modules: dict[str, str]) -> Callable[[str], Any]:
         if name not in modules:
             raise AttributeError(f"module {package!r} has no attribute {name!r}")
         sub = importlib.import_module(f"{package}.{modules[name]}")
-        # bind the submodule's lazy names in the package, as an eager import would: importing the submodule has just
-        # set the package's attribute of the submodule's name (render.composite) to the module, not the function
+        # bind the submodule's lazy names in the package, as an eager import would (a lazy name must not be its
+        # submodule's own name: importing the submodule sets the package's attribute of that name to the module)
         pkg = sys.modules[package]
         for other, where in modules.items():
             if where == modules[name]:

@@ -10,7 +10,8 @@ from mirage2matter.gaussians.model import Gaussians
 from mirage2matter.gaussians.transform import apply_sim3
 from mirage2matter.geometry.camera import look_at_pose
 from mirage2matter.geometry.sim3 import Sim3, invert_rigid
-from mirage2matter.render import ColorJitter, MovablePart, SplatRenderOptions, SplatWorld, composite, to_uint8
+from mirage2matter.render import ColorJitter, MovablePart, SplatRenderOptions, SplatWorld, to_uint8
+from mirage2matter.render.composite import composite
 
 H, W = 48, 64
 K = np.array([[60.0, 0, W / 2], [0, 60.0, H / 2], [0, 0, 1]])

@@ -47,7 +47,7 @@ def test_hybrid_frame_matches_ground_truth_and_objects_hide_the_gripper(twin_wor
     from mirage2matter.env.hybrid import render_K
     from mirage2matter.geometry.rotation import matrix_to_quat
     from mirage2matter.geometry.sim3 import invert_rigid
-    from mirage2matter.render import composite
+    from mirage2matter.render.composite import composite
 
     twin, splat = twin_world
     twin.reset(seed=0, randomize=False)

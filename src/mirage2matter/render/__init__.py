@@ -8,7 +8,9 @@ texture read without torch.
 from ..lazy import lazy_names
 
 _LAZY = {
-    "ColorJitter": "composite", "composite": "composite", "robot_visible": "composite", "to_uint8": "composite",
+    # not the function composite: its module's name is the same, and once the module is imported the package's
+    # attribute is the module (``from mirage2matter.render.composite import composite``)
+    "ColorJitter": "composite", "robot_visible": "composite", "to_uint8": "composite",
     "MovablePart": "splat_world", "SplatRenderOptions": "splat_world", "SplatWorld": "splat_world",
     "SplatWorldBatch": "splat_world",
 }  # fmt: skip
