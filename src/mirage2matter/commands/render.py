@@ -40,8 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="render a 3DGS PLY from a camera to a PNG",
         description=(
             "Render a 3D Gaussian Splatting PLY (Inria layout) from one camera to an 8-bit RGB PNG.\n"
-            f"The camera is a JSON file {CAMERA_FIELDS};\n"
-            "or, with --frame NAME, one frame of an instant-ngp / nerfstudio transforms.json."
+            f"The camera is a JSON file {CAMERA_FIELDS}, with its lens (\"distortion\") if it has one;\n"
+            "or, with --frame NAME, one frame of an instant-ngp / nerfstudio transforms.json (k1, k2, p1, p2...)."
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -106,9 +106,23 @@ def write_png(path: Path, image) -> None:
         Image.fromarray(image).save(tmp, format="PNG")
 
 
-def _write_depth(path: Path, depth) -> str:
+def _lens(cam: Any) -> tuple[np.ndarray, float, np.ndarray, tuple[int, int]] | None:
+    """(rays [H, W, 2], focal, K [3,3] and (width, height) of the centred pinhole covering them) for a camera with a
+    lens, None for a pinhole (the renderer takes its K as it is)."""
+    from ..render.lens import lens_rays, pinhole_cover
+
+    if not cam.has_distortion:
+        return None
+    rays, f = lens_rays(cam, 1), float(cam.fy)
+    if not np.isfinite(rays).all() or np.abs(rays).max() * f > 3 * max(cam.width, cam.height):
+        raise CliError(f"{cam.name or 'the camera'}: its lens sees too wide for a pinhole render (a fisheye near 180 "
+                       "deg); give a camera undistorted to a pinhole")  # fmt: skip
+    w, h = pinhole_cover(rays, f, (cam.width, cam.height), margin_px=2.0)
+    return rays, f, np.array([[f, 0.0, 0.5 * w], [0.0, f, 0.5 * h], [0.0, 0.0, 1.0]]), (w, h)
+
+
+def _write_depth(path: Path, d: np.ndarray) -> str:
     """``.npy``: float32 metres; ``.png``: uint16 millimetres (0 = nothing seen, clipped at 65.535 m)."""
-    d = np.nan_to_num(depth.detach().to("cpu").float().numpy(), nan=0.0, posinf=0.0, neginf=0.0)
     if path.suffix.lower() == ".npy":
         with atomic_write(path, "wb") as f:
             np.save(f, d.astype(np.float32))
@@ -146,17 +160,24 @@ def run(args: argparse.Namespace) -> int:
     g = read_ply(ply)
     if len(g.means) == 0:  # a black picture would look like a render of something
         raise PlyFormatError(f"{ply}: holds no Gaussians (0 vertices); nothing to render")
+    lens = _lens(cam)  # a camera with a lens: a wider centred pinhole, resampled through it
+    K, w, h = (lens[2], *lens[3]) if lens else (cam.K, cam.width, cam.height)
     with torch.no_grad():
         t0 = time.perf_counter()
         bg = torch.tensor(cfg.background, dtype=torch.float32)
-        vm, K = torch.from_numpy(cam.viewmat), torch.from_numpy(cam.K)
-        result = render(g, vm, K, cam.width, cam.height, bg, backend_name)
+        result = render(g, torch.from_numpy(cam.viewmat), torch.from_numpy(K), w, h, bg, backend_name)
         if backend_name == "cuda":
             torch.cuda.synchronize()
         ms = (time.perf_counter() - t0) * 1e3
-    write_png(out, to_uint8(result.rgb))
-    extra = ""
+    rgb = to_uint8(result.rgb)
+    depth = np.nan_to_num(result.depth.detach().to("cpu").float().numpy(), nan=0.0, posinf=0.0, neginf=0.0)
+    if lens:
+        from ..render.lens import depth_through_lens, resample_through_lens
+
+        rgb, depth = resample_through_lens(rgb, lens[1], lens[0], 1), depth_through_lens(depth, lens[1], lens[0])
+    write_png(out, rgb)
+    extra = "; through the camera's lens" if lens else ""
     if depth_out is not None:
-        extra = f"; depth ({_write_depth(depth_out, result.depth)}) to {depth_out}"
+        extra += f"; depth ({_write_depth(depth_out, depth)}) to {depth_out}"
     print(f"wrote {out} ({cam.width}x{cam.height}, {len(g):,} Gaussians, {backend_name} backend, {ms:.1f} ms){extra}")
     return 0

@@ -19,7 +19,7 @@ import numpy as np
 if TYPE_CHECKING:
     from ..geometry.camera import Camera
 
-__all__ = ["lens_rays", "pinhole_cover", "resample_through_lens"]
+__all__ = ["depth_through_lens", "lens_rays", "pinhole_cover", "resample_through_lens"]
 
 
 def lens_rays(camera: Camera, supersample: int = 2) -> np.ndarray:
@@ -54,13 +54,28 @@ def resample_through_lens(image: np.ndarray, focal: float, rays: np.ndarray, sup
     sensor pixel integrates its area)."""
     import cv2
 
-    h, w = image.shape[:2]
     s = int(supersample)
     H, W = rays.shape[0] // s, rays.shape[1] // s
-    map_x = (rays[..., 0] * focal + 0.5 * w - 0.5).astype(np.float32)  # cv2.remap: pixel centres at integers
-    map_y = (rays[..., 1] * focal + 0.5 * h - 0.5).astype(np.float32)
-    if map_x.min() < -0.5 or map_y.min() < -0.5 or map_x.max() > w - 0.5 or map_y.max() > h - 0.5:
-        raise ValueError(f"the lens sees past the {w}x{h} pinhole render; render it wider (pinhole_cover)")
+    map_x, map_y = _maps(rays, focal, image.shape[1], image.shape[0])
     samples = cv2.remap(image.astype(np.float32), map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     out = samples.reshape(H, s, W, s, -1).mean(axis=(1, 3))
     return np.clip(np.round(out), 0, 255).astype(np.uint8).reshape(H, W, *image.shape[2:])
+
+
+def depth_through_lens(depth: np.ndarray, focal: float, rays: np.ndarray) -> np.ndarray:
+    """The depth [H, W] float32 of the lens's pixels (``rays`` [H, W, 2], one per pixel) from a centred pinhole's
+    depth [h, w] of focal length ``focal`` (the same camera frame: a point's depth is the same in both): each pixel
+    takes the nearest render pixel's, never a blend across an edge."""
+    import cv2
+
+    map_x, map_y = _maps(rays, focal, depth.shape[1], depth.shape[0])
+    return cv2.remap(np.asarray(depth, np.float32), map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+
+
+def _maps(rays: np.ndarray, focal: float, w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
+    """cv2.remap's maps (pixel centres at integers) reading a centred ``w`` x ``h`` pinhole where ``rays`` land."""
+    map_x = (rays[..., 0] * focal + 0.5 * w - 0.5).astype(np.float32)
+    map_y = (rays[..., 1] * focal + 0.5 * h - 0.5).astype(np.float32)
+    if map_x.min() < -0.5 or map_y.min() < -0.5 or map_x.max() > w - 0.5 or map_y.max() > h - 0.5:
+        raise ValueError(f"the lens sees past the {w}x{h} pinhole render; render it wider (pinhole_cover)")
+    return map_x, map_y
