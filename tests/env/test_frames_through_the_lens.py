@@ -128,3 +128,31 @@ def test_frames_through_the_lens_are_the_wide_pinhole_read_where_opencv_puts_eac
     assert frame.shape == (SIZE, SIZE, 3) and frame.dtype == np.uint8
     assert psnr(frame) > 35.0
     assert psnr(before) < psnr(frame) - 10.0
+
+
+def test_a_second_renderer_of_the_same_twin_draws_through_the_same_plan(world):
+    """bench policy-gap draws the truth beside the env's hybrid frames: through the same lens when the env has one."""
+    from mirage2matter.env.lens import LensFrames
+    from mirage2matter.env.twin_env import make_config
+
+    calibrated = world.copy()
+    calibrated.cameras["head"] = replace(calibrated.cameras["head"], K=K_WIDE, width=640, height=480, distortion=LENS)
+    plan = lens_plan(make_config(calibrated, "grasp banana", size=SIZE, cameras=("head",)))
+    W, H = plan.render_size
+    assert W > SIZE and H > SIZE and (W - SIZE) % 2 == 0 and (H - SIZE) % 2 == 0
+
+    class Flat:  # a renderer drawing one grey level per column of whatever size it was made for
+        def __init__(self, size):
+            self.size, self.timings = size, {}
+
+        def render(self):
+            w, h = self.size
+            return {"head": np.broadcast_to(np.arange(w, dtype=np.uint8)[None, :, None], (h, w, 3)).copy()}
+
+    made = LensFrames.like(LensFrames(Flat(plan.render_size), plan), (SIZE, SIZE), Flat)
+    assert isinstance(made, LensFrames) and made.inner.size == (W, H)
+    frame = made.render()["head"]
+    assert frame.shape == (SIZE, SIZE, 3)
+    # read from the wide render: the barrel lens's left edge sees further out than the pinhole crop's first column
+    assert frame[SIZE // 2, 0, 0] < (W - SIZE) // 2
+    assert LensFrames.like(Flat((SIZE, SIZE)), (SIZE, SIZE), Flat).size == (SIZE, SIZE)  # no lens: the frame size
