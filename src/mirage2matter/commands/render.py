@@ -14,6 +14,7 @@ from .. import configure_threads
 from ..atomic import atomic_path, atomic_write
 from ..configs import add_flags, from_flags, ranged
 from ..inputs import InputError, read_json
+from ..render.lens import depth_through_lens, lens_rays, pinhole_cover, resample_through_lens
 from .args import CliError, backend, check_output, rgb
 
 CAMERA_FIELDS = '{"width", "height", "K" (3x3, pixels), "T_world_cam" (4x4 camera-to-world, OpenCV axes)}'
@@ -109,8 +110,6 @@ def write_png(path: Path, image) -> None:
 def _lens(cam: Any) -> tuple[np.ndarray, float, np.ndarray, tuple[int, int]] | None:
     """(rays [H, W, 2], focal, K [3,3] and (width, height) of the centred pinhole covering them) for a camera with a
     lens, None for a pinhole (the renderer takes its K as it is)."""
-    from ..render.lens import lens_rays, pinhole_cover
-
     if not cam.has_distortion:
         return None
     rays, f = lens_rays(cam, 1), float(cam.fy)
@@ -172,8 +171,6 @@ def run(args: argparse.Namespace) -> int:
     rgb = to_uint8(result.rgb)
     depth = np.nan_to_num(result.depth.detach().to("cpu").float().numpy(), nan=0.0, posinf=0.0, neginf=0.0)
     if lens:
-        from ..render.lens import depth_through_lens, resample_through_lens
-
         rgb, depth = resample_through_lens(rgb, lens[1], lens[0], 1), depth_through_lens(depth, lens[1], lens[0])
     write_png(out, rgb)
     extra = "; through the camera's lens" if lens else ""

@@ -25,7 +25,7 @@ Cameras (OpenCV axes, ``K`` with pixel centres at +0.5, DESIGN.md section 1) are
 border by ``sim.scene``: ``T_gl = T_base_cam @ GL_TO_CV``, vertical field of view from ``fy``.
 Genesis renders only square pixels with the principal point at the image centre. ``intrinsics="exact"``
 (the default) refuses any other ``K`` with a clear error; ``intrinsics="twin"`` accepts it with the physics
-twin's approximation (``Twin.camera`` at another size, ``datagen.sim_source.render_K``: vertical field of
+twin's approximation (``Twin.camera`` at another size, ``sim.scene.render_K``: vertical field of
 view kept, ``fx = fy``, principal point centred) and :meth:`GroundTruthRenderer.K` says which ``K`` the pixels have.
 """
 
@@ -48,7 +48,7 @@ from ..errors import EpisodeStalled, M2MError
 from ..processes import TimedWorker, WorkerTimeout, can_start_children
 from ..robots import DEFAULT_ROBOT, RobotSpec, get_robot
 from ..robots.surface import robot_surface
-from ..sim.scene import RenderScene, SceneLook, pos_quat, pose_from
+from ..sim.scene import RenderScene, SceneLook, pos_quat, pose_from, render_K
 from ..sim.twin import Twin, TwinOptions
 from ..world.sample_assets import assets_of_sample
 from ..world.sample_robot_look import ROBOT_LOOK_PREFIX, robot_look_meshes
@@ -123,10 +123,9 @@ def read_ground_truth(sample_dir: str | Path) -> dict[str, Any]:
 
 def twin_K(K: np.ndarray, width: int, height: int) -> np.ndarray:
     """The intrinsics Genesis renders for ``K`` at ``width`` x ``height`` under the physics twin's approximation
-    (``datagen.sim_source.render_K`` at the same size): vertical field of view kept (``f = K[1,1]``), square
-    pixels, principal point at the image centre."""
-    f = float(np.asarray(K, dtype=np.float64)[1, 1])
-    return np.array([[f, 0.0, 0.5 * width], [0.0, f, 0.5 * height], [0.0, 0.0, 1.0]])
+    (``sim.scene.render_K`` at the same size): vertical field of view kept (``f = K[1,1]``), square pixels,
+    principal point at the image centre."""
+    return render_K(np.asarray(K, dtype=np.float64), width, height, width, height)
 
 
 def render_intrinsics(K: Any, width: int, height: int, intrinsics: str = "exact", name: str = "camera") -> np.ndarray:

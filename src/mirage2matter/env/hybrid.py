@@ -17,6 +17,7 @@ import numpy as np
 from ..render.composite import ColorJitter, composite, to_uint8
 from ..render.splat_server import RemoteSplatLayer
 from ..render.table_texture import TableGaussians
+from ..sim.scene import render_K
 from .config import EnvConfig, HybridOptions
 from .robot_proxy import render_robot_file
 
@@ -30,13 +31,6 @@ if TYPE_CHECKING:
 __all__ = ["ROBOT_PART", "TIMING_KEYS", "HybridRenderer", "build_hybrid", "render_K", "robot_links", "splat_parts"]
 
 TIMING_KEYS = ("pose_splats", "splat_render", "robot_render", "composite")
-
-
-def render_K(K: np.ndarray, width: int, height: int, out_w: int, out_h: int) -> np.ndarray:
-    """Intrinsics of the ``out_w`` x ``out_h`` render of a camera (the Genesis twin's convention: the
-    vertical field of view kept, square pixels, principal point at the centre)."""
-    f = float(K[1, 1]) * out_h / height
-    return np.array([[f, 0.0, out_w / 2.0], [0.0, f, out_h / 2.0], [0.0, 0.0, 1.0]])
 
 
 class HybridRenderer:

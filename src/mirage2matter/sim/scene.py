@@ -49,6 +49,7 @@ __all__ = [
     "new_scene",
     "pos_quat",
     "pose_from",
+    "render_K",
     "render_view",
 ]
 
@@ -175,6 +176,14 @@ class SimCamera:
         K = np.array(self.camera.intrinsics, dtype=np.float64, copy=True)
         K[0, 2] -= self.x0
         return K
+
+
+def render_K(K: np.ndarray, width: int, height: int, out_w: int, out_h: int) -> np.ndarray:
+    """Intrinsics [3,3] of the ``out_w`` x ``out_h`` render of the camera ``(K, width, height)`` as Genesis draws it
+    (and the splats must be drawn to match): the vertical field of view kept, square pixels, principal point at the
+    centre. A camera with a lens or an off-centre principal point is drawn exactly through ``env.lens``."""
+    f = float(np.asarray(K)[1, 1]) * out_h / height
+    return np.array([[f, 0.0, out_w / 2.0], [0.0, f, out_h / 2.0], [0.0, 0.0, 1.0]])
 
 
 def add_camera(scene: Any, width: int, height: int, fy: float, near: float, far: float) -> SimCamera:

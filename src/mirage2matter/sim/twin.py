@@ -39,6 +39,7 @@ from .scene import (
     new_scene,
     pos_quat,
     pose_from,
+    render_K,
     render_view,
 )
 
@@ -593,8 +594,7 @@ class Twin:
         w, h = self.options.camera_sizes.get(name, (c.width, c.height))
         K = np.asarray(c.K, dtype=np.float64).copy()
         if (w, h) != (c.width, c.height):
-            f = K[1, 1] * h / c.height
-            K = np.array([[f, 0.0, 0.5 * w], [0.0, f, 0.5 * h], [0.0, 0.0, 1.0]])
+            K = render_K(K, c.width, c.height, w, h)
         return T_mount @ c.T_mount_cam, K, int(w), int(h)
 
     def render_robot(self, name: str, width: int | None = None, height: int | None = None) -> dict[str, np.ndarray]:
