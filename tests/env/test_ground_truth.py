@@ -26,7 +26,7 @@ N_PSNR_FRAMES = 8  # spread over the video
 
 # ---- helpers -------------------------------------------------------------------------------------
 def _twin_render_K(K: np.ndarray, height: int, out_w: int, out_h: int) -> np.ndarray:
-    """The twin's K of a camera rendered at another size (``datagen.sim_source.render_K``, ``Twin.camera``):
+    """The twin's K of a camera rendered at another size (``sim.scene.render_K``, ``Twin.camera``):
     vertical field of view kept, square pixels, principal point centred."""
     f = K[1, 1] * out_h / height
     return np.array([[f, 0.0, out_w / 2], [0.0, f, out_h / 2], [0.0, 0.0, 1.0]])

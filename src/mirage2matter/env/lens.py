@@ -3,7 +3,7 @@
 What a frame of a camera is, for ``EpisodeSpec.size`` (w, h): the camera's own image (``CameraConfig``: K, lens, its
 width x height) at its full height, cropped about the image centre to the frame's aspect and scaled to h rows
 (:func:`frame_camera`). For a centred pinhole (fx = fy, no skew, the principal point at the image centre, no lens)
-that is the pinhole the renderers draw directly (``env.hybrid.render_K``); any other camera (a real calibration's
+that is the pinhole the renderers draw directly (``sim.scene.render_K``); any other camera (a real calibration's
 off-centre principal point, its lens) is drawn in two steps, as the sample maker films its phone lens
 (``render.lens``): the renderer draws a centred pinhole of the frame's focal length wide enough for every ray the
 frame takes in, and each frame pixel reads it where its ray lands (one bilinear sample per pixel). Without this the
