@@ -155,7 +155,8 @@ class Camera:
     distortion_model  "opencv" (radial-tangential, the default) or "fisheye" (equidistant, cv2.fisheye); "" reads
                       a "model" entry of ``distortion`` (as our JSON writes it), else "opencv"
 
-    The renderer is a pinhole: stages take the lens out (``undistort_pixels``, gaussians' ``undistort_image``).
+    The renderers are pinholes: stages take the lens out (``undistort_pixels``, gaussians' ``undistort_image``),
+    and the frames a world is observed in put it back (``env.lens``, ``render.lens``).
     Copy a camera with ``dataclasses.replace`` (keeps the lens model), not by re-listing the fields.
     """
 
