@@ -187,6 +187,15 @@ def test_render_draws_the_camera_s_lens(assets: dict, tmp_path: Path, capsys: py
     assert np.abs(got - ref)[inner].mean() < 1.0 / 255 and np.median(np.abs(depth - ref_depth)) < 1e-6
     pinhole, _ = _direct_render(g, replace(cam, distortion={}), background=(0, 0, 0))
     assert np.abs(pinhole - ref)[inner].mean() > 10 * np.abs(got - ref)[inner].mean()
+    # a fisheye seeing 180 deg has no pinhole to render through: a clear error, nothing written
+    fisheye = replace(cam, K=np.diag([0.2, 0.2, 1.0]) @ cam.K, distortion={"k1": 0.0, "k2": 0.0, "k3": 0.0, "k4": 0.0},
+                      distortion_model="fisheye")
+    save_camera_json(tmp_path / "fisheye.json", fisheye)
+    args[3] = str(tmp_path / "fisheye.json")
+    assert main([*args, "--out", str(tmp_path / "fisheye.png")]) == 2
+    assert "its lens sees too wide for a pinhole render" in capsys.readouterr().err
+    assert not (tmp_path / "fisheye.png").exists()
+    _no_debris(tmp_path)
 
 
 def _write_point_cloud_ply(path: Path) -> None:

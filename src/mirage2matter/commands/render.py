@@ -14,7 +14,7 @@ from .. import configure_threads
 from ..atomic import atomic_path, atomic_write
 from ..configs import add_flags, from_flags, ranged
 from ..inputs import InputError, read_json
-from ..render.lens import depth_through_lens, lens_rays, pinhole_cover, resample_through_lens
+from ..render.lens import depth_through_lens, lens_cover, resample_through_lens
 from .args import CliError, backend, check_output, rgb
 
 CAMERA_FIELDS = '{"width", "height", "K" (3x3, pixels), "T_world_cam" (4x4 camera-to-world, OpenCV axes)}'
@@ -112,11 +112,11 @@ def _lens(cam: Any) -> tuple[np.ndarray, float, np.ndarray, tuple[int, int]] | N
     lens, None for a pinhole (the renderer takes its K as it is)."""
     if not cam.has_distortion:
         return None
-    rays, f = lens_rays(cam, 1), float(cam.fy)
-    if not np.isfinite(rays).all() or np.abs(rays).max() * f > 3 * max(cam.width, cam.height):
-        raise CliError(f"{cam.name or 'the camera'}: its lens sees too wide for a pinhole render (a fisheye near 180 "
-                       "deg); give a camera undistorted to a pinhole")  # fmt: skip
-    w, h = pinhole_cover(rays, f, (cam.width, cam.height), margin_px=2.0)
+    f = float(cam.fy)
+    try:
+        rays, (w, h) = lens_cover(cam, f)
+    except ValueError as e:
+        raise CliError(f"{cam.name or 'the camera'}: its lens {e}; give a camera undistorted to a pinhole") from None
     return rays, f, np.array([[f, 0.0, 0.5 * w], [0.0, f, 0.5 * h], [0.0, 0.0, 1.0]]), (w, h)
 
 
@@ -169,12 +169,11 @@ def run(args: argparse.Namespace) -> int:
             torch.cuda.synchronize()
         ms = (time.perf_counter() - t0) * 1e3
     rgb = to_uint8(result.rgb)
-    depth = np.nan_to_num(result.depth.detach().to("cpu").float().numpy(), nan=0.0, posinf=0.0, neginf=0.0)
-    if lens:
-        rgb, depth = resample_through_lens(rgb, lens[1], lens[0], 1), depth_through_lens(depth, lens[1], lens[0])
-    write_png(out, rgb)
+    write_png(out, resample_through_lens(rgb, lens[1], lens[0], 1) if lens else rgb)
     extra = "; through the camera's lens" if lens else ""
     if depth_out is not None:
+        depth = np.nan_to_num(result.depth.detach().to("cpu").float().numpy(), nan=0.0, posinf=0.0, neginf=0.0)
+        depth = depth_through_lens(depth, lens[1], lens[0]) if lens else depth
         extra += f"; depth ({_write_depth(depth_out, depth)}) to {depth_out}"
     print(f"wrote {out} ({cam.width}x{cam.height}, {len(g):,} Gaussians, {backend_name} backend, {ms:.1f} ms){extra}")
     return 0

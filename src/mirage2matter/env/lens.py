@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..render.lens import lens_rays, pinhole_cover, resample_through_lens
+from ..render.lens import lens_cover, resample_through_lens
 from .config import EnvConfig, EnvError
 
 if TYPE_CHECKING:
@@ -31,11 +31,7 @@ if TYPE_CHECKING:
     from ..world.config import CameraConfig
     from .episode import EpisodeDraw
 
-__all__ = ["MAX_COVER", "LensFrames", "LensPlan", "frame_camera", "lens_plan"]
-
-# The widest pinhole render a lens may ask for, in frame sizes per side: past it the pinhole's edges are stretched
-# thin (a fisheye near 180 deg needs an unbounded one) and the render's cost grows with the square.
-MAX_COVER = 3.0
+__all__ = ["LensFrames", "LensPlan", "frame_camera", "lens_plan"]
 
 
 def frame_camera(cam: CameraConfig, width: int, height: int) -> Camera:
@@ -101,14 +97,13 @@ def lens_plan(cfg: EnvConfig) -> LensPlan | None:
     for c, f in frames.items():
         if _is_centred_pinhole(f):
             continue
-        rays[c] = lens_rays(f, supersample=1)
-        cw, ch = pinhole_cover(rays[c], focal[c], (w, h), margin_px=2.0) if np.isfinite(rays[c]).all() else (0, 0)
-        if not cw or cw > MAX_COVER * w or ch > MAX_COVER * h:
+        try:
+            rays[c], (cw, ch) = lens_cover(f, focal[c])
+        except ValueError as e:
             raise EnvError(
-                f"camera {c!r}: its lens ({f.distortion_model}, {f.distortion_json()}) sees too wide for the "
-                f"renderers' pinhole at {w}x{h} frames (over {MAX_COVER:g}x the frame per side); give the world a "
+                f"camera {c!r}: its lens ({f.distortion_model}, {f.distortion_json()}) {e}; give the world a "
                 "camera undistorted to a pinhole (world.yaml cameras.<name>: no distortion, its K), or a narrower crop"
-            )
+            ) from None
         W, H = max(W, cw), max(H, ch)
     return LensPlan((w, h), (W, H), focal, rays)
 

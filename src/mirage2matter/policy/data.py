@@ -363,6 +363,7 @@ def load_episodes(
     first_path = dirs[0]
     episodes: list[dict[str, Any]] = []
     sources: list[tuple[str, int]] = []
+    sizes: dict[str, set[tuple[int, int] | None]] = {}  # camera -> the datasets' frame sizes
     for root in dirs:
         info = _read_info(root)
         info_path = root / "meta" / "info.json"
@@ -371,6 +372,8 @@ def load_episodes(
             first, first_path = meta, info_path
         else:
             _check_same(first, first_path, meta, info_path)
+        for c in meta.cameras:
+            sizes.setdefault(c, set()).add(_frame_size(info, c))
         reader = _read_v30 if info["codebase_version"] == "v3.0" else _read_v21
         try:
             eps = reader(root, info, meta, image_size)
@@ -395,7 +398,6 @@ def load_episodes(
     if not episodes:
         raise PolicyError(f"{', '.join(map(str, dirs))}: no episodes to train on")
     lengths = np.array([len(ep["state"]) for ep in episodes], np.int64)
-    sizes = {c: {_frame_size(_read_info(d), c) for d in dirs} for c in first.cameras}
     return Demonstrations(
         meta=first,
         images={c: np.concatenate([ep["images"][c] for ep in episodes]) for c in first.cameras},

@@ -19,7 +19,11 @@ import numpy as np
 if TYPE_CHECKING:
     from ..geometry.camera import Camera
 
-__all__ = ["depth_through_lens", "lens_rays", "pinhole_cover", "resample_through_lens"]
+__all__ = ["MAX_COVER", "depth_through_lens", "lens_cover", "lens_rays", "pinhole_cover", "resample_through_lens"]
+
+# The widest pinhole render a lens may ask for, in image sizes per side: past it the pinhole's edges are stretched
+# thin (a fisheye near 180 deg needs an unbounded one) and the render's cost grows with the square.
+MAX_COVER = 3.0
 
 
 def lens_rays(camera: Camera, supersample: int = 2) -> np.ndarray:
@@ -45,6 +49,21 @@ def pinhole_cover(rays: np.ndarray, focal: float, size: tuple[int, int], margin_
         m = max(int(n), 2 * math.ceil(h))
         out.append(m + (m - int(n)) % 2)
     return out[0], out[1]
+
+
+def lens_cover(camera: Camera, focal: float, margin_px: float = 2.0) -> tuple[np.ndarray, tuple[int, int]]:
+    """(rays [H, W, 2] of ``camera``'s pixels, one each (:func:`lens_rays`); (width, height) of the centred pinhole of
+    focal length ``focal`` that covers them (:func:`pinhole_cover`)). ValueError, worded to follow "its lens", when
+    the lens sees too wide for a pinhole render: rays at or past 90 deg, or over :data:`MAX_COVER` x the image per
+    side."""
+    rays = lens_rays(camera, supersample=1)
+    size = (camera.width, camera.height)
+    if np.isfinite(rays).all():
+        w, h = pinhole_cover(rays, focal, size, margin_px)
+        if w <= MAX_COVER * size[0] and h <= MAX_COVER * size[1]:
+            return rays, (w, h)
+    raise ValueError(f"sees too wide for a pinhole render at {size[0]}x{size[1]} (over {MAX_COVER:g}x the image per "
+                     "side, or rays at 90 deg: a fisheye near 180 deg)")  # fmt: skip
 
 
 def resample_through_lens(image: np.ndarray, focal: float, rays: np.ndarray, supersample: int = 2) -> np.ndarray:

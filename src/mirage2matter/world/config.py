@@ -19,7 +19,7 @@ import math
 import os
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import yaml
@@ -30,9 +30,6 @@ from ..errors import M2MError
 from ..geometry.sim3 import Sim3
 from ..inputs import NAME_RE, InputError, check_image_size, check_intrinsics, check_joints, read_yaml
 from ..robots import DEFAULT_ROBOT, RobotError, RobotSpec, get_robot, is_spec_file
-
-if TYPE_CHECKING:
-    from ..geometry.camera import Camera
 
 __all__ = [
     "ArticulatedConfig",
@@ -251,12 +248,6 @@ class CameraConfig:
 
     def __post_init__(self) -> None:
         self.distortion = _lens(self.distortion or None, "camera distortion")  # zero coefficients: a pinhole
-
-    def lens_camera(self) -> Camera:
-        """The camera's intrinsics and lens as a ``geometry.camera.Camera`` (pose: its mount)."""
-        from ..geometry.camera import Camera
-
-        return Camera(self.K, self.T_mount_cam, self.width, self.height, distortion=dict(self.distortion))
 
 
 @dataclass
