@@ -14,7 +14,7 @@ from .. import configure_threads
 from ..atomic import atomic_path, atomic_write
 from ..configs import add_flags, from_flags, ranged
 from ..inputs import InputError, read_json
-from ..render.lens import depth_through_lens, lens_cover, resample_through_lens
+from ..render.lens import centred_K, depth_through_lens, lens_cover, resample_through_lens
 from .args import CliError, backend, check_output, rgb
 
 CAMERA_FIELDS = '{"width", "height", "K" (3x3, pixels), "T_world_cam" (4x4 camera-to-world, OpenCV axes)}'
@@ -117,7 +117,7 @@ def _lens(cam: Any) -> tuple[np.ndarray, float, np.ndarray, tuple[int, int]] | N
         rays, (w, h) = lens_cover(cam, f)
     except ValueError as e:
         raise CliError(f"{cam.name or 'the camera'}: its lens {e}; give a camera undistorted to a pinhole") from None
-    return rays, f, np.array([[f, 0.0, 0.5 * w], [0.0, f, 0.5 * h], [0.0, 0.0, 1.0]]), (w, h)
+    return rays, f, centred_K(f, (w, h)), (w, h)
 
 
 def _write_depth(path: Path, d: np.ndarray) -> str:

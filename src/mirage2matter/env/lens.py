@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..render.lens import lens_cover, resample_through_lens
+from ..render.lens import centred_K, lens_cover, resample_through_lens
 from .config import EnvConfig, EnvError
 
 if TYPE_CHECKING:
@@ -70,9 +70,7 @@ class LensPlan:
         world = cfg.world.copy()
         W, H = self.render_size
         for c, f in self.focal.items():
-            cam = world.cameras[c]
-            K = np.array([[f, 0.0, 0.5 * W], [0.0, f, 0.5 * H], [0.0, 0.0, 1.0]])
-            world.cameras[c] = replace(cam, K=K, width=W, height=H, distortion={})
+            world.cameras[c] = replace(world.cameras[c], K=centred_K(f, (W, H)), width=W, height=H, distortion={})
         return replace(cfg, world=world, episode=replace(cfg.episode, size=self.render_size))
 
     def frame(self, camera: str, image: np.ndarray) -> np.ndarray:

@@ -19,7 +19,8 @@ import numpy as np
 if TYPE_CHECKING:
     from ..geometry.camera import Camera
 
-__all__ = ["MAX_COVER", "depth_through_lens", "lens_cover", "lens_rays", "pinhole_cover", "resample_through_lens"]
+__all__ = ["MAX_COVER", "centred_K", "depth_through_lens", "lens_cover", "lens_rays", "pinhole_cover",
+           "resample_through_lens"]
 
 # The widest pinhole render a lens may ask for, in image sizes per side: past it the pinhole's edges are stretched
 # thin (a fisheye near 180 deg needs an unbounded one) and the render's cost grows with the square.
@@ -49,6 +50,13 @@ def pinhole_cover(rays: np.ndarray, focal: float, size: tuple[int, int], margin_
         m = max(int(n), 2 * math.ceil(h))
         out.append(m + (m - int(n)) % 2)
     return out[0], out[1]
+
+
+def centred_K(focal: float, size: tuple[int, int]) -> np.ndarray:
+    """Intrinsics [3,3] of the centred pinhole of focal length ``focal`` (px, square pixels) and ``size`` (width,
+    height): the render :func:`resample_through_lens` and :func:`depth_through_lens` read."""
+    w, h = size
+    return np.array([[focal, 0.0, 0.5 * w], [0.0, focal, 0.5 * h], [0.0, 0.0, 1.0]])
 
 
 def lens_cover(camera: Camera, focal: float, margin_px: float = 2.0) -> tuple[np.ndarray, tuple[int, int]]:
